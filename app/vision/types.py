@@ -1,0 +1,75 @@
+"""Typed records that flow through the navigation pipeline (paper §4–5)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class Blob:
+    """One bright connected component (a candidate LED image), eq. 11 centroid in px."""
+
+    centroid_px: tuple[float, float]  # (u, v), intensity-weighted, distorted image coords
+    area_px: int
+    bbox: tuple[int, int, int, int]  # x, y, w, h (px)
+    peak: float  # max gray level in the component
+    mass: float  # sum of background-subtracted gray (eq. 11 denominator)
+
+
+@dataclass(frozen=True)
+class RejectedBlob:
+    """A component dropped by area/shape gating, with the reason."""
+
+    centroid_px: tuple[float, float]
+    area_px: int
+    reason: str
+
+
+@dataclass(frozen=True)
+class FeatureSet:
+    """Blobs of one image and their 64-D IHWT descriptors (rows aligned with ``blobs``)."""
+
+    blobs: list[Blob]
+    descriptors: FloatArray  # (N, 64)
+    rejected: list[RejectedBlob] = field(default_factory=list)
+
+    @property
+    def points_px(self) -> FloatArray:
+        if not self.blobs:
+            return np.zeros((0, 2))
+        return np.array([b.centroid_px for b in self.blobs], dtype=np.float64)
+
+
+@dataclass(frozen=True)
+class Match:
+    """A left/right correspondence (paper §4.4) with its quality measures."""
+
+    left_index: int
+    right_index: int
+    descriptor_distance: float  # eq. 14
+    epipolar_px: float  # symmetric distance to the epipolar lines, undistorted px
+
+
+@dataclass(frozen=True)
+class TriangulatedPoint:
+    """A matched point in the world (left camera) frame."""
+
+    xyz_mm: tuple[float, float, float]
+    reprojection_px: float  # RMS over both images after refinement
+
+
+@dataclass(frozen=True)
+class DroguePose:
+    """Drogue (refuelling cone sleeve) rim circle in the left-camera frame (paper §5.2)."""
+
+    center_mm: tuple[float, float, float]
+    normal: tuple[float, float, float]  # unit, pointing from the drogue towards the cameras
+    radius_mm: float
+    rms_mm: float  # RMS 3-D distance of the LEDs from the fitted circle
+    plane_rms_mm: float  # RMS distance of the LEDs from the fitted plane
+    inliers: tuple[int, ...]  # indices of the points used
