@@ -96,7 +96,12 @@ class CameraIntrinsics:
         dist = _as_array(dist_list + [0.0] * (5 - len(dist_list)), (5,), f"{name}.dist")
         if K[0, 0] <= 0 or K[1, 1] <= 0:
             raise CalibrationError(f"{name}.K", "focal lengths fx, fy must be positive")
-        if abs(K[1, 0]) > 1e-9 or abs(K[2, 0]) > 1e-9 or abs(K[2, 1]) > 1e-9 or abs(K[2, 2] - 1) > 1e-9:
+        if (
+            abs(K[1, 0]) > 1e-9
+            or abs(K[2, 0]) > 1e-9
+            or abs(K[2, 1]) > 1e-9
+            or abs(K[2, 2] - 1) > 1e-9
+        ):
             raise CalibrationError(f"{name}.K", "must be upper triangular with K[2][2] = 1")
         return cls(K=K, dist=dist)
 
@@ -141,9 +146,7 @@ class StereoCalibration:
         T = _as_array(data["T"], (3,), "T")
         if float(np.linalg.norm(T)) < 1e-6:
             raise CalibrationError("T", "baseline is zero")
-        return cls(
-            image_size=(int(size[0]), int(size[1])), left=left, right=right, R=R, T=T
-        )
+        return cls(image_size=(int(size[0]), int(size[1])), left=left, right=right, R=R, T=T)
 
     @classmethod
     def load(cls, path: str | Path) -> StereoCalibration:

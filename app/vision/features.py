@@ -1,0 +1,108 @@
+"""Feature-point extraction (paper §4.2): one-pass connected components and eq. 11 centroids."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from app.vision.preprocess import U8Image
+from app.vision.types import Blob, RejectedBlob
+
+MAX_REJECTED_REPORTED = 100
+
+
+@dataclass(frozen=True)
+class BlobGate:
+    """Area/shape limits that a component must pass to be an LED candidate."""
+
+    min_area_px: int = 3
+    max_area_px: int = 6000
+    max_aspect: float = 2.5  # bounding-box long side / short side
+    min_fill: float = 0.45  # area / bounding-box area (a disc fills π/4 ≈ 0.785)
+    max_blobs: int = 64  # keep at most this many (largest mass first)
+
+
+def _gate(area: int, w: int, h: int, gate: BlobGate) -> str | None:
+    if area < gate.min_area_px:
+        return f"area {area} px < {gate.min_area_px} px"
+    if area > gate.max_area_px:
+        return f"area {area} px > {gate.max_area_px} px"
+    aspect = max(w, h) / max(1, min(w, h))
+    if aspect > gate.max_aspect:
+        return f"elongated (aspect {aspect:.1f} > {gate.max_aspect})"
+    fill = area / float(w * h)
+    if fill < gate.min_fill:
+        return f"not compact (fill {fill:.2f} < {gate.min_fill})"
+    return None
+
+
+def extract_blobs(
+    gray: U8Image,
+    mask: U8Image,
+    background: float,
+    gate: BlobGate | None = None,
+) -> tuple[list[Blob], list[RejectedBlob]]:
+    """Label ``mask`` in one pass (Algorithm 2, via OpenCV's ``connectedComponentsWithStats``)
+    and compute each component's intensity-weighted centroid on ``gray`` (eq. 11).
+
+    The centroid weights are ``P_i = gray − background`` over the component dilated by a
+    margin (so the blurred fringe of the LED below the threshold is counted symmetrically),
+    which gives sub-pixel accuracy; coordinates are pixel centres (u right, v down), px.
+    """
+    gate = gate or BlobGate()
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    blobs: list[Blob] = []
+    rejected: list[RejectedBlob] = []
+    height, width = gray.shape
+    st = stats[1:].astype(np.int64)
+    xs, ys, ws, hs, areas = st[:, 0], st[:, 1], st[:, 2], st[:, 3], st[:, 4]
+    aspect = np.maximum(ws, hs) / np.maximum(1, np.minimum(ws, hs))
+    fill = areas / np.maximum(1, ws * hs)
+    border = (xs == 0) | (ys == 0) | (xs + ws >= width) | (ys + hs >= height)
+    ok = (
+        (areas >= gate.min_area_px)
+        & (areas <= gate.max_area_px)
+        & (aspect <= gate.max_aspect)
+        & (fill >= gate.min_fill)
+        & ~border
+    )
+    candidates = [int(i) + 1 for i in np.flatnonzero(ok)]
+    for j in np.flatnonzero(~ok)[:MAX_REJECTED_REPORTED]:
+        x, y, w, h, area = (int(v) for v in st[j])
+        reason = _gate(area, w, h, gate) or "touches the image border"
+        centre = (x + (w - 1) / 2.0, y + (h - 1) / 2.0)
+        rejected.append(RejectedBlob(centroid_px=centre, area_px=area, reason=reason))
+    if len(candidates) > gate.max_blobs:
+        candidates.sort(key=lambda i: -int(stats[i, cv2.CC_STAT_AREA]))
+        for i in candidates[gate.max_blobs :][:MAX_REJECTED_REPORTED]:
+            x, y, w, h, area = (int(v) for v in stats[i])
+            centre = (x + (w - 1) / 2.0, y + (h - 1) / 2.0)
+            rejected.append(RejectedBlob(centroid_px=centre, area_px=area, reason="too many blobs"))
+        candidates = candidates[: gate.max_blobs]
+    for i in candidates:
+        x, y, w, h, area = (int(v) for v in stats[i])
+        pad = max(2, int(round(0.5 * np.sqrt(area))))
+        x0, y0 = max(0, x - pad), max(0, y - pad)
+        x1, y1 = min(width, x + w + pad), min(height, y + h + pad)
+        lab = labels[y0:y1, x0:x1]
+        comp = (lab == i).astype(np.uint8)
+        kernel = np.ones((2 * pad + 1, 2 * pad + 1), np.uint8)
+        # Dilated support, but never a neighbouring component's pixels.
+        support = (cv2.dilate(comp, kernel) > 0) & ((lab == 0) | (comp > 0))
+        window = gray[y0:y1, x0:x1].astype(np.float64)
+        weights = np.where(support, window - background, 0.0)
+        np.clip(weights, 0.0, None, out=weights)
+        mass = float(weights.sum())
+        if mass <= 0:
+            cu, cv = x + (w - 1) / 2.0, y + (h - 1) / 2.0
+        else:
+            vs, us = np.mgrid[y0:y1, x0:x1]
+            cu = float((weights * us).sum() / mass)
+            cv = float((weights * vs).sum() / mass)
+        peak = float(window[comp > 0].max())
+        blobs.append(
+            Blob(centroid_px=(cu, cv), area_px=area, bbox=(x, y, w, h), peak=peak, mass=mass)
+        )
+    return blobs, rejected

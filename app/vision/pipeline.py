@@ -1,0 +1,232 @@
+"""The binocular LED navigation pipeline (paper Algorithm 1, §4–§5).
+
+``NavigationPipeline(calibration).process(left, right) -> PoseResult``:
+gray (eq. 9) → threshold (eq. 10) → median filter → connected components + eq. 11 centroids →
+IHWT descriptors (eqs. 12–13) → matching (eq. 14; paper or epipolar-gated) → undistortion →
+least-squares triangulation (eqs. 15–16) + reprojection refinement → ring consensus, plane and
+circle fit (§5.2) → lock decision.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+
+from app.geometry.calibration import StereoCalibration
+from app.geometry.projection import undistort_pixels
+from app.geometry.ring import RingFit, RingParams, find_ring
+from app.geometry.triangulation import refine_reprojection, triangulate_linear
+from app.vision.features import BlobGate, extract_blobs
+from app.vision.ihwt import describe, integral_image
+from app.vision.matching import (
+    descriptor_distances,
+    epipolar_distances,
+    match_epipolar,
+    match_min_distance,
+)
+from app.vision.preprocess import (
+    ImageError,
+    ThresholdMode,
+    background_level,
+    binarize,
+    choose_threshold,
+    median_filter,
+    to_gray,
+    validate_image,
+)
+from app.vision.result import DrogueResult, LedResult, PoseResult, StageTimings
+from app.vision.types import FeatureSet, Match
+
+__all__ = ["ImageError", "NavigationPipeline", "PipelineConfig", "PipelineTrace"]
+
+
+@dataclass(frozen=True)
+class PipelineConfig:
+    """Tunable parameters. Lengths in mm, image quantities in px."""
+
+    threshold: ThresholdMode = "auto"  # eq. 10: int DN, "auto" (half-max) or "otsu"
+    median_ksize: int = 3
+    gate: BlobGate = field(default_factory=BlobGate)
+    window_factor: float = 8.0  # IHWT window side = factor × blob equivalent radius
+    min_window_px: int = 16
+    matcher: Literal["epipolar", "paper"] = "epipolar"
+    epipolar_tol_px: float = 2.0
+    depth_range_mm: tuple[float, float] = (100.0, 50_000.0)
+    ring_radius_mm: float = 75.0
+    led_count: int = 5
+    ring_radius_tol_frac: float = 0.1  # of the expected radius, plus depth noise
+    ring_inlier_tol_mm: float = 2.0  # floor; grows with the depth noise σ_Z ≈ Z²σ_d/(fB)
+    disparity_sigma_px: float = 0.05  # assumed centroid disparity noise for the tolerances
+    angle_tol_deg: float = 12.0
+    min_leds: int = 3
+    max_reprojection_px: float = 1.5  # matched points reprojecting worse are dropped
+
+
+@dataclass
+class PipelineTrace:
+    """Intermediate results of the last ``process`` call (for the dashboard and tests)."""
+
+    left: FeatureSet | None = None
+    right: FeatureSet | None = None
+    matches: list[Match] = field(default_factory=list)
+    xyz_mm: np.ndarray | None = None
+    ring: RingFit | None = None
+    thresholds: tuple[int, int] = (0, 0)
+
+
+class NavigationPipeline:
+    """Stateless per frame pair; holds the calibration and the configuration."""
+
+    def __init__(
+        self, calibration: StereoCalibration, config: PipelineConfig | None = None
+    ) -> None:
+        self.calibration = calibration
+        self.config = config or PipelineConfig()
+        self.trace = PipelineTrace()
+        self._F = calibration.fundamental
+        fbar = 0.5 * (calibration.left.fx + calibration.right.fx)
+        self._f_times_b = fbar * calibration.baseline_mm
+
+    # ------------------------------------------------------------------ stages
+    def _features(self, image: np.ndarray) -> tuple[FeatureSet, int, float]:
+        cfg = self.config
+        gray = to_gray(image)
+        t0 = time.perf_counter()
+        bg, _ = background_level(gray)
+        threshold = choose_threshold(gray, cfg.threshold)
+        mask = median_filter(binarize(gray, threshold), cfg.median_ksize)
+        t1 = time.perf_counter()
+        blobs, rejected = extract_blobs(gray, mask, bg, cfg.gate)
+        t2 = time.perf_counter()
+        desc = describe(gray, blobs, cfg.window_factor, cfg.min_window_px, integral_image(gray))
+        t3 = time.perf_counter()
+        self._stage_ms["preprocess"] += (t1 - t0) * 1e3
+        self._stage_ms["extract"] += (t2 - t1) * 1e3
+        self._stage_ms["describe"] += (t3 - t2) * 1e3
+        return FeatureSet(blobs=blobs, descriptors=desc, rejected=rejected), threshold, bg
+
+    def _ring_params(self, depth_mm: float) -> RingParams:
+        cfg = self.config
+        sigma_z = depth_mm**2 * cfg.disparity_sigma_px / self._f_times_b
+        return RingParams(
+            radius_mm=cfg.ring_radius_mm,
+            led_count=cfg.led_count,
+            radius_tol_mm=cfg.ring_radius_tol_frac * cfg.ring_radius_mm + 2.0 * sigma_z,
+            inlier_tol_mm=max(cfg.ring_inlier_tol_mm, 4.0 * sigma_z),
+            angle_tol_deg=cfg.angle_tol_deg,
+            min_leds=cfg.min_leds,
+        )
+
+    # ------------------------------------------------------------------ main entry
+    def process(self, left: np.ndarray, right: np.ndarray) -> PoseResult:
+        """Run the whole pipeline on one stereo pair (uint8, gray or BGR)."""
+        t_start = time.perf_counter()
+        self._stage_ms = dict.fromkeys(
+            ("preprocess", "extract", "describe", "match", "triangulate", "pose"), 0.0
+        )
+        self.trace = PipelineTrace()
+        left = validate_image(left, "left")
+        right = validate_image(right, "right")
+        w, h = self.calibration.image_size
+        for name, img in (("left", left), ("right", right)):
+            if img.shape[1] != w or img.shape[0] != h:
+                raise ImageError(
+                    f"{name}: image is {img.shape[1]}×{img.shape[0]} px but the calibration "
+                    f"is for {w}×{h} px"
+                )
+        feats_l, thr_l, _ = self._features(left)
+        feats_r, thr_r, _ = self._features(right)
+        self.trace.left, self.trace.right = feats_l, feats_r
+        self.trace.thresholds = (thr_l, thr_r)
+        result = self._solve(feats_l, feats_r)
+        self._stage_ms["total"] = (time.perf_counter() - t_start) * 1e3
+        result.timing_ms = StageTimings(**self._stage_ms)
+        return result
+
+    def _solve(self, feats_l: FeatureSet, feats_r: FeatureSet) -> PoseResult:
+        cfg, cal = self.config, self.calibration
+        nl, nr = len(feats_l.blobs), len(feats_r.blobs)
+        if nl < cfg.min_leds or nr < cfg.min_leds:
+            return PoseResult(
+                lock=False,
+                reason=f"found {nl} LED candidate(s) in the left image and {nr} in the right; "
+                f"need at least {cfg.min_leds} in each",
+            )
+        # --- matching
+        t0 = time.perf_counter()
+        xl = undistort_pixels(cal.left, feats_l.points_px)
+        xr = undistort_pixels(cal.right, feats_r.points_px)
+        ddist = descriptor_distances(feats_l.descriptors, feats_r.descriptors)
+        epi = epipolar_distances(self._F, xl, xr)
+        if cfg.matcher == "paper":
+            matches = match_min_distance(ddist, epi)
+        else:
+            il, ir = np.meshgrid(np.arange(nl), np.arange(nr), indexing="ij")
+            X_all = triangulate_linear(cal.P_left, cal.P_right, xl[il.ravel()], xr[ir.ravel()])
+            depth = X_all[:, 2].reshape(nl, nr)
+            matches = match_epipolar(ddist, epi, depth, cfg.epipolar_tol_px, cfg.depth_range_mm)
+        t1 = time.perf_counter()
+        self._stage_ms["match"] = (t1 - t0) * 1e3
+        if len(matches) < cfg.min_leds:
+            return PoseResult(
+                lock=False,
+                reason=f"only {len(matches)} stereo match(es) passed the epipolar gate; "
+                f"need at least {cfg.min_leds}",
+            )
+        # --- triangulation
+        li = np.array([m.left_index for m in matches])
+        ri = np.array([m.right_index for m in matches])
+        X0 = triangulate_linear(cal.P_left, cal.P_right, xl[li], xr[ri])
+        X, reproj = refine_reprojection(cal.P_left, cal.P_right, xl[li], xr[ri], X0)
+        good = (reproj <= cfg.max_reprojection_px) & (X[:, 2] > 0) & np.all(np.isfinite(X), axis=1)
+        t2 = time.perf_counter()
+        self._stage_ms["triangulate"] = (t2 - t1) * 1e3
+        self.trace.matches = matches
+        self.trace.xyz_mm = X
+        idx = np.flatnonzero(good)
+        if len(idx) < cfg.min_leds:
+            return PoseResult(
+                lock=False,
+                reason=f"only {len(idx)} match(es) triangulate consistently "
+                f"(reprojection ≤ {cfg.max_reprojection_px} px); need at least {cfg.min_leds}",
+            )
+        # --- ring consensus, plane + circle fit
+        depth_ref = float(np.median(X[idx, 2]))
+        order_hint = np.array([matches[i].descriptor_distance for i in idx])
+        ring = find_ring(X[idx], self._ring_params(depth_ref), order_hint)
+        self._stage_ms["pose"] = (time.perf_counter() - t2) * 1e3
+        if not isinstance(ring, RingFit):
+            return PoseResult(lock=False, reason=ring.reason)
+        self.trace.ring = ring
+        leds = []
+        for k, led_id in zip(ring.indices, ring.ids, strict=True):
+            m = matches[int(idx[k])]
+            bl = feats_l.blobs[m.left_index].centroid_px
+            br = feats_r.blobs[m.right_index].centroid_px
+            x = X[int(idx[k])]
+            leds.append(
+                LedResult(
+                    id=led_id,
+                    left_px=(bl[0], bl[1]),
+                    right_px=(br[0], br[1]),
+                    xyz_mm=(float(x[0]), float(x[1]), float(x[2])),
+                    descriptor_distance=m.descriptor_distance,
+                    epipolar_px=m.epipolar_px,
+                    reprojection_px=float(reproj[int(idx[k])]),
+                )
+            )
+        c = ring.circle
+        return PoseResult(
+            lock=True,
+            reason=None,
+            leds=leds,
+            drogue=DrogueResult(
+                center_mm=(float(c.center[0]), float(c.center[1]), float(c.center[2])),
+                normal=(float(c.normal[0]), float(c.normal[1]), float(c.normal[2])),
+                radius_mm=float(c.radius),
+                rms_mm=float(c.rms),
+            ),
+        )
