@@ -1,0 +1,546 @@
+"""Synthetic stereo images of the drogue's LED ring with exact ground truth (paper §3–5).
+
+Each LED is a small emitting sphere, so its image is a disc whatever the drogue tilt. The
+disc is centred on the projection of the LED centre through the full camera model
+(distortion and skew, eqs. 2 and 7, via :func:`app.geometry.projection.project_stereo`) and
+shaped by the local Jacobian of that projection (radius f·r/Z, slightly elliptical where the
+skew or the distortion stretch the image). It is drawn with anti-aliased supersampled
+coverage, blurred with a symmetric Gaussian, and placed on a noisy background. Every step is
+point-symmetric about the projected centre, so an intensity-weighted centroid (eq. 11) of
+the noise-free blob returns the truth pixel to well under 0.01 px.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+from functools import lru_cache
+from typing import Any
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from app.geometry.calibration import CameraIntrinsics, FloatArray, StereoCalibration
+from app.geometry.projection import project_camera, project_stereo
+from app.sim.led_ring import LedRing, check_pose, ring_points
+
+# (B, G, R) weights of an LED seen through the green filter (mostly green).
+LED_BGR = np.array([0.45, 1.0, 0.30], dtype=np.float32)
+NOISE_FIELD_PAD = 256  # px added to each side of the cached noise field (fast_noise)
+_MIN_DEPTH_MM = 1.0
+
+
+@dataclass(frozen=True)
+class RenderSettings:
+    """Image formation parameters (DN = digital number, 8-bit grey levels)."""
+
+    led_peak: float = 235.0  # DN above background at the LED core (before blur)
+    background: float = 12.0  # DN
+    noise_sigma: float = 2.0  # DN, Gaussian sensor noise
+    blur_sigma_px: float = 0.7  # px, Gaussian optical blur
+    supersample: int = 8  # sub-samples per pixel side (anti-aliasing)
+    clutter: int = 0  # number of clutter glints (half 3-D, half monocular)
+    second_object: bool = False  # one large elongated bright non-LED blob (hose glint)
+    occluded: tuple[int, ...] = ()  # LED ids (1..N) hidden in both images
+    color: bool = False  # BGR output with mostly-green LEDs instead of grey
+    fast_noise: bool = False  # noise from a cached field at a random offset (closed loop)
+
+    def __post_init__(self) -> None:
+        for name in ("led_peak", "background", "noise_sigma", "blur_sigma_px"):
+            v = getattr(self, name)
+            if not (isinstance(v, int | float) and math.isfinite(v) and v >= 0):
+                raise ValueError(f"RenderSettings.{name} must be a finite number >= 0, got {v!r}")
+        if self.background > 255:
+            raise ValueError(f"RenderSettings.background must be <= 255, got {self.background}")
+        if not isinstance(self.supersample, int) or not 1 <= self.supersample <= 64:
+            raise ValueError(
+                f"RenderSettings.supersample must be an integer in 1..64, got {self.supersample!r}"
+            )
+        if not isinstance(self.clutter, int) or self.clutter < 0:
+            raise ValueError(
+                f"RenderSettings.clutter must be an integer >= 0, got {self.clutter!r}"
+            )
+        try:
+            occ = tuple(int(i) for i in self.occluded)
+        except (TypeError, ValueError):
+            raise ValueError(
+                f"RenderSettings.occluded must be LED ids (integers), got {self.occluded!r}"
+            ) from None
+        object.__setattr__(self, "occluded", occ)
+
+    def to_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["occluded"] = list(self.occluded)
+        return d
+
+
+def _nan_to_none(value: Any) -> Any:
+    if isinstance(value, list):
+        return [_nan_to_none(v) for v in value]
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+@dataclass
+class RenderTruth:
+    """Ground truth of one rendered pair (left camera frame, mm; distorted pixels, px).
+
+    ``led_left_px``/``led_right_px`` are the projections of the LED centres through the full
+    camera model, i.e. what a perfect centroid of each blob returns. ``visible`` is True
+    where the LED is drawn in both images (in frame, in front of both cameras, not occluded);
+    ``in_left``/``in_right`` say per image. Clutter pixel rows are NaN where that item is
+    not in that image (monocular glints, or out of frame).
+    """
+
+    led_xyz_mm: FloatArray
+    led_ids: NDArray[np.int64]
+    visible: NDArray[np.bool_]
+    led_left_px: FloatArray
+    led_right_px: FloatArray
+    center_mm: FloatArray
+    normal: FloatArray
+    radius_mm: float
+    clutter_left_px: FloatArray = field(default_factory=lambda: np.zeros((0, 2)))
+    clutter_right_px: FloatArray = field(default_factory=lambda: np.zeros((0, 2)))
+    in_left: NDArray[np.bool_] = field(default_factory=lambda: np.zeros(0, dtype=bool))
+    in_right: NDArray[np.bool_] = field(default_factory=lambda: np.zeros(0, dtype=bool))
+    led_left_radius_px: FloatArray = field(default_factory=lambda: np.zeros(0))
+    led_right_radius_px: FloatArray = field(default_factory=lambda: np.zeros(0))
+    clutter_xyz_mm: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))
+    second_object_left_px: FloatArray | None = None
+    second_object_right_px: FloatArray | None = None
+    roll_rad: float = 0.0
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready dict (lists; NaN → null)."""
+        out: dict[str, Any] = {}
+        for key, value in self.__dict__.items():
+            if isinstance(value, np.ndarray):
+                out[key] = _nan_to_none(value.tolist())
+            elif isinstance(value, float | np.floating):
+                out[key] = _nan_to_none(float(value))
+            else:
+                out[key] = value
+        return out
+
+
+@dataclass
+class RenderedPair:
+    """A stereo pair (uint8, H×W grey or H×W×3 BGR) and its ground truth."""
+
+    left: NDArray[np.uint8]
+    right: NDArray[np.uint8]
+    truth: RenderTruth
+
+
+# ----------------------------------------------------------------------------------------
+# Blob drawing
+# ----------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class _Blob:
+    center_px: FloatArray  # (2,) distorted px
+    shape_px: FloatArray  # 2×2 A: unit disc → px ellipse around the centre
+    peak: float  # DN
+    bgr: NDArray[np.float32]  # colour weights (B, G, R)
+
+
+def _blob_patch(
+    blob: _Blob, supersample: int, blur_sigma: float
+) -> tuple[int, int, NDArray[np.float32]]:
+    """Rendered blob (float32 DN) on a small patch; returns (x0, y0, patch).
+
+    Coverage is evaluated on ``supersample``² sub-samples per pixel with an anti-aliased
+    edge (signed distance along the ray from the centre, one sub-sample wide), then blurred
+    with a symmetric Gaussian. All steps are point-symmetric about the centre.
+    """
+    A = blob.shape_px
+    r_max = float(np.linalg.norm(A, 2))
+    kr = int(math.ceil(4.0 * blur_sigma)) if blur_sigma > 0 else 0
+    half = int(math.ceil(r_max)) + 2 + kr
+    cx, cy = float(blob.center_px[0]), float(blob.center_px[1])
+    x0, y0 = int(round(cx)) - half, int(round(cy)) - half
+    n = 2 * half + 1
+    s = supersample
+    sub = (np.arange(n * s, dtype=np.float64) + 0.5) / s - 0.5  # sub-sample offsets
+    dx = (x0 + sub - cx)[None, :]
+    dy = (y0 + sub - cy)[:, None]
+    Ainv = np.linalg.inv(A)
+    ux = Ainv[0, 0] * dx + Ainv[0, 1] * dy
+    uy = Ainv[1, 0] * dx + Ainv[1, 1] * dy
+    u = np.sqrt(ux * ux + uy * uy)  # ellipse "radius" of each sub-sample (1 = edge)
+    d = np.sqrt(dx * dx + dy * dy)  # px distance from the centre
+    with np.errstate(divide="ignore", invalid="ignore"):
+        sd_px = np.where(u > 1e-12, d * (1.0 / u - 1.0), np.inf)  # distance to edge along ray
+    cov = np.clip(0.5 + sd_px * s, 0.0, 1.0)
+    patch = cov.reshape(n, s, n, s).mean(axis=(1, 3)).astype(np.float32) * np.float32(blob.peak)
+    if kr > 0:
+        blurred = cv2.GaussianBlur(
+            patch,
+            (2 * kr + 1, 2 * kr + 1),
+            sigmaX=blur_sigma,
+            sigmaY=blur_sigma,
+            borderType=cv2.BORDER_CONSTANT,
+        )
+        patch = np.asarray(blurred, dtype=np.float32)
+    return x0, y0, patch
+
+
+def _paste(
+    canvas: NDArray[Any],
+    x0: int,
+    y0: int,
+    patch: NDArray[np.float32],
+    bgr: NDArray[np.float32] | None,
+) -> tuple[int, int, int, int, NDArray[np.float32]] | None:
+    """Clip a patch to the canvas; returns (ya, yb, xa, xb, clipped patch[, ×bgr]) or None."""
+    h, w = canvas.shape[:2]
+    ph, pw = patch.shape
+    xa, ya = max(x0, 0), max(y0, 0)
+    xb, yb = min(x0 + pw, w), min(y0 + ph, h)
+    if xa >= xb or ya >= yb:
+        return None
+    p = patch[ya - y0 : yb - y0, xa - x0 : xb - x0]
+    if bgr is not None:
+        p = p[:, :, None] * bgr[None, None, :]
+    return ya, yb, xa, xb, p
+
+
+def _compose(
+    shape: tuple[int, ...],
+    blobs: list[_Blob],
+    settings: RenderSettings,
+    rng: np.random.Generator,
+) -> NDArray[np.uint8]:
+    """Background + noise + blobs → uint8 image."""
+    color = len(shape) == 3
+    patches = [
+        (*_blob_patch(b, settings.supersample, settings.blur_sigma_px), b.bgr) for b in blobs
+    ]
+    if settings.fast_noise:
+        base = _noise_window(shape, settings, rng)
+        for x0, y0, patch, bgr in patches:
+            cut = _paste(base, x0, y0, patch, bgr if color else None)
+            if cut is None:
+                continue
+            ya, yb, xa, xb, p = cut
+            region = base[ya:yb, xa:xb].astype(np.float32) + p
+            base[ya:yb, xa:xb] = np.clip(np.rint(region), 0, 255).astype(np.uint8)
+        return base
+    img = np.full(shape, settings.background, dtype=np.float32)
+    if settings.noise_sigma > 0:
+        img += rng.standard_normal(shape, dtype=np.float32) * np.float32(settings.noise_sigma)
+    for x0, y0, patch, bgr in patches:
+        cut = _paste(img, x0, y0, patch, bgr if color else None)
+        if cut is None:
+            continue
+        ya, yb, xa, xb, p = cut
+        img[ya:yb, xa:xb] += p
+    return np.clip(np.rint(img), 0, 255).astype(np.uint8)
+
+
+@lru_cache(maxsize=8)
+def _noise_field(
+    shape: tuple[int, ...], background: float, sigma: float, seed: int
+) -> NDArray[np.uint8]:
+    """Pre-quantised background + noise, padded by NOISE_FIELD_PAD px on each side."""
+    h, w = shape[:2]
+    big = (h + 2 * NOISE_FIELD_PAD, w + 2 * NOISE_FIELD_PAD, *shape[2:])
+    rng = np.random.default_rng(seed)
+    f = background + sigma * rng.standard_normal(big, dtype=np.float32)
+    field_u8 = np.clip(np.rint(f), 0, 255).astype(np.uint8)
+    field_u8.setflags(write=False)
+    return field_u8
+
+
+def _noise_window(
+    shape: tuple[int, ...], settings: RenderSettings, rng: np.random.Generator
+) -> NDArray[np.uint8]:
+    """A writable copy of the cached noise field at a random offset (fast_noise)."""
+    noise = _noise_field(shape, float(settings.background), float(settings.noise_sigma), 0)
+    h, w = shape[:2]
+    oy, ox = rng.integers(0, 2 * NOISE_FIELD_PAD + 1, size=2)
+    return noise[oy : oy + h, ox : ox + w].copy()
+
+
+# ----------------------------------------------------------------------------------------
+# Geometry helpers
+# ----------------------------------------------------------------------------------------
+def _to_right(calib: StereoCalibration, xyz: FloatArray) -> FloatArray:
+    return np.asarray((calib.R @ xyz.T).T + calib.T, dtype=np.float64)
+
+
+def _sphere_shapes(cam: CameraIntrinsics, xyz_cam: FloatArray, radius_mm: FloatArray) -> FloatArray:
+    """2×2 maps (N×2×2) from the unit disc to the px image of spheres at ``xyz_cam``.
+
+    The sphere subtends a disc of radius r/Z in normalised coordinates; it is mapped with
+    the local Jacobian of the distorted projection (K with skew, eq. 2; distortion, eq. 7).
+    """
+    n = len(xyz_cam)
+    out = np.zeros((n, 2, 2))
+    if n == 0:
+        return out
+    xn = xyz_cam[:, 0] / xyz_cam[:, 2]
+    yn = xyz_cam[:, 1] / xyz_cam[:, 2]
+    h = 1e-5
+    pts = []
+    for ddx, ddy in ((h, 0.0), (-h, 0.0), (0.0, h), (0.0, -h)):
+        pts.append(np.column_stack([xn + ddx, yn + ddy, np.ones(n)]))
+    px = project_camera(cam, np.vstack(pts)).reshape(4, n, 2)
+    jx = (px[0] - px[1]) / (2 * h)  # d(px)/d(xn)
+    jy = (px[2] - px[3]) / (2 * h)  # d(px)/d(yn)
+    rho = radius_mm / xyz_cam[:, 2]
+    out[:, :, 0] = jx * rho[:, None]
+    out[:, :, 1] = jy * rho[:, None]
+    return out
+
+
+def _in_frame(px: FloatArray, size: tuple[int, int]) -> NDArray[np.bool_]:
+    w, h = size
+    ok = np.all(np.isfinite(px), axis=1)
+    with np.errstate(invalid="ignore"):
+        ok &= (px[:, 0] >= 0) & (px[:, 0] <= w - 1) & (px[:, 1] >= 0) & (px[:, 1] <= h - 1)
+    return np.asarray(ok, dtype=bool)
+
+
+def _project_checked(
+    calib: StereoCalibration, xyz: FloatArray
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """Project; NaN where a point is behind (or within 1 mm of) a camera. Returns
+    (left px, right px, left depth mm, right depth mm)."""
+    zl = xyz[:, 2].copy()
+    zr = _to_right(calib, xyz)[:, 2] if len(xyz) else np.zeros(0)
+    pl, pr = project_stereo(calib, xyz) if len(xyz) else (np.zeros((0, 2)), np.zeros((0, 2)))
+    pl = pl.copy()
+    pr = pr.copy()
+    pl[zl < _MIN_DEPTH_MM] = np.nan
+    pr[zr < _MIN_DEPTH_MM] = np.nan
+    return pl, pr, zl, zr
+
+
+# ----------------------------------------------------------------------------------------
+# Clutter
+# ----------------------------------------------------------------------------------------
+@dataclass
+class _Clutter:
+    left: list[_Blob] = field(default_factory=list)
+    right: list[_Blob] = field(default_factory=list)
+    left_px: list[FloatArray] = field(default_factory=list)
+    right_px: list[FloatArray] = field(default_factory=list)
+    xyz: list[FloatArray] = field(default_factory=list)
+    second_left: FloatArray | None = None
+    second_right: FloatArray | None = None
+
+
+class _Keepout:
+    """Image regions clutter must avoid: the ring disc and every LED blob (per image)."""
+
+    def __init__(
+        self, ring_center_px: FloatArray, led_px: FloatArray, led_r_px: FloatArray
+    ) -> None:
+        self.center = ring_center_px
+        finite = np.all(np.isfinite(led_px), axis=1)
+        self.led_px = led_px[finite]
+        self.led_r = led_r_px[finite]
+        if np.all(np.isfinite(ring_center_px)) and len(self.led_px):
+            d = np.linalg.norm(self.led_px - ring_center_px, axis=1) + self.led_r
+            self.ring_r = float(np.max(d))
+        else:
+            self.ring_r = 0.0
+
+    def ok(self, p: FloatArray, r_px: float) -> bool:
+        if np.all(np.isfinite(self.center)) and self.ring_r > 0:
+            if np.linalg.norm(p - self.center) - r_px <= 1.4 * self.ring_r + 10.0:
+                return False
+        if len(self.led_px):
+            gaps = np.linalg.norm(self.led_px - p, axis=1) - self.led_r - r_px
+            if np.any(gaps < 15.0):
+                return False
+        return True
+
+
+def _make_clutter(
+    calib: StereoCalibration,
+    settings: RenderSettings,
+    rng: np.random.Generator,
+    range_mm: float,
+    keep_left: _Keepout,
+    keep_right: _Keepout,
+    gray_bgr: NDArray[np.float32],
+) -> _Clutter:
+    w, h = calib.image_size
+    out = _Clutter()
+    n3d = (settings.clutter + 1) // 2
+    n_mono = settings.clutter - n3d
+    fl = 0.5 * (calib.left.fx + calib.left.fy)
+    max_tries = 500
+
+    def peak() -> float:
+        return float(settings.led_peak * rng.uniform(0.85, 1.1))
+
+    def tint() -> NDArray[np.float32]:
+        # whitish glints: similar grey level to the LEDs, so thresholds cannot drop them
+        return np.clip(gray_bgr + rng.uniform(-0.15, 0.15, 3).astype(np.float32), 0.2, 1.0)
+
+    for _ in range(n3d):  # 3-D glints, seen consistently by both cameras
+        for _try in range(max_tries):
+            z = range_mm * rng.uniform(0.5, 3.0)
+            u, v = rng.uniform(0, w - 1), rng.uniform(0, h - 1)
+            xn = (u - calib.left.u0) / fl
+            yn = (v - calib.left.v0) / fl
+            xyz = np.array([[xn * z, yn * z, z]])
+            size_mm = rng.uniform(2.0, 10.0)
+            pl, pr, zl, zr = _project_checked(calib, xyz)
+            in_l = bool(_in_frame(pl, calib.image_size)[0])
+            in_r = bool(_in_frame(pr, calib.image_size)[0])
+            if not (in_l or in_r):
+                continue
+            rad = np.array([0.5 * size_mm])
+            al = _sphere_shapes(calib.left, xyz, rad)[0] if in_l else None
+            ar = _sphere_shapes(calib.right, _to_right(calib, xyz), rad)[0] if in_r else None
+            if al is not None and not keep_left.ok(pl[0], float(np.linalg.norm(al, 2))):
+                continue
+            if ar is not None and not keep_right.ok(pr[0], float(np.linalg.norm(ar, 2))):
+                continue
+            pk, col = peak(), tint()
+            if al is not None:
+                out.left.append(_Blob(pl[0], al, pk, col))
+            if ar is not None:
+                out.right.append(_Blob(pr[0], ar, pk, col))
+            out.left_px.append(pl[0] if in_l else np.full(2, np.nan))
+            out.right_px.append(pr[0] if in_r else np.full(2, np.nan))
+            out.xyz.append(xyz[0])
+            break
+
+    for i in range(n_mono):  # monocular glints, alternating left / right
+        left_side = i % 2 == 0
+        keep = keep_left if left_side else keep_right
+        for _try in range(max_tries):
+            p = np.array([rng.uniform(0, w - 1), rng.uniform(0, h - 1)])
+            r_px = float(rng.uniform(1.5, 6.0))
+            if not keep.ok(p, r_px):
+                continue
+            b = _Blob(p, np.eye(2) * r_px, peak(), tint())
+            nan2 = np.full(2, np.nan)
+            (out.left if left_side else out.right).append(b)
+            out.left_px.append(p if left_side else nan2)
+            out.right_px.append(nan2 if left_side else p)
+            out.xyz.append(np.full(3, np.nan))
+            break
+
+    if settings.second_object:  # elongated glint off the hose, ~30×8 px, in both images
+        for _try in range(max_tries):
+            z = range_mm * rng.uniform(0.8, 1.3)
+            u, v = rng.uniform(0, w - 1), rng.uniform(0, h - 1)
+            xyz = np.array([[(u - calib.left.u0) / fl * z, (v - calib.left.v0) / fl * z, z]])
+            pl, pr, _, _ = _project_checked(calib, xyz)
+            if not (_in_frame(pl, calib.image_size)[0] and _in_frame(pr, calib.image_size)[0]):
+                continue
+            ang = rng.uniform(0, math.pi)
+            rot = np.array([[math.cos(ang), -math.sin(ang)], [math.sin(ang), math.cos(ang)]])
+            A = rot @ np.diag([15.0, 4.0])
+            if not (keep_left.ok(pl[0], 15.0) and keep_right.ok(pr[0], 15.0)):
+                continue
+            pk, col = peak(), tint()
+            out.left.append(_Blob(pl[0], A, pk, col))
+            out.right.append(_Blob(pr[0], A, pk, col))
+            out.second_left, out.second_right = pl[0], pr[0]
+            break
+    return out
+
+
+# ----------------------------------------------------------------------------------------
+# Public entry point
+# ----------------------------------------------------------------------------------------
+def render_pair(
+    calib: StereoCalibration,
+    center_mm: object,
+    normal: object,
+    settings: RenderSettings | None = None,
+    ring: LedRing | None = None,
+    seed: int | None = 0,
+    roll_rad: float = 0.0,
+) -> RenderedPair:
+    """Render the LED ring at (centre mm, normal) into both cameras of ``calib``.
+
+    Deterministic for a given ``seed`` (``None`` → fresh randomness). LEDs behind a camera
+    or outside an image are not drawn there (``truth.visible`` False); poses partly out of
+    view never raise. Raises ValueError for a non-finite pose, a zero normal or bad ids.
+    """
+    settings = settings or RenderSettings()
+    ring = ring or LedRing()
+    c, n = check_pose(center_mm, normal)
+    if not math.isfinite(float(roll_rad)):
+        raise ValueError(f"roll_rad must be finite, got {roll_rad}")
+    bad = [i for i in settings.occluded if not 1 <= i <= ring.count]
+    if bad:
+        raise ValueError(f"occluded LED ids must be in 1..{ring.count}, got {bad}")
+    rng = np.random.default_rng(seed)
+
+    xyz = ring_points(c, n, ring, roll_rad)
+    ids = ring.ids.astype(np.int64)
+    pl, pr, _, _ = _project_checked(calib, xyz)
+    in_l = _in_frame(pl, calib.image_size)
+    in_r = _in_frame(pr, calib.image_size)
+    occ = np.isin(ids, np.array(settings.occluded, dtype=np.int64))
+    draw_l, draw_r = in_l & ~occ, in_r & ~occ
+
+    r_led = np.full(len(xyz), 0.5 * ring.led_diameter_mm)
+    a_l = np.full((len(xyz), 2, 2), np.nan)
+    a_r = np.full((len(xyz), 2, 2), np.nan)
+    if np.any(in_l):
+        a_l[in_l] = _sphere_shapes(calib.left, xyz[in_l], r_led[in_l])
+    xyz_r = _to_right(calib, xyz)
+    if np.any(in_r):
+        a_r[in_r] = _sphere_shapes(calib.right, xyz_r[in_r], r_led[in_r])
+    rad_l = np.array(
+        [np.sqrt(abs(np.linalg.det(a))) if k else np.nan for a, k in zip(a_l, in_l, strict=True)]
+    )
+    rad_r = np.array(
+        [np.sqrt(abs(np.linalg.det(a))) if k else np.nan for a, k in zip(a_r, in_r, strict=True)]
+    )
+
+    color = settings.color
+    led_bgr = LED_BGR if color else np.ones(3, dtype=np.float32)
+    gray_bgr = np.ones(3, dtype=np.float32)
+    blobs_l = [_Blob(pl[k], a_l[k], settings.led_peak, led_bgr) for k in np.flatnonzero(draw_l)]
+    blobs_r = [_Blob(pr[k], a_r[k], settings.led_peak, led_bgr) for k in np.flatnonzero(draw_r)]
+
+    clutter = _Clutter()
+    if settings.clutter > 0 or settings.second_object:
+        cl, cr, _, _ = _project_checked(calib, c[None, :])
+        keep_l = _Keepout(cl[0], pl, np.nan_to_num(rad_l, nan=0.0))
+        keep_r = _Keepout(cr[0], pr, np.nan_to_num(rad_r, nan=0.0))
+        range_mm = max(float(c[2]), 100.0)
+        clutter = _make_clutter(calib, settings, rng, range_mm, keep_l, keep_r, gray_bgr)
+
+    w, h = calib.image_size
+    shape: tuple[int, ...] = (h, w, 3) if color else (h, w)
+    left = _compose(shape, blobs_l + clutter.left, settings, rng)
+    right = _compose(shape, blobs_r + clutter.right, settings, rng)
+
+    def rows(items: list[FloatArray], dim: int) -> FloatArray:
+        return np.array(items, dtype=np.float64).reshape(-1, dim)
+
+    truth = RenderTruth(
+        led_xyz_mm=xyz,
+        led_ids=ids,
+        visible=draw_l & draw_r,
+        led_left_px=pl,
+        led_right_px=pr,
+        center_mm=c,
+        normal=n,
+        radius_mm=float(ring.radius_mm),
+        clutter_left_px=rows(clutter.left_px, 2),
+        clutter_right_px=rows(clutter.right_px, 2),
+        in_left=draw_l,
+        in_right=draw_r,
+        led_left_radius_px=rad_l,
+        led_right_radius_px=rad_r,
+        clutter_xyz_mm=rows(clutter.xyz, 3),
+        second_object_left_px=clutter.second_left,
+        second_object_right_px=clutter.second_right,
+        roll_rad=float(roll_rad),
+    )
+    return RenderedPair(left=left, right=right, truth=truth)
