@@ -1,0 +1,122 @@
+"""Shared state and request dependencies (token check)."""
+
+from __future__ import annotations
+
+import secrets
+import threading
+from dataclasses import dataclass, field
+from typing import Annotated, Any
+
+from fastapi import Depends, HTTPException, Request, status
+from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
+
+from app.geometry.calibration import StereoCalibration
+from app.server.recording import Recorder
+from app.server.schemas import SimConfig
+from app.server.settings import Settings
+from app.server.telemetry import TelemetryHub
+from app.server.tick_loop import TickLoop
+
+
+class CalibrationStore:
+    """The active calibration plus the previous one (for ``POST /calibration/rollback``)."""
+
+    def __init__(self, calibration: StereoCalibration) -> None:
+        self.current = calibration
+        self.previous: StereoCalibration | None = None
+        self._lock = threading.Lock()
+
+    def replace(self, calibration: StereoCalibration) -> None:
+        with self._lock:
+            self.previous = self.current
+            self.current = calibration
+
+    def rollback(self) -> StereoCalibration | None:
+        with self._lock:
+            if self.previous is None:
+                return None
+            self.current, self.previous = self.previous, self.current
+            return self.current
+
+
+class UploadProcessor:
+    """Navigation pipelines for uploaded pairs, one per matcher, rebuilt on calibration change."""
+
+    def __init__(self, calibration: StereoCalibration) -> None:
+        self._calibration = calibration
+        self._pipelines: dict[str, Any] = {}
+        self._lock = threading.Lock()
+        self.count = 0
+
+    def set_calibration(self, calibration: StereoCalibration) -> None:
+        with self._lock:
+            self._calibration = calibration
+            self._pipelines.clear()
+
+    @property
+    def calibration(self) -> StereoCalibration:
+        return self._calibration
+
+    def pipeline(self, matcher: str) -> Any:
+        from app.vision.pipeline import NavigationPipeline, PipelineConfig
+
+        with self._lock:
+            pipe = self._pipelines.get(matcher)
+            if pipe is None:
+                pipe = NavigationPipeline(self._calibration, PipelineConfig(matcher=matcher))
+                self._pipelines[matcher] = pipe
+            return pipe
+
+
+@dataclass
+class AppState:
+    settings: Settings
+    loop: TickLoop
+    hub: TelemetryHub
+    calibrations: CalibrationStore
+    uploads: UploadProcessor
+    recorder: Recorder
+    viz: Any = None  # app.viz.service.VizService when viser runs
+    viser_port: int | None = None
+    extras: dict[str, Any] = field(default_factory=dict)
+
+    def apply_sim_config(self, config: SimConfig) -> None:
+        self.loop.set_config(config)
+        if self.viz is not None:
+            self.viz.on_config(config)
+
+    def apply_calibration(self, calibration: StereoCalibration) -> None:
+        self.loop.set_calibration(calibration)
+        self.uploads.set_calibration(calibration)
+        if self.viz is not None:
+            self.viz.set_calibration(calibration)
+
+
+def get_state(request: Request) -> AppState:
+    state: AppState | None = getattr(request.app.state, "aar", None)
+    if state is None:
+        raise HTTPException(status.HTTP_503_SERVICE_UNAVAILABLE, "service is starting")
+    return state
+
+
+_bearer = HTTPBearer(auto_error=False)
+
+
+def require_token(
+    request: Request,
+    credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(_bearer)],
+) -> None:
+    """Mutating endpoints: if ``AAR_TOKEN`` is set, demand ``Authorization: Bearer <token>``."""
+    state = get_state(request)
+    token = state.settings.token
+    if not token:
+        return
+    if credentials is None or not secrets.compare_digest(credentials.credentials, token):
+        raise HTTPException(
+            status.HTTP_401_UNAUTHORIZED,
+            "missing or wrong bearer token",
+            headers={"WWW-Authenticate": "Bearer"},
+        )
+
+
+StateDep = Annotated[AppState, Depends(get_state)]

@@ -1,0 +1,150 @@
+"""FastAPI app factory: ``create_app(settings, clock=...)``.
+
+The ``lifespan`` loads the calibration, starts the viser scene server (pinned port) and the
+tick loop (its own thread), and stops them on shutdown. Routes live under ``/api/v1``; the
+operators' page is served at ``/``; OpenAPI at ``/docs``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import importlib
+import logging
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+from pathlib import Path
+from typing import Any
+
+from fastapi import FastAPI
+from fastapi.responses import FileResponse, JSONResponse
+from fastapi.staticfiles import StaticFiles
+
+from app.geometry.calibration import StereoCalibration
+from app.server.dependencies import AppState, CalibrationStore, UploadProcessor
+from app.server.recording import Recorder
+from app.server.routers import calibration, recording, sim, state, stereo, telemetry
+from app.server.schemas import SimConfig
+from app.server.settings import Settings
+from app.server.telemetry import TelemetryHub
+from app.server.tick_loop import Clock, SourceFactory, TickLoop, default_source_factory
+
+log = logging.getLogger(__name__)
+API_PREFIX = "/api/v1"
+
+
+def _viser_client_dir() -> Path | None:
+    try:
+        from app.viz.service import viser_client_dir
+    except ImportError:
+        return None
+    return viser_client_dir()
+
+
+def create_app(
+    settings: Settings | None = None,
+    clock: Clock | None = None,
+    *,
+    source_factory: SourceFactory | None = None,
+) -> FastAPI:
+    """Build the service. ``clock`` and ``source_factory`` are injection points for tests."""
+    settings = settings or Settings()
+
+    @asynccontextmanager
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        calib = StereoCalibration.load(settings.calibration)
+        loop = TickLoop(
+            SimConfig(tick_hz=settings.tick_hz),
+            calib,
+            source_factory=source_factory or default_source_factory,
+            clock=clock,
+            history_s=settings.history_s,
+            auto_restart_s=settings.sim_auto_restart_s,
+        )
+        hub = TelemetryHub(settings.telemetry_queue)
+        hub.bind_loop(asyncio.get_running_loop())
+        recorder = Recorder(
+            settings.recordings_dir,
+            max_s=settings.recording_max_s,
+            max_mb=settings.recording_max_mb,
+        )
+        st = AppState(
+            settings=settings,
+            loop=loop,
+            hub=hub,
+            calibrations=CalibrationStore(calib),
+            uploads=UploadProcessor(calib),
+            recorder=recorder,
+        )
+        if settings.viser_enabled:
+            from app.viz.service import VizService
+
+            viz = VizService(
+                host=settings.viser_bind_host,
+                port=settings.viser_port,
+                calibration=calib,
+                actions=st,
+                scene_hz=settings.scene_hz,
+                image_hz=settings.image_hz,
+            )
+            st.viser_port = viz.start()  # raises if the pinned port is taken
+            st.viz = viz
+            loop.subscribe(viz.publish)
+            recorder.scene_serializer_factory = viz.scene_serializer
+            viz.add_scene_listener(recorder.on_scene_update)
+        loop.subscribe(hub.publish)
+        loop.subscribe(recorder.on_tick)
+        if settings.sim_autostart:
+            loop.start_sim()
+        loop.start()
+        app.state.aar = st
+        log.info(
+            "aar-dock service: tick loop at %.1f Hz, viser on port %s",
+            settings.tick_hz,
+            st.viser_port,
+        )
+        try:
+            yield
+        finally:
+            app.state.aar = None
+            recorder.close()
+            loop.stop()
+            if st.viz is not None:
+                st.viz.stop()
+
+    app = FastAPI(
+        title="aar-dock",
+        version="0.1.0",
+        description="Vision-based probe-and-drogue docking (Luo et al. 2019): live service",
+        lifespan=lifespan,
+    )
+    app.state.aar = None
+    app.state.settings = settings
+    for module in (state, sim, stereo, calibration, recording, telemetry):
+        app.include_router(module.router, prefix=API_PREFIX)
+    try:
+        checker: Any = importlib.import_module("app.server.routes_checkerboard")
+    except ModuleNotFoundError as exc:
+        if exc.name != "app.server.routes_checkerboard":
+            raise
+    else:
+        app.include_router(checker.router, prefix=API_PREFIX)
+
+    static_dir = settings.static_dir
+    if static_dir.is_dir():
+        app.mount("/static", StaticFiles(directory=static_dir), name="static")
+
+        @app.get("/", include_in_schema=False)
+        def index() -> FileResponse:
+            return FileResponse(static_dir / "index.html")
+
+    else:
+
+        @app.get("/", include_in_schema=False)
+        def index_missing() -> JSONResponse:
+            return JSONResponse({"detail": f"static dir {static_dir} missing", "docs": "/docs"})
+
+    client_dir = _viser_client_dir()
+    if client_dir is not None:
+        # viser's prebuilt client, for offline replay: /viser-client/?playbackPath=<.viser URL>
+        app.mount("/viser-client", StaticFiles(directory=client_dir, html=True), name="viser")
+    return app

@@ -1,0 +1,65 @@
+"""Simulation control: ``/sim/start``, ``/sim/stop``, ``/sim/reset``, ``/sim/config``."""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+from fastapi import APIRouter, Body, Depends
+from fastapi.exceptions import RequestValidationError
+from pydantic import ValidationError
+
+from app.server.dependencies import AppState, StateDep, require_token
+from app.server.schemas import SimConfig, SimConfigUpdate, SimStatus
+
+router = APIRouter(prefix="/sim", tags=["simulation"])
+
+
+def _status(state: AppState) -> SimStatus:
+    loop = state.loop
+    return SimStatus(running=loop.running, run=loop.run, done=loop.done, config=loop.config)
+
+
+@router.get("", response_model=SimStatus)
+def sim_status(state: StateDep) -> SimStatus:
+    return _status(state)
+
+
+@router.post("/start", response_model=SimStatus, dependencies=[Depends(require_token)])
+def sim_start(state: StateDep) -> SimStatus:
+    state.loop.start_sim()
+    return _status(state)
+
+
+@router.post("/stop", response_model=SimStatus, dependencies=[Depends(require_token)])
+def sim_stop(state: StateDep) -> SimStatus:
+    state.loop.stop_sim()
+    return _status(state)
+
+
+@router.post("/reset", response_model=SimStatus, dependencies=[Depends(require_token)])
+def sim_reset(state: StateDep) -> SimStatus:
+    """A new run with the same configuration (and seed)."""
+    state.loop.reset()
+    if state.viz is not None:
+        state.viz.on_reset()
+    return _status(state)
+
+
+@router.get("/config", response_model=SimConfig)
+def get_sim_config(state: StateDep) -> SimConfig:
+    return state.loop.config
+
+
+@router.put("/config", response_model=SimConfig, dependencies=[Depends(require_token)])
+def put_sim_config(update: Annotated[SimConfigUpdate, Body()], state: StateDep) -> SimConfig:
+    """Partial update (omitted fields keep their value); ranges validated (422); new run."""
+    merged = state.loop.config.model_dump()
+    merged.update(update.model_dump(exclude_unset=True, exclude_none=True))
+    try:
+        config = SimConfig.model_validate(merged)
+    except ValidationError as exc:
+        raise RequestValidationError(
+            [{**e, "loc": ("body", *e["loc"])} for e in exc.errors(include_url=False)]
+        ) from None
+    state.apply_sim_config(config)
+    return config

@@ -1,0 +1,85 @@
+"""Reads: ``/state``, ``/history``, ``/healthz``, ``/metrics``, ``/config``."""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+from fastapi import APIRouter, HTTPException, Query, Request, status
+from fastapi.responses import PlainTextResponse
+
+from app.server.dependencies import StateDep
+from app.server.metrics import render_metrics
+from app.server.schemas import Health, Message, ServiceConfig, TickRecord
+
+router = APIRouter(tags=["state"])
+
+
+@router.get("/state", response_model=TickRecord, responses={404: {"model": Message}})
+def get_latest(state: StateDep) -> TickRecord:
+    """The latest published tick record (simulated tick or upload)."""
+    latest = state.loop.latest
+    if latest is None:
+        raise HTTPException(status.HTTP_404_NOT_FOUND, "no tick published yet")
+    return latest
+
+
+@router.get("/history", response_model=list[TickRecord])
+def get_history(
+    state: StateDep,
+    seconds: Annotated[
+        float, Query(gt=0.0, description="how far back (s), at most AAR_HISTORY_S")
+    ] = 10.0,
+) -> list[TickRecord]:
+    """Tick records of the last ``seconds`` from the bounded ring buffer (oldest first)."""
+    if seconds > state.settings.history_s:
+        raise HTTPException(
+            422,
+            f"seconds must be <= {state.settings.history_s:g} (the ring buffer length)",
+        )
+    return state.loop.history(seconds)
+
+
+@router.get("/healthz", response_model=Health)
+def healthz(state: StateDep) -> Health:
+    loop = state.loop
+    now = loop.clock.now()
+    age = None if loop.last_tick_clock is None else max(0.0, now - loop.last_tick_clock)
+    alive = loop.alive
+    ok = alive and (not loop.running or loop.done or (age is not None and age < 5.0))
+    return Health(
+        status="ok" if ok else "degraded",
+        loop_alive=alive,
+        sim_running=loop.running,
+        tick_hz_target=loop.config.tick_hz,
+        tick_rate_hz=round(loop.tick_rate_hz(), 3),
+        last_tick_age_s=None if age is None else round(age, 4),
+        ticks=loop.ticks,
+        dropped_ticks=loop.dropped,
+        viser=state.viz is not None,
+    )
+
+
+@router.get("/metrics", response_class=PlainTextResponse)
+def metrics(state: StateDep) -> PlainTextResponse:
+    """Prometheus text format: tick rate, dropped ticks, stage latencies."""
+    text = render_metrics(
+        state.loop, ws_clients=state.hub.client_count, uploads=state.uploads.count
+    )
+    return PlainTextResponse(text, media_type="text/plain; version=0.0.4; charset=utf-8")
+
+
+@router.get("/config", response_model=ServiceConfig)
+def service_config(request: Request, state: StateDep) -> ServiceConfig:
+    """What the operators' page needs: where the viser client is, limits, tick rate."""
+    url = state.settings.public_viser_url
+    if url is None and state.viser_port is not None:
+        host = request.url.hostname or "127.0.0.1"
+        url = f"{request.url.scheme}://{host}:{state.viser_port}/"
+    return ServiceConfig(
+        viser_port=state.viser_port,
+        viser_url=url,
+        tick_hz=state.loop.config.tick_hz,
+        token_required=bool(state.settings.token),
+        max_upload_mb=state.settings.max_upload_mb,
+        image_size=state.calibrations.current.image_size,
+    )

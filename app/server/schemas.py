@@ -1,0 +1,141 @@
+"""Pydantic records of the service: the tick record (both sources), sim config, health, etc."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import BaseModel, Field, field_validator
+
+from app.vision.result import PoseResult
+
+Vec3 = tuple[float, float, float]
+Turbulence = Literal["none", "light", "moderate", "severe"]
+
+
+class Control(BaseModel):
+    """Normalised control deflections of the receiver (−1..1, throttle 0..1)."""
+
+    throttle: float
+    aileron: float
+    elevator: float
+    rudder: float
+
+
+class TickRecord(BaseModel):
+    """One published step: a simulated tick or an uploaded stereo pair.
+
+    Positions ``*_m`` are in the tanker-fixed inertial frame (m); ``pose`` is the pipeline's
+    result in the left-camera frame (mm).
+    """
+
+    seq: int = Field(description="publication counter (monotonic within a server run)")
+    source: Literal["sim", "upload"]
+    t_s: float = Field(description="simulation time of this run (s); 0 for uploads")
+    clock_s: float = Field(description="server loop clock when published (s)")
+    wall_time: float = Field(description="UNIX time when published (s)")
+    run: int = Field(0, description="simulation run counter (increments on reset)")
+    phase: str | None = None
+    pose: PoseResult | None = None
+    lock: bool = False
+    lock_reason: str | None = None
+    drogue_truth_m: Vec3 | None = None
+    drogue_normal: Vec3 | None = None
+    drogue_measured_m: Vec3 | None = None
+    drogue_estimate_m: Vec3 | None = None
+    probe_tip_m: Vec3 | None = None
+    rel_position_m: Vec3 | None = Field(
+        None, description="drogue minus probe tip (m), tanker frame"
+    )
+    reference_m: Vec3 | None = None
+    uav_state: list[float] | None = Field(None, description="12-state receiver vector")
+    control: Control | None = None
+    captured: bool | None = None
+    miss_m: float | None = None
+    led_truth_cam_mm: list[Vec3] | None = None
+    timings_ms: dict[str, float] = Field(
+        default_factory=dict, description="per-stage latencies (ms): pipeline stages, step, publish"
+    )
+
+
+class SimConfig(BaseModel):
+    """User-settable simulation parameters (validated ranges → 422)."""
+
+    turbulence: Turbulence = "light"
+    seed: int = Field(0, ge=0, le=2**31 - 1)
+    closure_speed_mps: float = Field(1.2, ge=0.1, le=5.0)
+    noise_sigma: float = Field(2.0, ge=0.0, le=50.0, description="image noise σ (grey levels)")
+    clutter: int = Field(0, ge=0, le=50, description="number of distractor lights")
+    led_dropout: list[int] = Field(default_factory=list, description="LED ids (1..5) switched off")
+    tick_hz: float = Field(30.0, ge=1.0, le=120.0)
+    matcher: Literal["epipolar", "paper"] = "epipolar"
+    vision: bool = True
+
+    @field_validator("led_dropout")
+    @classmethod
+    def _check_dropout(cls, v: list[int]) -> list[int]:
+        if any(i < 1 or i > 5 for i in v):
+            raise ValueError("LED ids must be in 1..5")
+        if len(set(v)) != len(v):
+            raise ValueError("LED ids must be unique")
+        return sorted(v)
+
+
+class SimConfigUpdate(BaseModel):
+    """Partial update of :class:`SimConfig` (omitted fields keep their value)."""
+
+    turbulence: Turbulence | None = None
+    seed: int | None = None
+    closure_speed_mps: float | None = None
+    noise_sigma: float | None = None
+    clutter: int | None = None
+    led_dropout: list[int] | None = None
+    tick_hz: float | None = None
+    matcher: Literal["epipolar", "paper"] | None = None
+    vision: bool | None = None
+
+
+class SimStatus(BaseModel):
+    running: bool
+    run: int
+    done: bool
+    config: SimConfig
+
+
+class Health(BaseModel):
+    status: Literal["ok", "degraded"]
+    loop_alive: bool
+    sim_running: bool
+    tick_hz_target: float
+    tick_rate_hz: float
+    last_tick_age_s: float | None
+    ticks: int
+    dropped_ticks: int
+    viser: bool
+
+
+class ServiceConfig(BaseModel):
+    """What the operators' page needs to know."""
+
+    viser_port: int | None
+    viser_url: str | None
+    tick_hz: float
+    token_required: bool
+    max_upload_mb: float
+    image_size: tuple[int, int]
+
+
+class RecordingInfo(BaseModel):
+    id: str
+    started_wall: float
+    stopped_wall: float | None = None
+    ticks: int = 0
+    active: bool = False
+    telemetry_file: str
+    scene_file: str | None = None
+    telemetry_bytes: int = 0
+    scene_bytes: int = 0
+    stop_reason: str | None = None
+
+
+class Message(BaseModel):
+    detail: str

@@ -1,0 +1,409 @@
+"""Fixed-rate tick loop: ``sim.step()`` (render → pipeline → filter → controller → dynamics)
+then publish. No FastAPI here: the loop runs in its own thread and hands records to
+subscribers (history, WebSocket hub, 3-D scene, recorder).
+
+A late tick is dropped and counted, never queued: when a step overruns the period the
+missed deadlines are skipped. The clock is injectable (:class:`FakeClock`) so that tests can
+step the loop deterministically with :meth:`TickLoop.run_iterations`.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from typing import Any, Protocol
+
+import numpy as np
+
+from app.server.schemas import Control, SimConfig, TickRecord
+
+log = logging.getLogger(__name__)
+
+STAGES = ("preprocess", "extract", "describe", "match", "triangulate", "pose", "total")
+
+
+class Clock(Protocol):
+    def now(self) -> float: ...
+
+    def sleep(self, seconds: float) -> None: ...
+
+
+class MonotonicClock:
+    """Real time (``time.monotonic``)."""
+
+    def now(self) -> float:
+        return time.monotonic()
+
+    def sleep(self, seconds: float) -> None:
+        time.sleep(max(0.0, seconds))
+
+
+class FakeClock:
+    """Deterministic clock: ``sleep`` advances time instantly; ``advance`` moves it by hand."""
+
+    def __init__(self, start: float = 0.0) -> None:
+        self.t = float(start)
+        self._lock = threading.Lock()
+
+    def now(self) -> float:
+        with self._lock:
+            return self.t
+
+    def sleep(self, seconds: float) -> None:
+        self.advance(max(0.0, seconds))
+        time.sleep(0)  # let other threads run
+
+    def advance(self, seconds: float) -> None:
+        with self._lock:
+            self.t += seconds
+
+
+class StepSource(Protocol):
+    """What the loop drives: :class:`app.sim.docking.DockingSimulation` satisfies it."""
+
+    @property
+    def done(self) -> bool: ...
+
+    def step(self) -> Any: ...
+
+
+SourceFactory = Callable[[SimConfig, Any], StepSource]
+
+
+def default_source_factory(config: SimConfig, calibration: Any) -> StepSource:
+    """Build the docking simulation (vision in the loop) for ``config``."""
+    from app.sim.docking import DockingConfig, DockingSimulation
+
+    dcfg = DockingConfig(
+        turbulence=config.turbulence,
+        seed=config.seed,
+        closure_speed_mps=config.closure_speed_mps,
+        tick_hz=config.tick_hz,
+        vision=config.vision,
+        matcher=config.matcher,
+        noise_sigma=config.noise_sigma,
+        clutter=config.clutter,
+        led_dropout=tuple(config.led_dropout),
+    )
+    return DockingSimulation(dcfg, calibration=calibration)
+
+
+def _vec(value: Any) -> tuple[float, float, float] | None:
+    if value is None:
+        return None
+    arr = np.asarray(value, dtype=float).ravel()
+    if arr.size != 3 or not np.all(np.isfinite(arr)):
+        return None
+    return (float(arr[0]), float(arr[1]), float(arr[2]))
+
+
+def tick_to_record(tick: Any, *, seq: int, clock_s: float, run: int, step_ms: float) -> TickRecord:
+    """Convert a ``DockingTick`` (duck-typed) to the published :class:`TickRecord`."""
+    pose = getattr(tick, "pose", None)
+    timings: dict[str, float] = {"step": step_ms}
+    if pose is not None:
+        for name, value in pose.timing_ms.model_dump().items():
+            timings[name] = float(value)
+    ctrl = getattr(tick, "control", None)
+    control = None
+    if ctrl is not None:
+        c = np.asarray(ctrl, dtype=float).ravel()
+        if c.size >= 4:
+            control = Control(
+                throttle=float(c[0]), aileron=float(c[1]), elevator=float(c[2]), rudder=float(c[3])
+            )
+    leds = getattr(tick, "led_truth_cam_mm", None)
+    uav = getattr(tick, "uav_state", None)
+    miss = getattr(tick, "miss_m", None)
+    captured = getattr(tick, "captured", None)
+    return TickRecord(
+        seq=seq,
+        source="sim",
+        t_s=float(getattr(tick, "t_s", 0.0)),
+        clock_s=clock_s,
+        wall_time=time.time(),
+        run=run,
+        phase=getattr(tick, "phase", None),
+        pose=pose,
+        lock=bool(getattr(tick, "lock", pose.lock if pose is not None else False)),
+        lock_reason=getattr(tick, "lock_reason", pose.reason if pose is not None else None),
+        drogue_truth_m=_vec(getattr(tick, "drogue_truth_m", None)),
+        drogue_normal=_vec(getattr(tick, "drogue_normal", None)),
+        drogue_measured_m=_vec(getattr(tick, "drogue_measured_m", None)),
+        drogue_estimate_m=_vec(getattr(tick, "drogue_estimate_m", None)),
+        probe_tip_m=_vec(getattr(tick, "probe_tip_m", None)),
+        rel_position_m=_vec(getattr(tick, "rel_position_m", None)),
+        reference_m=_vec(getattr(tick, "reference_m", None)),
+        uav_state=None if uav is None else [float(x) for x in np.asarray(uav).ravel()],
+        control=control,
+        captured=None if captured is None else bool(captured),
+        miss_m=None if miss is None or not math.isfinite(float(miss)) else float(miss),
+        led_truth_cam_mm=(
+            None
+            if leds is None
+            else [(float(p[0]), float(p[1]), float(p[2])) for p in np.asarray(leds)]
+        ),
+        timings_ms=timings,
+    )
+
+
+Subscriber = Callable[[TickRecord, Any], None]
+"""Called in the loop thread with the record and the raw tick (images; ``None`` for uploads)."""
+
+
+class TickLoop:
+    """Runs the simulated stream at a fixed rate in a dedicated thread and publishes records."""
+
+    def __init__(
+        self,
+        config: SimConfig,
+        calibration: Any,
+        *,
+        source_factory: SourceFactory = default_source_factory,
+        clock: Clock | None = None,
+        history_s: float = 60.0,
+        auto_restart_s: float | None = 3.0,
+    ) -> None:
+        self.clock: Clock = clock or MonotonicClock()
+        self._factory = source_factory
+        self._config = config
+        self._calibration = calibration
+        self._auto_restart_s = auto_restart_s
+        self._history_s = history_s
+        self._lock = threading.RLock()  # guards the source and config
+        self._pub_lock = threading.Lock()  # guards seq + subscribers
+        self._subscribers: list[Subscriber] = []
+        self._source: StepSource | None = None
+        self.running = False
+        self.run = 0
+        self._done_at: float | None = None
+        self._seq = 0
+        # metrics
+        self.ticks = 0
+        self.dropped = 0
+        self.errors = 0
+        self.last_error: str | None = None
+        self._tick_times: deque[float] = deque(maxlen=256)
+        self.stage_ms: dict[str, deque[float]] = {}
+        self.last_tick_clock: float | None = None
+        self._history: deque[TickRecord] = deque(maxlen=self._history_len())
+        self.latest: TickRecord | None = None
+        # thread
+        self._thread: threading.Thread | None = None
+        self._stop = threading.Event()
+        self._next_t: float | None = None
+        self.heartbeat: float | None = None
+
+    # ---- configuration ------------------------------------------------------------
+    def _history_len(self) -> int:
+        return max(16, int(self._history_s * self._config.tick_hz) + 1)
+
+    @property
+    def period_s(self) -> float:
+        return 1.0 / self._config.tick_hz
+
+    @property
+    def config(self) -> SimConfig:
+        return self._config
+
+    @property
+    def calibration(self) -> Any:
+        return self._calibration
+
+    @property
+    def done(self) -> bool:
+        src = self._source
+        return bool(src is not None and src.done)
+
+    def set_config(self, config: SimConfig) -> None:
+        """Apply a new config: the simulation is rebuilt (a new run)."""
+        with self._lock:
+            self._config = config
+            hist = list(self._history)
+            self._history = deque(hist, maxlen=self._history_len())
+            self._rebuild()
+
+    def set_calibration(self, calibration: Any) -> None:
+        with self._lock:
+            self._calibration = calibration
+            self._rebuild()
+
+    def _rebuild(self) -> None:
+        self._source = self._factory(self._config, self._calibration)
+        self.run += 1
+        self._done_at = None
+
+    def reset(self, seed: int | None = None) -> None:
+        """Start a new run (same config; optionally a new seed)."""
+        with self._lock:
+            if seed is not None:
+                self._config = self._config.model_copy(update={"seed": seed})
+            self._rebuild()
+
+    def start_sim(self) -> None:
+        with self._lock:
+            if self._source is None or self._source.done:
+                self._rebuild()
+            self.running = True
+
+    def stop_sim(self) -> None:
+        with self._lock:
+            self.running = False
+
+    # ---- publication --------------------------------------------------------------
+    def subscribe(self, fn: Subscriber) -> None:
+        with self._pub_lock:
+            self._subscribers.append(fn)
+
+    def unsubscribe(self, fn: Subscriber) -> None:
+        with self._pub_lock:
+            if fn in self._subscribers:
+                self._subscribers.remove(fn)
+
+    def next_seq(self) -> int:
+        with self._pub_lock:
+            self._seq += 1
+            return self._seq
+
+    def publish(self, record: TickRecord, raw: Any = None) -> None:
+        """Store and fan out a record (sim ticks and uploads alike)."""
+        t0 = time.perf_counter()
+        self.latest = record
+        self._history.append(record)
+        with self._pub_lock:
+            subs = list(self._subscribers)
+        for fn in subs:
+            try:
+                fn(record, raw)
+            except Exception:  # a broken subscriber must not stop the loop
+                log.exception("tick subscriber failed")
+        self._add_stage("publish", (time.perf_counter() - t0) * 1e3)
+
+    def history(self, seconds: float | None = None) -> list[TickRecord]:
+        items = list(self._history)
+        if seconds is None:
+            return items
+        cutoff = self.clock.now() - seconds
+        return [r for r in items if r.clock_s >= cutoff]
+
+    def _add_stage(self, name: str, ms: float) -> None:
+        dq = self.stage_ms.get(name)
+        if dq is None:
+            dq = self.stage_ms[name] = deque(maxlen=512)
+        dq.append(ms)
+
+    # ---- one tick -----------------------------------------------------------------
+    def tick(self) -> TickRecord | None:
+        """Step the simulation once and publish; ``None`` if not running or finished."""
+        with self._lock:
+            now = self.clock.now()
+            if not self.running:
+                return None
+            if self._source is None:
+                self._rebuild()
+            src = self._source
+            assert src is not None
+            if src.done:
+                if self._done_at is None:
+                    self._done_at = now
+                if self._auto_restart_s is not None and now - self._done_at >= self._auto_restart_s:
+                    self.reset(seed=self._config.seed + 1)
+                    src = self._source
+                    assert src is not None
+                else:
+                    return None
+            t0 = time.perf_counter()
+            try:
+                raw = src.step()
+            except Exception as exc:
+                self.errors += 1
+                self.last_error = f"{type(exc).__name__}: {exc}"
+                log.exception("simulation step failed")
+                return None
+            step_ms = (time.perf_counter() - t0) * 1e3
+            run = self.run
+        record = tick_to_record(
+            raw, seq=self.next_seq(), clock_s=self.clock.now(), run=run, step_ms=step_ms
+        )
+        for name, value in record.timings_ms.items():
+            self._add_stage(name, value)
+        self.publish(record, raw)
+        self.ticks += 1
+        t_now = self.clock.now()
+        self._tick_times.append(t_now)
+        self.last_tick_clock = t_now
+        return record
+
+    # ---- the fixed-rate schedule ----------------------------------------------------
+    def _iterate(self) -> None:
+        """One pass of the scheduler: wait for the deadline, skip missed ones, tick."""
+        period = self.period_s
+        now = self.clock.now()
+        self.heartbeat = now
+        if self._next_t is None:
+            self._next_t = now
+        if now < self._next_t:
+            self.clock.sleep(min(self._next_t - now, 0.05))
+            return
+        missed = int((now - self._next_t) / period + 1e-9)
+        if missed > 0:
+            self.dropped += missed
+            self._next_t += missed * period
+        self._next_t += period
+        self.tick()
+
+    def run_iterations(self, n: int) -> None:
+        """Drive the scheduler synchronously (tests, with a :class:`FakeClock`)."""
+        for _ in range(n):
+            self._iterate()
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            try:
+                self._iterate()
+            except Exception:
+                self.errors += 1
+                log.exception("tick loop iteration failed")
+                time.sleep(0.05)
+
+    def start(self) -> None:
+        if self._thread is not None:
+            return
+        self._stop.clear()
+        self._next_t = None
+        self._thread = threading.Thread(target=self._run, name="aar-tick-loop", daemon=True)
+        self._thread.start()
+
+    def stop(self, timeout: float = 5.0) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=timeout)
+            self._thread = None
+
+    @property
+    def alive(self) -> bool:
+        return self._thread is not None and self._thread.is_alive()
+
+    # ---- metrics -----------------------------------------------------------------
+    def tick_rate_hz(self, window_s: float = 2.0) -> float:
+        times = list(self._tick_times)
+        if len(times) < 2:
+            return 0.0
+        now = self.clock.now()
+        recent = [t for t in times if t >= now - window_s]
+        if len(recent) < 2:
+            return 0.0
+        span = recent[-1] - recent[0]
+        return (len(recent) - 1) / span if span > 0 else 0.0
+
+    def stage_quantiles(self, q: float) -> dict[str, float]:
+        out: dict[str, float] = {}
+        for name, dq in list(self.stage_ms.items()):
+            vals = list(dq)
+            if vals:
+                out[name] = float(np.quantile(vals, q))
+        return out
