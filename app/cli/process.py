@@ -1,0 +1,83 @@
+"""``aar-dock process LEFT RIGHT``: run the navigation pipeline on one stereo pair."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("process", help="estimate the drogue pose from one stereo pair")
+    p.add_argument("left", help="left image (PNG/JPEG/BMP/TIFF)")
+    p.add_argument("right", help="right image")
+    p.add_argument("--calib", help="calibration JSON (default: sample_data/calibration.json)")
+    p.add_argument("--json", action="store_true", help="print the result contract as JSON")
+    p.add_argument("--matcher", choices=["epipolar", "paper"], default="epipolar")
+    p.add_argument("--ring-radius-mm", type=float, default=75.0)
+    p.add_argument("--leds", type=int, default=5, help="LEDs on the ring")
+    p.add_argument("--threshold", default="auto", help="'auto', 'otsu' or a gray level 1..255")
+    p.set_defaults(func=run)
+
+
+def _summary(result) -> str:  # type: ignore[no-untyped-def]
+    lines = []
+    if result.lock:
+        d = result.drogue
+        lines.append(
+            "LOCK  centre = ({:.2f}, {:.2f}, {:.2f}) mm   normal = ({:.4f}, {:.4f}, {:.4f})   "
+            "radius = {:.2f} mm   rms = {:.3f} mm".format(
+                *d.center_mm, *d.normal, d.radius_mm, d.rms_mm
+            )
+        )
+    else:
+        lines.append(f"NO LOCK: {result.reason}")
+    for led in result.leds:
+        lines.append(
+            "  LED {}: L({:.2f}, {:.2f}) R({:.2f}, {:.2f}) px → ({:.2f}, {:.2f}, {:.2f}) mm  "
+            "epi {:.3f} px  reproj {:.3f} px".format(
+                led.id,
+                *led.left_px,
+                *led.right_px,
+                *led.xyz_mm,
+                led.epipolar_px,
+                led.reprojection_px,
+            )
+        )
+    lines.append(f"  total {result.timing_ms.total:.1f} ms")
+    return "\n".join(lines)
+
+
+def run(args: argparse.Namespace) -> int:
+    from app.geometry.calibration import CalibrationError, StereoCalibration
+    from app.sim.paths import load_default_calibration
+    from app.vision.io import check_pair, read_image
+    from app.vision.pipeline import NavigationPipeline, PipelineConfig
+    from app.vision.preprocess import ImageError
+
+    try:
+        threshold: int | str = int(args.threshold) if args.threshold.isdigit() else args.threshold
+        if threshold not in ("auto", "otsu") and not (
+            isinstance(threshold, int) and 1 <= threshold <= 255
+        ):
+            raise ValueError(
+                f"--threshold must be 'auto', 'otsu' or 1..255, got {args.threshold!r}"
+            )
+        calib = StereoCalibration.load(args.calib) if args.calib else load_default_calibration()
+        left = read_image(args.left)
+        right = read_image(args.right)
+        check_pair(left, right, args.left, args.right)
+        config = PipelineConfig(
+            threshold=threshold,  # type: ignore[arg-type]
+            matcher=args.matcher,
+            ring_radius_mm=args.ring_radius_mm,
+            led_count=args.leds,
+        )
+        result = NavigationPipeline(calib, config).process(left, right)
+    except (CalibrationError, ImageError, ValueError) as exc:
+        print(f"aar-dock process: error: {exc}", file=sys.stderr)
+        return 2
+    if args.json:
+        print(result.model_dump_json(indent=2))
+    else:
+        print(_summary(result))
+    return 0

@@ -1,0 +1,23 @@
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from app.geometry.calibration import StereoCalibration, paper_calibration
+from app.sim.paths import REPO_ROOT
+
+
+@pytest.fixture(scope="session")
+def calib() -> StereoCalibration:
+    return paper_calibration()
+
+
+@pytest.fixture(scope="session")
+def repo_root():
+    return REPO_ROOT
+
+
+def angle_deg(a, b) -> float:
+    a = np.asarray(a, float) / np.linalg.norm(a)
+    b = np.asarray(b, float) / np.linalg.norm(b)
+    return float(np.degrees(np.arccos(np.clip(a @ b, -1.0, 1.0))))
