@@ -128,7 +128,9 @@ def _ring_fits(
     ring: LedRing,
     margin_px: float,
 ) -> bool:
-    pts = ring_points(center, normal, ring)
+    # the whole circle (not just the LEDs), so any roll of the ring stays in view
+    circle = LedRing(radius_mm=ring.radius_mm + 0.5 * ring.led_diameter_mm, count=72)
+    pts = ring_points(center, normal, circle)
     pr = (calib.R @ pts.T).T + calib.T
     if np.any(pts[:, 2] < 1.0) or np.any(pr[:, 2] < 1.0):
         return False
@@ -176,8 +178,8 @@ def random_pose(
     """A random ring pose (centre mm, unit normal) at depth ≈ ``range_mm`` (±3 %).
 
     The lateral offset is drawn uniformly within ±``lateral_frac``·range around the point
-    midway in both images, and redrawn until every LED lies ``margin_px`` inside both images
-    of ``calib`` (default: the paper's rig). The normal is tilted from (0, 0, −1) by up to
+    midway in both images, and redrawn until the whole ring circle (so the LEDs at any roll)
+    lies ``margin_px`` inside both images of ``calib`` (default: the paper's rig). The normal is tilted from (0, 0, −1) by up to
     ``max_tilt_deg`` in a random direction. If no draw fits after ``max_tries`` (the ring is
     too large for the overlap at this range) the centred pose is returned.
     """
