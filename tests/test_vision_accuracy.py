@@ -73,8 +73,11 @@ def test_clutter_12_blobs_always_locked_and_correct(calib):
 
 def test_second_object_is_rejected(calib):
     pair = render_pair(
-        calib, np.array([10.0, -5.0, 1200.0]), np.array([0.0, 0.0, -1.0]),
-        RenderSettings(clutter=4, second_object=True), seed=3,
+        calib,
+        np.array([10.0, -5.0, 1200.0]),
+        np.array([0.0, 0.0, -1.0]),
+        RenderSettings(clutter=4, second_object=True),
+        seed=3,
     )
     res = NavigationPipeline(calib).process(pair.left, pair.right)
     assert res.lock and len(res.leds) == 5
@@ -85,8 +88,9 @@ def test_second_object_is_rejected(calib):
 def test_two_leds_occluded_gives_pose_from_three(calib, occluded):
     normal = np.array([0.15, -0.1, -1.0])
     normal /= np.linalg.norm(normal)
-    pair = render_pair(calib, np.array([-30.0, 20.0, 1000.0]), normal,
-                       RenderSettings(occluded=occluded), seed=11)
+    pair = render_pair(
+        calib, np.array([-30.0, 20.0, 1000.0]), normal, RenderSettings(occluded=occluded), seed=11
+    )
     res = NavigationPipeline(calib).process(pair.left, pair.right)
     assert res.lock, res.reason
     ids = sorted(led.id for led in res.leds)
@@ -98,8 +102,13 @@ def test_two_leds_occluded_gives_pose_from_three(calib, occluded):
 
 
 def test_two_visible_leds_is_no_lock_with_reason(calib):
-    pair = render_pair(calib, np.array([0.0, 0.0, 1000.0]), np.array([0.0, 0.0, -1.0]),
-                       RenderSettings(occluded=(1, 2, 4)), seed=5)
+    pair = render_pair(
+        calib,
+        np.array([0.0, 0.0, 1000.0]),
+        np.array([0.0, 0.0, -1.0]),
+        RenderSettings(occluded=(1, 2, 4)),
+        seed=5,
+    )
     res = NavigationPipeline(calib).process(pair.left, pair.right)
     assert not res.lock
     assert res.drogue is None
@@ -115,8 +124,13 @@ def test_empty_frames_are_no_lock(calib):
 
 def test_clutter_only_never_locks(calib):
     """Bright points that are not a ring of the expected radius must never give a pose."""
-    pair = render_pair(calib, np.array([0.0, 0.0, 1000.0]), np.array([0.0, 0.0, -1.0]),
-                       RenderSettings(occluded=(1, 2, 3, 4, 5), clutter=16), seed=9)
+    pair = render_pair(
+        calib,
+        np.array([0.0, 0.0, 1000.0]),
+        np.array([0.0, 0.0, -1.0]),
+        RenderSettings(occluded=(1, 2, 3, 4, 5), clutter=16),
+        seed=9,
+    )
     res = NavigationPipeline(calib).process(pair.left, pair.right)
     assert not res.lock
 
