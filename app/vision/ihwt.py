@@ -49,9 +49,10 @@ def describe_point(ii: FloatArray, center_px: tuple[float, float], window_px: fl
     step = window_px / n
     half = max(1, int(round(step)))  # Haar template half-size (px)
     offsets = (np.arange(n) + 0.5) * step - window_px / 2.0
-    cu, cv = center_px
-    xs = np.rint(cu + offsets).astype(np.int64)
-    ys = np.rint(cv + offsets).astype(np.int64)
+    # The grid is anchored on the FP's pixel so that equal patches give equal descriptors.
+    cu, cv = np.floor(center_px[0] + 0.5), np.floor(center_px[1] + 0.5)
+    xs = (cu + np.floor(offsets + 0.5)).astype(np.int64)
+    ys = (cv + np.floor(offsets + 0.5)).astype(np.int64)
     gx, gy = np.meshgrid(xs, ys)  # (n, n): row = v, col = u
     # Horizontal Haar: right half minus left half; vertical: bottom half minus top half.
     dx = box_sum(ii, gx, gy - half, gx + half, gy + half) - box_sum(

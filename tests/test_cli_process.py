@@ -1,0 +1,78 @@
+"""``aar-dock process``: result contract on stdout, exit code 2 with one line on bad input."""
+
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from app.cli.main import main
+from app.sim.stereo_render import render_pair
+
+
+@pytest.fixture(scope="module")
+def pair_dir(tmp_path_factory, calib):
+    d = tmp_path_factory.mktemp("pair")
+    normal = np.array([0.1, 0.0, -1.0]) / np.linalg.norm([0.1, 0.0, -1.0])
+    pair = render_pair(calib, np.array([15.0, -10.0, 1100.0]), normal, seed=8)
+    cv2.imwrite(str(d / "left.png"), pair.left)
+    cv2.imwrite(str(d / "right.png"), pair.right)
+    return d, pair.truth
+
+
+def test_process_json_contract(pair_dir, capsys):
+    d, truth = pair_dir
+    assert main(["process", str(d / "left.png"), str(d / "right.png"), "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert set(out) == {"lock", "reason", "leds", "drogue", "timing_ms"}
+    assert out["lock"] is True and out["reason"] is None
+    assert set(out["drogue"]) == {"center_mm", "normal", "radius_mm", "rms_mm"}
+    assert set(out["timing_ms"]) == {
+        "preprocess",
+        "extract",
+        "describe",
+        "match",
+        "triangulate",
+        "pose",
+        "total",
+    }
+    assert len(out["leds"]) == 5
+    assert set(out["leds"][0]) == {
+        "id",
+        "left_px",
+        "right_px",
+        "xyz_mm",
+        "descriptor_distance",
+        "epipolar_px",
+        "reprojection_px",
+    }
+    assert np.linalg.norm(np.array(out["drogue"]["center_mm"]) - truth.center_mm) < 0.5
+
+
+def test_process_human_summary(pair_dir, capsys):
+    d, _ = pair_dir
+    assert main(["process", str(d / "left.png"), str(d / "right.png")]) == 0
+    assert capsys.readouterr().out.startswith("LOCK")
+
+
+def test_process_bad_inputs_exit_2_with_one_line(pair_dir, tmp_path, capsys):
+    d, _ = pair_dir
+    corrupt = tmp_path / "corrupt.png"
+    corrupt.write_bytes(b"\x89PNG\r\n\x1a\n garbage")
+    small = tmp_path / "small.png"
+    cv2.imwrite(str(small), np.zeros((100, 120), np.uint8))
+    bad_calib = tmp_path / "calib.json"
+    bad_calib.write_text('{"image_size": [1280, 1024]}')
+    cases = [
+        ([str(d / "left.png"), str(tmp_path / "missing.png")], "missing.png"),
+        ([str(corrupt), str(d / "right.png")], "corrupt.png"),
+        ([str(d / "left.png"), str(small)], "small.png"),
+        ([str(small), str(small)], "calibration is for 1280×1024"),
+        ([str(d / "left.png"), str(d / "right.png"), "--calib", str(bad_calib)], "left"),
+    ]
+    for argv, needle in cases:
+        assert main(["process", *argv]) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and needle in err, err
