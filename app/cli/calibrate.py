@@ -1,0 +1,140 @@
+"""``aar-dock calibrate``: stereo calibration from checkerboard pictures (paper §3.2).
+
+Example::
+
+    aar-dock calibrate --left 'sample_data/checkerboard/left_*.png' \\
+        --right 'sample_data/checkerboard/right_*.png' --board 9x6 --square-mm 25 \\
+        --out calibration.json --report calib_report
+
+Pairs are formed from the two sorted file lists. Exit code 0 on success, 2 with a one-line
+message on a bad set (no files, unreadable image, sizes differ, board not found, < 6 views).
+"""
+
+from __future__ import annotations
+
+import argparse
+import glob
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+PROG = "aar-dock calibrate"
+
+
+def register(subparsers: Any) -> None:
+    p = subparsers.add_parser(
+        "calibrate",
+        help="calibrate the stereo rig from checkerboard image pairs",
+        description="Stereo calibration from checkerboard image pairs (Zhang's method, OpenCV). "
+        "Writes the calibration JSON and, with --report, report.json + report.png.",
+    )
+    p.add_argument("--left", required=True, help="glob of the left images (quote it), e.g. 'dir/left*.png'")
+    p.add_argument("--right", required=True, help="glob of the right images (quote it)")
+    p.add_argument("--board", default="9x6", help="inner corners per row x per column (default 9x6)")
+    p.add_argument("--square-mm", type=float, default=25.0, help="square side in mm (default 25)")
+    p.add_argument("--out", default="calibration.json", help="output calibration JSON")
+    p.add_argument("--report", default=None, help="folder for report.json and report.png")
+    p.add_argument(
+        "--model",
+        choices=("paper", "full"),
+        default="paper",
+        help="distortion model: paper = k1, k2 only (eq. 7); full = k1, k2, p1, p2, k3",
+    )
+    p.add_argument(
+        "--max-rms",
+        type=float,
+        default=0.5,
+        help="warn when the stereo reprojection RMS exceeds this (px, default 0.5)",
+    )
+    p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    p.set_defaults(func=run)
+
+
+def _pair_name(left: Path, right: Path) -> str:
+    ls, rs = left.stem, right.stem
+    for lp, rp in (("left", "right"), ("l", "r"), ("L", "R")):
+        if ls.lower().startswith(lp.lower()) and rs.lower().startswith(rp.lower()):
+            if ls[len(lp) :] == rs[len(rp) :] and ls[len(lp) :].strip("_-. "):
+                return ls[len(lp) :].strip("_-. ")
+    return ls if ls == rs else f"{ls}|{rs}"
+
+
+def _fail(message: str) -> int:
+    print(f"{PROG}: error: {message}", file=sys.stderr)
+    return 2
+
+
+def run(args: argparse.Namespace) -> int:
+    import cv2
+
+    from app.geometry.calibration import CalibrationError
+    from app.geometry.checkerboard import (
+        Board,
+        CheckerboardError,
+        calibrate_checkerboard,
+        parse_board,
+        write_report_png,
+    )
+
+    left_files = sorted(Path(p) for p in glob.glob(args.left))
+    right_files = sorted(Path(p) for p in glob.glob(args.right))
+    if not left_files:
+        return _fail(f"no files match --left {args.left!r}")
+    if not right_files:
+        return _fail(f"no files match --right {args.right!r}")
+    if len(left_files) != len(right_files):
+        return _fail(
+            f"{len(left_files)} left images but {len(right_files)} right images: "
+            "pairs are formed from the two sorted lists, they must have the same length"
+        )
+    try:
+        cols, rows = parse_board(args.board)
+        board = Board(cols, rows, float(args.square_mm))
+        names = [_pair_name(lf, rf) for lf, rf in zip(left_files, right_files, strict=True)]
+        lefts, rights = [], []
+        for lf, rf in zip(left_files, right_files, strict=True):
+            for f, dest in ((lf, lefts), (rf, rights)):
+                img = cv2.imread(str(f), cv2.IMREAD_GRAYSCALE)
+                if img is None:
+                    raise CheckerboardError(f"cannot read image {f}")
+                dest.append(img)
+        result = calibrate_checkerboard(
+            names,
+            lefts,
+            rights,
+            board,
+            model=args.model,
+            max_stereo_rms_px=args.max_rms,
+            progress=not args.no_progress,
+        )
+        out = Path(args.out)
+        if out.parent and not out.parent.exists():
+            out.parent.mkdir(parents=True, exist_ok=True)
+        result.save(out)
+    except (CheckerboardError, CalibrationError) as exc:
+        return _fail(str(exc))
+    except OSError as exc:
+        return _fail(f"cannot write output ({exc})")
+
+    rep = result.report
+    if args.report:
+        rdir = Path(args.report)
+        rdir.mkdir(parents=True, exist_ok=True)
+        payload = {"calibration": result.calibration.to_dict(), "report": rep.to_dict()}
+        (rdir / "report.json").write_text(json.dumps(payload, indent=2) + "\n")
+        k = result.used[0]
+        write_report_png(result, rdir / "report.png", lefts[k], rights[k])
+    for w in rep.warnings:
+        print(f"warning: {w}", file=sys.stderr)
+    il, ir = rep.intrinsics["left"], rep.intrinsics["right"]
+    print(f"views used      {rep.views_used} of {rep.pairs_given} ({len(rep.rejected)} rejected)")
+    print(f"RMS (px)        left {rep.left_rms_px:.3f}  right {rep.right_rms_px:.3f}  stereo {rep.stereo_rms_px:.3f}")
+    for side, i in (("left", il), ("right", ir)):
+        print(
+            f"{side:<6}          fx {i['fx']:.2f} fy {i['fy']:.2f} u0 {i['u0']:.2f} v0 {i['v0']:.2f} "
+            f"k1 {i['k1']:.4f} k2 {i['k2']:.4f} (skew not estimated: 0)"
+        )
+    print(f"baseline        {rep.baseline_mm:.2f} mm, convergence {rep.convergence_deg:.3f} deg")
+    print(f"wrote           {args.out}" + (f", {args.report}/report.json, {args.report}/report.png" if args.report else ""))
+    return 0
