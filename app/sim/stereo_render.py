@@ -90,8 +90,11 @@ class RenderTruth:
     ``led_left_px``/``led_right_px`` are the projections of the LED centres through the full
     camera model, i.e. what a perfect centroid of each blob returns. ``visible`` is True
     where the LED is drawn in both images (in frame, in front of both cameras, not occluded);
-    ``in_left``/``in_right`` say per image. Clutter pixel rows are NaN where that item is
-    not in that image (monocular glints, or out of frame).
+    ``in_left``/``in_right`` say per image. An LED counts as in an image when its centre
+    projects inside it; one within a blob radius of the border is drawn clipped (as a camera
+    would show it), so its centroid is biased: keep accuracy poses away from the borders.
+    Clutter pixel rows are NaN where that item is not in that image (monocular glints, or out
+    of frame).
     """
 
     led_xyz_mm: FloatArray
