@@ -1,0 +1,78 @@
+"""Kalman filter on the drogue position measured by the navigation pipeline (tanker frame, m).
+
+Constant-velocity model per axis with white-acceleration process noise (σ_a, m/s²); measurement
+noise from the stereo geometry (supplied per measurement). Outliers are rejected by innovation
+gating: normalised innovation squared ``νᵀ S⁻¹ ν`` above the χ²(3) threshold (default 99.9 %,
+16.27). Without accepted measurements the filter coasts (predicts only); :attr:`coast_time_s`
+tells the guidance how long, so it can command a back-off after a bounded time.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+FloatArray = NDArray[np.float64]
+CHI2_3_999 = 16.266
+
+
+class DrogueFilter:
+    def __init__(self, accel_sigma: float = 1.5, gate: float = CHI2_3_999) -> None:
+        self.accel_sigma = accel_sigma
+        self.gate = gate
+        self.x = np.zeros(6)
+        self.P = np.eye(6) * 1e3
+        self.initialised = False
+        self.coast_time_s = 0.0
+        self.rejected = 0
+
+    def reset(self) -> None:
+        self.__init__(self.accel_sigma, self.gate)  # type: ignore[misc]
+
+    @property
+    def position(self) -> FloatArray:
+        return self.x[:3].copy()
+
+    @property
+    def velocity(self) -> FloatArray:
+        return self.x[3:].copy()
+
+    def predict(self, dt: float) -> None:
+        if not self.initialised:
+            self.coast_time_s += dt
+            return
+        f = np.eye(6)
+        f[:3, 3:] = dt * np.eye(3)
+        q1 = self.accel_sigma**2 * np.array([[dt**4 / 4, dt**3 / 2], [dt**3 / 2, dt**2]])
+        q = np.kron(q1, np.eye(3))
+        self.x = f @ self.x
+        self.P = f @ self.P @ f.T + q
+        self.coast_time_s += dt
+
+    def update(self, z: FloatArray, r: FloatArray) -> bool:
+        """Fuse a position measurement ``z`` (m) with covariance ``r``; False if gated out."""
+        z = np.asarray(z, float)
+        if not self.initialised:
+            self.x = np.concatenate([z, np.zeros(3)])
+            self.P = np.zeros((6, 6))
+            self.P[:3, :3] = r
+            self.P[3:, 3:] = np.eye(3) * 1.0
+            self.initialised = True
+            self.coast_time_s = 0.0
+            return True
+        h = np.hstack([np.eye(3), np.zeros((3, 3))])
+        nu = z - h @ self.x
+        s = h @ self.P @ h.T + r
+        nis = float(nu @ np.linalg.solve(s, nu))
+        if nis > self.gate:
+            self.rejected += 1
+            # persistent disagreement means the filter, not the measurement, is wrong: re-seed
+            if self.coast_time_s > 1.0:
+                self.initialised = False
+                return self.update(z, r)
+            return False
+        k = self.P @ h.T @ np.linalg.inv(s)
+        self.x = self.x + k @ nu
+        self.P = (np.eye(6) - k @ h) @ self.P
+        self.coast_time_s = 0.0
+        return True

@@ -1,0 +1,90 @@
+"""LQR state feedback with integral action (paper §6.1, eq. 20).
+
+The plant ``x_{k+1} = A_d x_k + B_d u_k`` (zero-order hold at the tick) is augmented with the
+integral of the tracking error ``ζ_{k+1} = ζ_k + Δt (C x_k − y*_k)``; the gain
+``K = [K_p  K_i]`` comes from the discrete algebraic Riccati equation (scipy
+``solve_discrete_are``), the discrete counterpart of eq. 20's ``K = −R⁻¹ Bᵀ P*``, for which
+:func:`continuous_lqr` is also provided. Control law: ``u = −K_p (x̂ − x*) − K_i ζ``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.linalg import solve_continuous_are, solve_discrete_are
+
+FloatArray = NDArray[np.float64]
+
+
+def continuous_lqr(a: FloatArray, b: FloatArray, q: FloatArray, r: FloatArray) -> FloatArray:
+    """Eq. 20: ``K = R⁻¹ Bᵀ P*`` with P* the stabilising CARE solution (u = −K x)."""
+    p = solve_continuous_are(a, b, q, r)
+    return np.asarray(np.linalg.solve(r, b.T @ p))
+
+
+def discrete_lqr(ad: FloatArray, bd: FloatArray, q: FloatArray, r: FloatArray) -> FloatArray:
+    """``K = (R + Bᵀ P B)⁻¹ Bᵀ P A`` with P the stabilising DARE solution (u = −K x)."""
+    p = solve_discrete_are(ad, bd, q, r)
+    return np.asarray(np.linalg.solve(r + bd.T @ p @ bd, bd.T @ p @ ad))
+
+
+def augment_integral(
+    ad: FloatArray, bd: FloatArray, c: FloatArray, dt: float
+) -> tuple[FloatArray, FloatArray]:
+    """Discrete plant augmented with ``ζ_{k+1} = ζ_k + Δt C x_k`` (tracked outputs ``C x``)."""
+    n, m = bd.shape
+    p = c.shape[0]
+    a_aug = np.zeros((n + p, n + p))
+    a_aug[:n, :n] = ad
+    a_aug[n:, :n] = dt * c
+    a_aug[n:, n:] = np.eye(p)
+    b_aug = np.vstack([bd, np.zeros((p, m))])
+    return a_aug, b_aug
+
+
+@dataclass
+class IntegralLqr:
+    """``u = −K_p (x̂ − x*) − K_i ζ`` with saturation-aware integrator (anti-windup by freezing)."""
+
+    kp: FloatArray
+    ki: FloatArray
+    c: FloatArray
+    dt: float
+    integral_limit: float = 5.0
+
+    @classmethod
+    def design(
+        cls,
+        ad: FloatArray,
+        bd: FloatArray,
+        c: FloatArray,
+        dt: float,
+        q_state: FloatArray,
+        q_int: FloatArray,
+        r: FloatArray,
+    ) -> IntegralLqr:
+        a_aug, b_aug = augment_integral(ad, bd, c, dt)
+        q = np.diag(np.concatenate([q_state, q_int]))
+        k = discrete_lqr(a_aug, b_aug, q, np.diag(r))
+        n = ad.shape[0]
+        return cls(kp=k[:, :n], ki=k[:, n:], c=c, dt=dt)
+
+    def __post_init__(self) -> None:
+        self.zeta = np.zeros(self.c.shape[0])
+
+    def reset(self) -> None:
+        self.zeta = np.zeros(self.c.shape[0])
+
+    def closed_loop_matrix(self, ad: FloatArray, bd: FloatArray) -> FloatArray:
+        """Augmented closed-loop transition matrix (for stability checks)."""
+        a_aug, b_aug = augment_integral(ad, bd, self.c, self.dt)
+        return a_aug - b_aug @ np.hstack([self.kp, self.ki])
+
+    def control(self, x_hat: FloatArray, x_ref: FloatArray, y_ref: FloatArray) -> FloatArray:
+        """Control deviation from trim; advances the integrator by one tick."""
+        u = -self.kp @ (x_hat - x_ref) - self.ki @ self.zeta
+        err = self.c @ x_hat - y_ref
+        self.zeta = np.clip(self.zeta + self.dt * err, -self.integral_limit, self.integral_limit)
+        return np.asarray(u)

@@ -1,0 +1,82 @@
+"""Reference trajectory generation (paper §6.1, RTGM of Fig. 13 / Algorithm 3).
+
+Phases: ``approach`` (probe tip held ``gap`` metres behind the estimated drogue, the gap shrinking
+at the closure speed, laterally following the drogue estimate), ``final`` (the last metre, where the
+breakaway checks run), ``contact`` (the tick the probe enters the drogue), ``station_keeping``
+(refuelling: hold the contact point pushed in by a few centimetres, the paper's 8–20 s stage) and
+``backoff`` (open the gap at the back-off speed, then retry). The commanded gap keeps shrinking past
+zero by ``overshoot_m`` so the probe actually crosses the drogue plane at closure speed.
+All positions in the tanker frame (m).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+FloatArray = NDArray[np.float64]
+PHASES = ("approach", "final", "contact", "station_keeping", "backoff")
+
+
+@dataclass
+class GuidanceConfig:
+    closure_speed_mps: float = 1.2
+    final_gap_m: float = 1.0
+    overshoot_m: float = 0.5
+    backoff_gap_m: float = 4.0
+    backoff_speed_mps: float = 1.5
+    push_in_m: float = 0.3
+    push_in_time_s: float = 2.0
+
+
+class ReferenceGenerator:
+    def __init__(self, config: GuidanceConfig, start_gap_m: float) -> None:
+        self.cfg = config
+        self.reset(start_gap_m)
+
+    def reset(self, start_gap_m: float) -> None:
+        self.phase = "approach" if start_gap_m > self.cfg.final_gap_m else "final"
+        self.gap_cmd = float(start_gap_m)
+        self.contact_point: FloatArray | None = None
+        self.contact_time = 0.0
+        self.backoffs = 0
+
+    def start_backoff(self) -> None:
+        self.phase = "backoff"
+        self.backoffs += 1
+
+    def mark_contact(self, tip_m: FloatArray) -> None:
+        self.phase = "contact"
+        self.contact_point = np.asarray(tip_m, float).copy()
+        self.contact_time = 0.0
+
+    def update(
+        self, dt: float, drogue_pos: FloatArray, drogue_vel: FloatArray, lock: bool
+    ) -> tuple[FloatArray, FloatArray]:
+        """Advance one tick; return probe-tip reference position (m) and velocity (m/s)."""
+        c = self.cfg
+        if self.phase in ("contact", "station_keeping"):
+            assert self.contact_point is not None
+            self.phase = "station_keeping"
+            self.contact_time += dt
+            frac = min(self.contact_time / c.push_in_time_s, 1.0)
+            ref = self.contact_point + np.array([c.push_in_m * frac, 0.0, 0.0])
+            vel = np.array([c.push_in_m / c.push_in_time_s if frac < 1 else 0.0, 0.0, 0.0])
+            return ref, vel
+        gap_rate = 0.0
+        if self.phase == "backoff":
+            if self.gap_cmd < c.backoff_gap_m:
+                self.gap_cmd += c.backoff_speed_mps * dt
+                gap_rate = c.backoff_speed_mps
+            elif lock:
+                self.phase = "approach"
+        elif self.gap_cmd > -c.overshoot_m:
+            self.gap_cmd -= c.closure_speed_mps * dt
+            gap_rate = -c.closure_speed_mps
+        if self.phase in ("approach", "final"):
+            self.phase = "final" if self.gap_cmd <= c.final_gap_m else "approach"
+        ref = np.asarray(drogue_pos, float) - np.array([self.gap_cmd, 0.0, 0.0])
+        vel = np.asarray(drogue_vel, float) - np.array([gap_rate, 0.0, 0.0])
+        return ref, vel
