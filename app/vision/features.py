@@ -11,6 +11,7 @@ from app.vision.preprocess import U8Image
 from app.vision.types import Blob, RejectedBlob
 
 MAX_REJECTED_REPORTED = 100
+ROI_MARGIN_PX = 48  # > the largest centroid margin (0.5·sqrt(max_area_px) + dilation)
 
 
 @dataclass(frozen=True)
@@ -52,10 +53,22 @@ def extract_blobs(
     which gives sub-pixel accuracy; coordinates are pixel centres (u right, v down), px.
     """
     gate = gate or BlobGate()
-    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    # Label only the bounding box of the foreground (the LEDs cover < 0.1 % of the frame),
+    # widened by the largest centroid margin so that no blob's fringe is cut.
+    height, width = gray.shape
+    bx, by, bw, bh = cv2.boundingRect(mask)
+    if bw == 0 or bh == 0:
+        return [], []
+    m = ROI_MARGIN_PX
+    ox, oy = max(0, bx - m), max(0, by - m)
+    ex, ey = min(width, bx + bw + m), min(height, by + bh + m)
+    gray_roi = gray[oy:ey, ox:ex]
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask[oy:ey, ox:ex], connectivity=8)
+    stats = stats.copy()
+    stats[:, 0] += ox
+    stats[:, 1] += oy
     blobs: list[Blob] = []
     rejected: list[RejectedBlob] = []
-    height, width = gray.shape
     st = stats[1:].astype(np.int64)
     xs, ys, ws, hs, areas = st[:, 0], st[:, 1], st[:, 2], st[:, 3], st[:, 4]
     aspect = np.maximum(ws, hs) / np.maximum(1, np.minimum(ws, hs))
@@ -84,21 +97,22 @@ def extract_blobs(
     for i in candidates:
         x, y, w, h, area = (int(v) for v in stats[i])
         pad = max(2, int(round(0.5 * np.sqrt(area))))
-        x0, y0 = max(0, x - pad), max(0, y - pad)
-        x1, y1 = min(width, x + w + pad), min(height, y + h + pad)
+        # window in ROI coordinates
+        x0, y0 = max(0, x - ox - pad), max(0, y - oy - pad)
+        x1, y1 = min(ex - ox, x - ox + w + pad), min(ey - oy, y - oy + h + pad)
         lab = labels[y0:y1, x0:x1]
         comp = (lab == i).astype(np.uint8)
         kernel = np.ones((2 * pad + 1, 2 * pad + 1), np.uint8)
         # Dilated support, but never a neighbouring component's pixels.
         support = (cv2.dilate(comp, kernel) > 0) & ((lab == 0) | (comp > 0))
-        window = gray[y0:y1, x0:x1].astype(np.float64)
+        window = gray_roi[y0:y1, x0:x1].astype(np.float64)
         weights = np.where(support, window - background, 0.0)
         np.clip(weights, 0.0, None, out=weights)
         mass = float(weights.sum())
         if mass <= 0:
             cu, cv = x + (w - 1) / 2.0, y + (h - 1) / 2.0
         else:
-            vs, us = np.mgrid[y0:y1, x0:x1]
+            vs, us = np.mgrid[y0 + oy : y1 + oy, x0 + ox : x1 + ox]
             cu = float((weights * us).sum() / mass)
             cv = float((weights * vs).sum() / mass)
         peak = float(window[comp > 0].max())

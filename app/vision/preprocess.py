@@ -70,14 +70,15 @@ def choose_threshold(gray: U8Image, mode: ThresholdMode = "auto") -> int:
         return max(int(t), 1)
     if mode == "auto":
         bg, sigma = background_level(gray)
-        peak = float(gray.max())
+        peak = float(cv2.minMaxLoc(gray)[1])
         return int(min(255, max(1, round(bg + max(0.25 * (peak - bg), 6.0 * sigma)))))
     raise ValueError(f"threshold must be an int 1..255, 'auto' or 'otsu', got {mode!r}")
 
 
 def binarize(gray: U8Image, threshold: int) -> U8Image:
     """Eq. 10: 255 where I ≥ T_s, else 0."""
-    return np.where(gray >= threshold, np.uint8(255), np.uint8(0))
+    _, out = cv2.threshold(gray, threshold - 1, 255, cv2.THRESH_BINARY)  # > T−1 ⇔ ≥ T
+    return np.asarray(out, dtype=np.uint8)
 
 
 def median_filter(binary: U8Image, ksize: int = 3) -> U8Image:
