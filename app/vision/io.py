@@ -15,9 +15,10 @@ def decode_image(data: bytes, name: str) -> np.ndarray:
     if not data:
         raise ImageError(f"{name}: empty file")
     buf = np.frombuffer(data, dtype=np.uint8)
-    image = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
-    if image is None:
+    decoded = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
+    if decoded is None:
         raise ImageError(f"{name}: not a readable PNG/JPEG/BMP/TIFF image")
+    image = np.asarray(decoded)
     if image.dtype == np.uint16:
         image = (image >> 8).astype(np.uint8)
     if image.dtype != np.uint8:
