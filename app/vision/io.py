@@ -18,9 +18,9 @@ def decode_image(data: bytes, name: str) -> np.ndarray:
     decoded = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
     if decoded is None:
         raise ImageError(f"{name}: not a readable PNG/JPEG/BMP/TIFF image")
-    image = np.asarray(decoded)
+    image: np.ndarray = np.asarray(decoded)
     if image.dtype == np.uint16:
-        image = (image >> 8).astype(np.uint8)
+        image = (image.astype(np.uint16) // 256).astype(np.uint8)
     if image.dtype != np.uint8:
         raise ImageError(f"{name}: unsupported pixel type {image.dtype}")
     if image.ndim == 3 and image.shape[2] == 4:
