@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from app.cli.main import main
+from app.sim.paths import REPO_ROOT
 from app.sim.stereo_render import render_pair
 
 
@@ -76,3 +77,23 @@ def test_process_bad_inputs_exit_2_with_one_line(pair_dir, tmp_path, capsys):
         assert main(["process", *argv]) == 2
         err = capsys.readouterr().err.strip()
         assert len(err.splitlines()) == 1 and needle in err, err
+
+
+SAMPLE_PAIRS = sorted(p.name for p in (REPO_ROOT / "sample_data").glob("pair_*"))
+
+
+def test_there_are_sample_pairs():
+    assert {"pair_0600mm", "pair_1000mm", "pair_2500mm", "pair_1000mm_clutter"} <= set(SAMPLE_PAIRS)
+
+
+@pytest.mark.parametrize("name", SAMPLE_PAIRS)
+def test_sample_pairs_give_their_truth(name, capsys):
+    d = REPO_ROOT / "sample_data" / name
+    truth = json.loads((d / "truth.json").read_text())
+    assert main(["process", str(d / "left.png"), str(d / "right.png"), "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["lock"], out["reason"]
+    tol_mm = 0.5 if "2500" not in name else 2.0
+    assert np.linalg.norm(np.array(out["drogue"]["center_mm"]) - truth["center_mm"]) < tol_mm
+    for led in out["leds"]:
+        assert np.linalg.norm(np.array(led["xyz_mm"]) - truth["led_xyz_mm"][led["id"] - 1]) < 2 * tol_mm
