@@ -1,0 +1,214 @@
+"""The viser side of the service: server on a pinned port + a throttled scene publisher thread.
+
+The tick loop hands every record to :meth:`VizService.publish` (cheap: it only stores the
+latest); a dedicated thread updates the scene at ``scene_hz`` and the images at ``image_hz``,
+so the tick loop never waits on the 3-D scene.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import viser
+
+from app.viz.gui import DockingGui
+from app.viz.scene import DockingScene, ReceiverGeometry
+
+log = logging.getLogger(__name__)
+UPLOAD_HOLD_S = 8.0  # an uploaded pair stays on the image panels this long
+
+
+def viser_client_dir() -> Path | None:
+    """viser's prebuilt web client (served for offline ``.viser`` replay)."""
+    path = Path(viser.__file__).resolve().parent / "client" / "build"
+    return path if (path / "index.html").is_file() else None
+
+
+class ViserPortError(RuntimeError):
+    pass
+
+
+def start_viser(host: str, port: int) -> viser.ViserServer:
+    """Start viser on exactly ``port`` (0 = any free port); raise if it is taken.
+
+    viser silently moves to the next free port when the requested one is busy: we check
+    ``server.get_port()`` and fail loudly instead.
+    """
+    server = viser.ViserServer(host=host, port=port, verbose=False)
+    actual = server.get_port()
+    if port != 0 and actual != port:
+        server.stop()
+        raise ViserPortError(
+            f"viser port {port} is already in use (set AAR_VISER_PORT or --viser-port)"
+        )
+    return server
+
+
+class VizService:
+    def __init__(
+        self,
+        *,
+        host: str,
+        port: int,
+        calibration: Any,
+        actions: Any,
+        scene_hz: float = 15.0,
+        image_hz: float = 5.0,
+        plot_hz: float = 5.0,
+        capture_radius_m: float = 0.305,
+    ) -> None:
+        self.host = host
+        self.port = port
+        self.calibration = calibration
+        self.actions = actions
+        self.scene_period = 1.0 / scene_hz
+        self.image_period = 1.0 / image_hz
+        self.plot_period = 1.0 / plot_hz
+        self.capture_radius_m = capture_radius_m
+        self.server: viser.ViserServer | None = None
+        self.scene: DockingScene | None = None
+        self.gui: DockingGui | None = None
+        self._latest: tuple[Any, Any, Any] | None = None
+        self._prev_sim: Any = None
+        self._upload: tuple[Any, Any, float] | None = None
+        self._lock = threading.Lock()
+        self._event = threading.Event()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._listeners: list[Callable[[float], None]] = []
+        self._pending_calibration: Any = None
+        self._pending_reset = False
+        self.updates = 0
+
+    # ---- lifecycle --------------------------------------------------------------------
+    def start(self) -> int:
+        self.server = start_viser(self.host, self.port)
+        self.server.gui.set_panel_label("aar-dock: probe-and-drogue docking")
+        try:
+            geometry: ReceiverGeometry | None = ReceiverGeometry.from_docking_defaults()
+        except ImportError:  # pragma: no cover - the simulation is part of the package
+            geometry = None
+        self.scene = DockingScene(self.server, self.calibration, geometry)
+        self.gui = DockingGui(self.server, self.actions)
+        self._thread = threading.Thread(target=self._run, name="aar-viz", daemon=True)
+        self._thread.start()
+        return self.server.get_port()
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._event.set()
+        if self._thread is not None:
+            self._thread.join(timeout=5.0)
+        if self.server is not None:
+            self.server.stop()
+
+    # ---- inputs -----------------------------------------------------------------------
+    def publish(self, record: Any, raw: Any) -> None:
+        """Tick-loop subscriber: keep only the latest; the viz thread picks it up."""
+        with self._lock:
+            if record.source == "upload":
+                self._upload = (record, raw, time.monotonic())
+            else:
+                prev = self._prev_sim
+                frame_uav = prev.uav_state if prev is not None and prev.run == record.run else None
+                self._latest = (record, raw, frame_uav)
+                self._prev_sim = record
+        if self.gui is not None:
+            self.gui.record(record)
+        self._event.set()
+
+    def add_scene_listener(self, fn: Callable[[float], None]) -> None:
+        """``fn(dt_s)`` after each scene update (the recorder's ``insert_sleep``)."""
+        self._listeners.append(fn)
+
+    def scene_serializer(self) -> Any:
+        assert self.server is not None
+        return self.server.get_scene_serializer()
+
+    def set_calibration(self, calibration: Any) -> None:
+        with self._lock:
+            self._pending_calibration = calibration
+
+    def on_config(self, config: Any) -> None:
+        if self.gui is not None:
+            self.gui.sync_config(config)
+            self.gui.clear()
+
+    def on_reset(self) -> None:
+        with self._lock:
+            self._pending_reset = True
+
+    # ---- the publisher thread --------------------------------------------------------
+    def _run(self) -> None:
+        last_scene = last_image = last_plot = 0.0
+        last_t = time.monotonic()
+        shown_upload = None
+        shown_seq = -1
+        while not self._stop.is_set():
+            self._event.wait(timeout=0.5)
+            self._event.clear()
+            if self._stop.is_set():
+                break
+            now = time.monotonic()
+            wait = last_scene + self.scene_period - now
+            if wait > 0:
+                time.sleep(wait)
+                now = time.monotonic()
+            with self._lock:
+                latest = self._latest
+                upload = self._upload
+                calib, self._pending_calibration = self._pending_calibration, None
+                reset, self._pending_reset = self._pending_reset, False
+            assert self.scene is not None and self.gui is not None
+            try:
+                if calib is not None:
+                    self.scene.set_calibration(calib)
+                if reset:
+                    self.scene.reset_trails()
+                    self.gui.clear()
+                images_due = now - last_image >= self.image_period
+                upload_live = upload is not None and now - upload[2] < UPLOAD_HOLD_S
+                if upload_live and upload is not None and upload[2] != shown_upload:
+                    self.scene.update(upload[0], upload[1], images=True)
+                    self.gui.set_images(upload[0], upload[1])
+                    self.gui.set_status(upload[0], self._rate(), self._dropped())
+                    shown_upload = upload[2]
+                    last_image = now
+                elif latest is not None and latest[0].seq != shown_seq:
+                    record, raw, frame_uav = latest
+                    shown_seq = record.seq
+                    self.scene.update(
+                        record, raw, images=images_due and not upload_live, frame_uav=frame_uav
+                    )
+                    if images_due and not upload_live:
+                        self.gui.set_images(record, raw)
+                        last_image = now
+                    if not upload_live:
+                        self.gui.set_status(record, self._rate(), self._dropped())
+                if now - last_plot >= self.plot_period:
+                    self.gui.refresh_plots(self.capture_radius_m)
+                    last_plot = now
+                self.updates += 1
+            except Exception:
+                log.exception("scene update failed")
+            last_scene = now
+            dt = now - last_t
+            last_t = now
+            for fn in self._listeners:
+                try:
+                    fn(dt)
+                except Exception:
+                    log.exception("scene listener failed")
+
+    def _rate(self) -> float:
+        loop = getattr(self.actions, "loop", None)
+        return float(loop.tick_rate_hz()) if loop is not None else 0.0
+
+    def _dropped(self) -> int:
+        loop = getattr(self.actions, "loop", None)
+        return int(loop.dropped) if loop is not None else 0
