@@ -1,0 +1,124 @@
+"""``aar-dock simulate``: one closed-loop docking run (paper §6), optional Figs 14–16 style plots."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    p = subparsers.add_parser("simulate", help="closed-loop docking simulation (one run)")
+    p.add_argument("--turbulence", default="light", choices=["none", "light", "moderate", "severe"])
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument(
+        "--truth-measurements", action="store_true", help="no vision: true drogue centre"
+    )
+    p.add_argument(
+        "--camera-hz", type=float, default=None, help="camera rate (default: every tick)"
+    )
+    p.add_argument("--matcher", default="epipolar", choices=["epipolar", "paper"])
+    p.add_argument(
+        "--station-keep", type=float, default=12.0, help="refuelling seconds after contact"
+    )
+    p.add_argument("--plot", default=None, metavar="DIR", help="write PNG figures to DIR")
+    p.add_argument("--json", action="store_true", help="print only the outcome as JSON")
+    p.set_defaults(func=run)
+
+
+def plot_run(log: Any, out_dir: Path) -> list[Path]:
+    """Figures like the paper's 14 (relative position), 15 (attitude), 16 (controls)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    t = np.asarray(log.t)
+    rel = np.asarray(log.rel)
+    ref = np.asarray(log.ref_rel)
+    att = np.degrees(np.asarray(log.att))
+    ctrl = np.asarray(log.ctrl)
+    paths = []
+    fig, axes = plt.subplots(3, 1, figsize=(7, 7), sharex=True)
+    for i, name in enumerate("xyz"):
+        axes[i].plot(t, rel[:, i], label="probe tip − drogue (actual)")
+        axes[i].plot(t, ref[:, i], "--", label="reference − drogue")
+        axes[i].set_ylabel(f"{name} (m)")
+        axes[i].grid(True, alpha=0.3)
+    axes[0].legend(loc="best", fontsize=8)
+    axes[-1].set_xlabel("time (s)")
+    fig.suptitle("Relative position of the probe tip to the drogue (cf. paper Fig. 14)")
+    fig.tight_layout()
+    paths.append(out_dir / "fig14_relative_position.png")
+    fig.savefig(paths[-1], dpi=100)
+    plt.close(fig)
+    fig, axes = plt.subplots(3, 1, figsize=(7, 7), sharex=True)
+    for i, name in enumerate(("φ", "θ", "ψ")):
+        axes[i].plot(t, att[:, i])
+        axes[i].set_ylabel(f"{name} (deg)")
+        axes[i].grid(True, alpha=0.3)
+    axes[-1].set_xlabel("time (s)")
+    fig.suptitle("Receiver attitude (cf. paper Fig. 15)")
+    fig.tight_layout()
+    paths.append(out_dir / "fig15_attitude.png")
+    fig.savefig(paths[-1], dpi=100)
+    plt.close(fig)
+    fig, axes = plt.subplots(4, 1, figsize=(7, 8), sharex=True)
+    labels = ("Δδ_t (throttle)", "Δδ_a (deg)", "Δδ_e (deg)", "Δδ_r (deg)")
+    for i, lab in enumerate(labels):
+        y = ctrl[:, i] if i == 0 else np.degrees(ctrl[:, i])
+        axes[i].plot(t, y)
+        axes[i].set_ylabel(lab)
+        axes[i].grid(True, alpha=0.3)
+    axes[-1].set_xlabel("time (s)")
+    fig.suptitle("Control deflections relative to trim (cf. paper Fig. 16)")
+    fig.tight_layout()
+    paths.append(out_dir / "fig16_controls.png")
+    fig.savefig(paths[-1], dpi=100)
+    plt.close(fig)
+    return paths
+
+
+def run(args: argparse.Namespace) -> int:
+    from app.sim.docking import DockingConfig, DockingSimulation, TickLog
+
+    try:
+        cfg = DockingConfig(
+            turbulence=args.turbulence,
+            seed=args.seed,
+            vision=not args.truth_measurements,
+            camera_hz=args.camera_hz,
+            matcher=args.matcher,
+            station_keep_s=args.station_keep,
+        )
+        cfg.validate()
+        if args.station_keep < 0:
+            raise ValueError("--station-keep must be >= 0")
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    sim = DockingSimulation(cfg)
+    log = TickLog()
+    while not sim.done:
+        log.add(sim.step())
+    out = sim.outcome()
+    if args.plot:
+        paths = plot_run(log, Path(args.plot))
+        if not args.json:
+            for p in paths:
+                print(f"wrote {p}", file=sys.stderr)
+    if args.json:
+        print(json.dumps(out.to_dict()))
+        return 0
+    d = out.to_dict()
+    miss = d["miss_distance_m"]
+    print(
+        f"captured={d['captured']} miss={'n/a' if miss is None else f'{100 * miss:.1f} cm'} "
+        f"closure={d['closure_speed_mps']} m/s time_to_capture={d['time_to_capture_s']} s "
+        f"aborts={d['aborts']} max_saturation={d['max_control_saturation']:.2f}"
+    )
+    return 0
