@@ -1,0 +1,105 @@
+"""``aar-dock serve``: the FastAPI service (one uvicorn worker) + viser scene + tick loop."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from typing import Any
+
+
+def register(subparsers: Any) -> None:
+    p = subparsers.add_parser(
+        "serve",
+        help="run the live service (REST/WebSocket API, operators' page, 3-D scene)",
+        description=(
+            "Start the service with the simulated docking stream running. Settings come from "
+            "AAR_* environment variables (AAR_HOST, AAR_PORT, AAR_VISER_PORT, AAR_TICK_HZ, "
+            "AAR_TOKEN, AAR_CALIBRATION, AAR_MAX_UPLOAD_MB, AAR_RECORDINGS_DIR, ...); flags "
+            "override them."
+        ),
+    )
+    p.add_argument("--host", help="bind address (default 127.0.0.1, AAR_HOST)")
+    p.add_argument("--port", type=int, help="HTTP port (default 8000, AAR_PORT)")
+    p.add_argument("--viser-port", type=int, help="viser port, pinned (default 8080)")
+    p.add_argument("--tick-hz", type=float, help="tick loop rate (default 30 Hz)")
+    p.add_argument("--calibration", help="stereo calibration JSON (default sample_data/...)")
+    p.add_argument("--recordings-dir", help="where recordings go (default ./recordings)")
+    p.add_argument("--no-viser", action="store_true", help="do not start the 3-D scene server")
+    p.add_argument("--no-sim", action="store_true", help="do not start the simulated stream")
+    p.set_defaults(func=run)
+
+
+def _port_free(host: str, port: int) -> bool:
+    import socket
+
+    if port == 0:
+        return True
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            s.bind((host, port))
+        except OSError:
+            return False
+    return True
+
+
+def run(args: argparse.Namespace) -> int:
+    from pydantic import ValidationError
+
+    from app.geometry.calibration import CalibrationError, StereoCalibration
+    from app.server.settings import Settings
+
+    overrides: dict[str, Any] = {}
+    for flag, key in (
+        ("host", "host"),
+        ("port", "port"),
+        ("viser_port", "viser_port"),
+        ("tick_hz", "tick_hz"),
+        ("calibration", "calibration"),
+        ("recordings_dir", "recordings_dir"),
+    ):
+        value = getattr(args, flag, None)
+        if value is not None:
+            overrides[key] = value
+    if args.no_viser:
+        overrides["viser_enabled"] = False
+    if args.no_sim:
+        overrides["sim_autostart"] = False
+    try:
+        settings = Settings(**overrides)
+    except ValidationError as exc:
+        print(f"aar-dock serve: invalid setting: {exc}", file=sys.stderr)
+        return 2
+    try:
+        StereoCalibration.load(settings.calibration)
+    except CalibrationError as exc:
+        print(f"aar-dock serve: {exc}", file=sys.stderr)
+        return 2
+    if not _port_free(settings.host, settings.port):
+        print(f"aar-dock serve: port {settings.port} on {settings.host} is in use", file=sys.stderr)
+        return 2
+    if settings.viser_enabled and not _port_free(settings.viser_bind_host, settings.viser_port):
+        print(
+            f"aar-dock serve: viser port {settings.viser_port} is in use "
+            "(choose another with --viser-port or AAR_VISER_PORT)",
+            file=sys.stderr,
+        )
+        return 2
+
+    import uvicorn
+
+    from app.server.main import create_app
+
+    app = create_app(settings)
+    print(
+        f"aar-dock: http://{settings.host}:{settings.port}/ (API docs /docs), "
+        f"viser on port {settings.viser_port if settings.viser_enabled else 'off'}",
+        flush=True,
+    )
+    config = uvicorn.Config(
+        app, host=settings.host, port=settings.port, workers=1, log_level=settings.log_level
+    )
+    server = uvicorn.Server(config)
+    server.run()
+    # uvicorn exits with started=False when the lifespan failed (e.g. viser port taken)
+    return 0 if server.started else 1

@@ -1,0 +1,283 @@
+// aar-dock operators' page: vanilla JS, no external assets.
+"use strict";
+
+const API = "/api/v1";
+const $ = (id) => document.getElementById(id);
+const LED_COLORS = ["#e63c3c", "#f0aa28", "#3cc85a", "#328cf0", "#be50e6"];
+const CHART_WINDOW_S = 10;
+let serviceConfig = null;
+let latest = null;
+let dirty = false;
+const series = []; // {t, y, z, lat}
+
+function authHeaders() {
+  const tok = $("token").value.trim();
+  return tok ? { Authorization: "Bearer " + tok } : {};
+}
+
+async function api(method, path, body) {
+  const opts = { method, headers: authHeaders() };
+  if (body !== undefined) {
+    if (body instanceof FormData) {
+      opts.body = body;
+    } else {
+      opts.headers["Content-Type"] = "application/json";
+      opts.body = JSON.stringify(body);
+    }
+  }
+  const r = await fetch(API + path, opts);
+  let data = null;
+  try { data = await r.json(); } catch (e) { data = null; }
+  if (!r.ok) {
+    let detail = data && data.detail !== undefined ? data.detail : r.statusText;
+    if (Array.isArray(detail)) detail = detail.map((d) => (d.loc || []).slice(1).join(".") + ": " + d.msg).join("; ");
+    throw new Error(r.status + " " + detail);
+  }
+  return data;
+}
+
+const fmt = (v, d = 2) => (v === null || v === undefined || Number.isNaN(v) ? "–" : Number(v).toFixed(d));
+
+// ---- telemetry ---------------------------------------------------------------------------
+function connectTelemetry() {
+  const proto = location.protocol === "https:" ? "wss://" : "ws://";
+  const ws = new WebSocket(proto + location.host + API + "/telemetry");
+  ws.onopen = () => { $("conn").textContent = "live"; };
+  ws.onclose = () => { $("conn").textContent = "reconnecting…"; setTimeout(connectTelemetry, 1000); };
+  ws.onmessage = (ev) => {
+    const rec = JSON.parse(ev.data);
+    latest = rec;
+    if (rec.source === "sim" && rec.rel_position_m) {
+      const r = rec.rel_position_m;
+      if (series.length && rec.t_s < series[series.length - 1].t) series.length = 0; // new run
+      series.push({ t: rec.t_s, y: r[1], z: r[2], lat: Math.hypot(r[1], r[2]) });
+      while (series.length && series[0].t < rec.t_s - CHART_WINDOW_S) series.shift();
+    }
+    if (!dirty) { dirty = true; requestAnimationFrame(render); }
+  };
+}
+
+function render() {
+  dirty = false;
+  const rec = latest;
+  if (!rec) return;
+  const lock = $("lock");
+  lock.textContent = rec.lock ? "LOCK" : "NO LOCK";
+  lock.className = "lock " + (rec.lock ? "on" : "off");
+  $("lock-reason").textContent = rec.lock ? "" : (rec.lock_reason || "");
+  $("source").textContent = rec.source + " / " + rec.run;
+  $("t_s").textContent = fmt(rec.t_s, 2);
+  $("phase").textContent = rec.phase || "–";
+  $("captured").textContent = rec.captured === null || rec.captured === undefined ? "–" : (rec.captured ? "yes" : "no");
+  const r = rec.rel_position_m;
+  $("rel-x").textContent = r ? fmt(r[0], 3) : "–";
+  $("rel-y").textContent = r ? fmt(r[1], 3) : "–";
+  $("rel-z").textContent = r ? fmt(r[2], 3) : "–";
+  $("lateral").textContent = r ? fmt(Math.hypot(r[1], r[2]), 3) : "–";
+  const c = rec.control;
+  for (const k of ["throttle", "aileron", "elevator", "rudder"]) $("c-" + k).textContent = c ? fmt(c[k], 4) : "–";
+  $("nleds").textContent = rec.pose ? rec.pose.leds.length : "–";
+  $("miss").textContent = fmt(rec.miss_m, 3);
+  $("step-ms").textContent = fmt(rec.timings_ms.step, 1);
+  $("vision-ms").textContent = fmt(rec.timings_ms.total, 1);
+  drawChart();
+}
+
+function drawChart() {
+  const cv = $("chart");
+  const w = cv.clientWidth || cv.width, h = cv.clientHeight || cv.height;
+  if (cv.width !== w) cv.width = w;
+  if (cv.height !== h) cv.height = h;
+  const g = cv.getContext("2d");
+  g.clearRect(0, 0, w, h);
+  if (series.length < 2) return;
+  const t1 = series[series.length - 1].t, t0 = Math.max(series[0].t, t1 - CHART_WINDOW_S);
+  let lo = -0.4, hi = 0.4;
+  for (const p of series) { lo = Math.min(lo, p.y, p.z); hi = Math.max(hi, p.y, p.z, p.lat); }
+  const pad = 26;
+  const X = (t) => pad + ((t - t0) / Math.max(1e-6, t1 - t0)) * (w - pad - 6);
+  const Y = (v) => 6 + (1 - (v - lo) / (hi - lo)) * (h - 20);
+  g.strokeStyle = "#ddd"; g.lineWidth = 1;
+  g.beginPath(); g.moveTo(pad, Y(0)); g.lineTo(w - 6, Y(0)); g.stroke();
+  g.fillStyle = "#888"; g.font = "10px sans-serif";
+  g.fillText(hi.toFixed(2), 2, 12); g.fillText(lo.toFixed(2), 2, h - 8);
+  const cap = 0.305;
+  g.setLineDash([4, 4]); g.strokeStyle = "#999";
+  g.beginPath(); g.moveTo(pad, Y(cap)); g.lineTo(w - 6, Y(cap)); g.stroke();
+  g.setLineDash([]);
+  const line = (key, color) => {
+    g.strokeStyle = color; g.lineWidth = 1.6; g.beginPath();
+    series.forEach((p, i) => (i ? g.lineTo(X(p.t), Y(p[key])) : g.moveTo(X(p.t), Y(p[key]))));
+    g.stroke();
+  };
+  line("y", "#2f9a4f"); line("z", "#2f6fdf"); line("lat", "#d23a3a");
+}
+
+async function pollHealth() {
+  try {
+    const h = await api("GET", "/healthz");
+    $("tick-rate").textContent = fmt(h.tick_rate_hz, 1);
+    $("dropped").textContent = h.dropped_ticks;
+  } catch (e) { /* server restarting */ }
+}
+
+// ---- simulation controls -------------------------------------------------------------------
+function fillSimForm(cfg) {
+  $("turbulence").value = cfg.turbulence;
+  $("closure").value = cfg.closure_speed_mps;
+  $("noise").value = cfg.noise_sigma;
+  $("clutter").value = cfg.clutter;
+  $("seed").value = cfg.seed;
+  document.querySelectorAll(".drop").forEach((cb) => { cb.checked = cfg.led_dropout.includes(Number(cb.value)); });
+}
+
+function simMsg(text, err) { const m = $("sim-msg"); m.textContent = text; m.className = "msg" + (err ? " err" : ""); }
+
+function wireControls() {
+  for (const [id, path] of [["btn-start", "/sim/start"], ["btn-stop", "/sim/stop"], ["btn-reset", "/sim/reset"]]) {
+    $(id).addEventListener("click", async () => {
+      try { const s = await api("POST", path); simMsg((s.running ? "running" : "stopped") + ", run " + s.run); }
+      catch (e) { simMsg(e.message, true); }
+    });
+  }
+  $("sim-form").addEventListener("submit", async (ev) => {
+    ev.preventDefault();
+    const body = {
+      turbulence: $("turbulence").value,
+      closure_speed_mps: Number($("closure").value),
+      noise_sigma: Number($("noise").value),
+      clutter: Number($("clutter").value),
+      seed: Number($("seed").value),
+      led_dropout: [...document.querySelectorAll(".drop")].filter((c) => c.checked).map((c) => Number(c.value)),
+    };
+    try { fillSimForm(await api("PUT", "/sim/config", body)); simMsg("applied (new run)"); }
+    catch (e) { simMsg(e.message, true); }
+  });
+}
+
+// ---- upload ---------------------------------------------------------------------------------
+function loadImage(file) {
+  return new Promise((resolve) => {
+    const url = URL.createObjectURL(file);
+    const img = new Image();
+    img.onload = () => resolve(img);
+    img.onerror = () => resolve(null); // e.g. TIFF: browsers cannot show it; draw detections only
+    img.src = url;
+  });
+}
+
+function drawPair(canvas, img, leds, key, size) {
+  const g = canvas.getContext("2d");
+  const [W, H] = size;
+  const s = canvas.width / W;
+  canvas.height = Math.round(H * s);
+  g.fillStyle = "#000"; g.fillRect(0, 0, canvas.width, canvas.height);
+  if (img) g.drawImage(img, 0, 0, canvas.width, canvas.height);
+  g.lineWidth = 2; g.font = "bold 13px sans-serif";
+  for (const led of leds) {
+    const [u, v] = led[key];
+    const col = LED_COLORS[(led.id - 1) % LED_COLORS.length];
+    g.strokeStyle = col; g.fillStyle = col;
+    g.beginPath(); g.arc(u * s, v * s, 9, 0, 2 * Math.PI); g.stroke();
+    g.fillText(String(led.id), u * s + 11, v * s - 7);
+  }
+}
+
+function wireUpload() {
+  $("upload-form").addEventListener("submit", async (ev) => {
+    ev.preventDefault();
+    const form = new FormData(ev.target);
+    const st = $("upload-status");
+    st.textContent = "processing…"; st.className = "msg";
+    try {
+      const res = await api("POST", "/stereo", form);
+      const [li, ri] = await Promise.all([loadImage($("left-file").files[0]), loadImage($("right-file").files[0])]);
+      const size = serviceConfig ? serviceConfig.image_size : [li ? li.naturalWidth : 1280, li ? li.naturalHeight : 1024];
+      drawPair($("upload-left"), li, res.leds, "left_px", size);
+      drawPair($("upload-right"), ri, res.leds, "right_px", size);
+      const tb = document.querySelector("#led-table tbody");
+      tb.innerHTML = "";
+      for (const led of res.leds) {
+        const tr = document.createElement("tr");
+        const cells = [led.id, fmt(led.left_px[0], 1) + ", " + fmt(led.left_px[1], 1), fmt(led.right_px[0], 1) + ", " + fmt(led.right_px[1], 1),
+          fmt(led.xyz_mm[0], 2), fmt(led.xyz_mm[1], 2), fmt(led.xyz_mm[2], 2), fmt(led.epipolar_px, 3), fmt(led.reprojection_px, 3)];
+        for (const c of cells) { const td = document.createElement("td"); td.textContent = c; tr.appendChild(td); }
+        tr.firstChild.style.color = LED_COLORS[(led.id - 1) % LED_COLORS.length];
+        tb.appendChild(tr);
+      }
+      let summary = (res.lock ? "LOCK" : "NO LOCK" + (res.reason ? " (" + res.reason + ")" : "")) + " — " + res.leds.length + " LEDs matched";
+      if (res.drogue) {
+        const d = res.drogue;
+        summary += "; drogue centre (" + d.center_mm.map((v) => fmt(v, 1)).join(", ") + ") mm, normal (" +
+          d.normal.map((v) => fmt(v, 3)).join(", ") + "), radius " + fmt(d.radius_mm, 1) + " mm, rms " + fmt(d.rms_mm, 2) + " mm";
+      }
+      summary += "; pipeline " + fmt(res.timing_ms.total, 1) + " ms";
+      $("upload-summary").textContent = summary;
+      $("upload-result").hidden = false;
+      st.textContent = "done";
+    } catch (e) {
+      st.textContent = e.message; st.className = "msg err";
+    }
+  });
+}
+
+// ---- recordings -----------------------------------------------------------------------------
+async function refreshRecordings() {
+  try {
+    const recs = await api("GET", "/recordings");
+    const ul = $("rec-list");
+    ul.innerHTML = "";
+    for (const r of recs) {
+      const li = document.createElement("li");
+      const when = new Date(r.started_wall * 1000).toLocaleString();
+      li.textContent = r.id + " — " + when + ", " + r.ticks + " ticks" + (r.active ? " (recording…)" : "") + " ";
+      if (!r.active) {
+        const base = API + "/recordings/" + encodeURIComponent(r.id);
+        const links = [["telemetry (JSONL)", base + "/telemetry.jsonl"]];
+        if (r.scene_file) {
+          links.push(["scene (.viser)", base + "/scene.viser"]);
+          links.push(["replay 3-D", "/viser-client/?playbackPath=" + encodeURIComponent(base + "/scene.viser")]);
+        }
+        for (const [label, href] of links) {
+          const a = document.createElement("a"); a.href = href; a.textContent = label; a.target = "_blank";
+          li.appendChild(a); li.appendChild(document.createTextNode(" "));
+        }
+      }
+      ul.appendChild(li);
+    }
+  } catch (e) { /* ignore */ }
+}
+
+function wireRecordings() {
+  $("rec-start").addEventListener("click", async () => {
+    try { const r = await api("POST", "/recording/start"); $("rec-msg").textContent = "recording " + r.id; }
+    catch (e) { $("rec-msg").textContent = e.message; }
+    refreshRecordings();
+  });
+  $("rec-stop").addEventListener("click", async () => {
+    try { const r = await api("POST", "/recording/stop"); $("rec-msg").textContent = "saved " + r.id + " (" + r.ticks + " ticks)"; }
+    catch (e) { $("rec-msg").textContent = e.message; }
+    refreshRecordings();
+  });
+}
+
+// ---- start ----------------------------------------------------------------------------------
+async function init() {
+  wireControls(); wireUpload(); wireRecordings();
+  try {
+    serviceConfig = await api("GET", "/config");
+    if (serviceConfig.token_required) $("token-row").hidden = false;
+    if (serviceConfig.viser_port) {
+      const url = serviceConfig.viser_url || (location.protocol + "//" + location.hostname + ":" + serviceConfig.viser_port + "/");
+      $("viser-frame").src = url;
+    } else {
+      $("viser-missing").hidden = false;
+    }
+    fillSimForm(await api("GET", "/sim/config"));
+  } catch (e) { simMsg(e.message, true); }
+  connectTelemetry();
+  pollHealth(); setInterval(pollHealth, 1000);
+  refreshRecordings(); setInterval(refreshRecordings, 5000);
+}
+
+init();
