@@ -1,0 +1,30 @@
+# aar-dock service: FastAPI (port 8000) + viser 3-D scene (port 8080) + simulated docking stream.
+FROM python:3.11-slim
+
+ENV PYTHONDONTWRITEBYTECODE=1 \
+    PYTHONUNBUFFERED=1 \
+    PIP_NO_CACHE_DIR=1 \
+    PIP_DISABLE_PIP_VERSION_CHECK=1 \
+    AAR_HOST=0.0.0.0 \
+    AAR_PORT=8000 \
+    AAR_VISER_PORT=8080 \
+    AAR_CALIBRATION=/app/sample_data/calibration.json \
+    AAR_STATIC_DIR=/app/static \
+    AAR_RECORDINGS_DIR=/data/recordings
+
+WORKDIR /app
+RUN useradd --create-home --uid 10001 aar && mkdir -p /data/recordings && chown aar /data/recordings
+
+# runtime dependencies only (no [dev] extra)
+COPY pyproject.toml README.md ./
+COPY app ./app
+RUN pip install . && rm -rf build
+COPY static ./static
+COPY sample_data ./sample_data
+
+USER aar
+EXPOSE 8000 8080
+VOLUME ["/data/recordings"]
+HEALTHCHECK --interval=15s --timeout=5s --start-period=30s --retries=3 \
+  CMD ["python", "-c", "import sys, urllib.request; sys.exit(0 if urllib.request.urlopen('http://127.0.0.1:8000/api/v1/healthz', timeout=4).status == 200 else 1)"]
+CMD ["aar-dock", "serve"]
