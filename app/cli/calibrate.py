@@ -29,9 +29,13 @@ def register(subparsers: Any) -> None:
         description="Stereo calibration from checkerboard image pairs (Zhang's method, OpenCV). "
         "Writes the calibration JSON and, with --report, report.json + report.png.",
     )
-    p.add_argument("--left", required=True, help="glob of the left images (quote it), e.g. 'dir/left*.png'")
+    p.add_argument(
+        "--left", required=True, help="glob of the left images (quote it), e.g. 'dir/left*.png'"
+    )
     p.add_argument("--right", required=True, help="glob of the right images (quote it)")
-    p.add_argument("--board", default="9x6", help="inner corners per row x per column (default 9x6)")
+    p.add_argument(
+        "--board", default="9x6", help="inner corners per row x per column (default 9x6)"
+    )
     p.add_argument("--square-mm", type=float, default=25.0, help="square side in mm (default 25)")
     p.add_argument("--out", default="calibration.json", help="output calibration JSON")
     p.add_argument("--report", default=None, help="folder for report.json and report.png")
@@ -51,15 +55,6 @@ def register(subparsers: Any) -> None:
     p.set_defaults(func=run)
 
 
-def _pair_name(left: Path, right: Path) -> str:
-    ls, rs = left.stem, right.stem
-    for lp, rp in (("left", "right"), ("l", "r"), ("L", "R")):
-        if ls.lower().startswith(lp.lower()) and rs.lower().startswith(rp.lower()):
-            if ls[len(lp) :] == rs[len(rp) :] and ls[len(lp) :].strip("_-. "):
-                return ls[len(lp) :].strip("_-. ")
-    return ls if ls == rs else f"{ls}|{rs}"
-
-
 def _fail(message: str) -> int:
     print(f"{PROG}: error: {message}", file=sys.stderr)
     return 2
@@ -73,6 +68,7 @@ def run(args: argparse.Namespace) -> int:
         Board,
         CheckerboardError,
         calibrate_checkerboard,
+        pair_name,
         parse_board,
         write_report_png,
     )
@@ -91,7 +87,9 @@ def run(args: argparse.Namespace) -> int:
     try:
         cols, rows = parse_board(args.board)
         board = Board(cols, rows, float(args.square_mm))
-        names = [_pair_name(lf, rf) for lf, rf in zip(left_files, right_files, strict=True)]
+        names = [
+            pair_name(lf.name, rf.name) for lf, rf in zip(left_files, right_files, strict=True)
+        ]
         lefts, rights = [], []
         for lf, rf in zip(left_files, right_files, strict=True):
             for f, dest in ((lf, lefts), (rf, rights)):
@@ -129,12 +127,17 @@ def run(args: argparse.Namespace) -> int:
         print(f"warning: {w}", file=sys.stderr)
     il, ir = rep.intrinsics["left"], rep.intrinsics["right"]
     print(f"views used      {rep.views_used} of {rep.pairs_given} ({len(rep.rejected)} rejected)")
-    print(f"RMS (px)        left {rep.left_rms_px:.3f}  right {rep.right_rms_px:.3f}  stereo {rep.stereo_rms_px:.3f}")
+    print(
+        f"RMS (px)        left {rep.left_rms_px:.3f}  right {rep.right_rms_px:.3f}  stereo {rep.stereo_rms_px:.3f}"
+    )
     for side, i in (("left", il), ("right", ir)):
         print(
             f"{side:<6}          fx {i['fx']:.2f} fy {i['fy']:.2f} u0 {i['u0']:.2f} v0 {i['v0']:.2f} "
             f"k1 {i['k1']:.4f} k2 {i['k2']:.4f} (skew not estimated: 0)"
         )
     print(f"baseline        {rep.baseline_mm:.2f} mm, convergence {rep.convergence_deg:.3f} deg")
-    print(f"wrote           {args.out}" + (f", {args.report}/report.json, {args.report}/report.png" if args.report else ""))
+    print(
+        f"wrote           {args.out}"
+        + (f", {args.report}/report.json, {args.report}/report.png" if args.report else "")
+    )
     return 0

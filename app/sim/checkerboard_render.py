@@ -62,7 +62,9 @@ class CheckerboardSpec:
 
     @property
     def center_mm(self) -> FloatArray:
-        return np.array([(self.cols - 1) * self.square_mm / 2, (self.rows - 1) * self.square_mm / 2, 0.0])
+        return np.array(
+            [(self.cols - 1) * self.square_mm / 2, (self.rows - 1) * self.square_mm / 2, 0.0]
+        )
 
     def outline_points(self, with_margin: bool = True) -> FloatArray:
         """The four outer corners of the printed board, or of its squares (4×3, mm)."""
@@ -98,7 +100,9 @@ class BoardPose:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> BoardPose:
-        return cls(R=np.asarray(data["R"], dtype=np.float64), t=np.asarray(data["t_mm"], dtype=np.float64))
+        return cls(
+            R=np.asarray(data["R"], dtype=np.float64), t=np.asarray(data["t_mm"], dtype=np.float64)
+        )
 
 
 @dataclass(frozen=True)
@@ -114,7 +118,9 @@ class CheckerRenderSettings:
     noise_sigma_dn: float = 0.8
 
 
-def pixel_rays(cam: CameraIntrinsics, image_size: tuple[int, int], supersample: int = 3) -> FloatArray:
+def pixel_rays(
+    cam: CameraIntrinsics, image_size: tuple[int, int], supersample: int = 3
+) -> NDArray[np.float32]:
     """Ideal normalised ray coordinates (x/z, y/z) for every sub-pixel sample.
 
     Returns an array (S, H, W, 2), S = supersample², float32. Pixel centres are at integer
@@ -144,7 +150,7 @@ def _illumination(h: int, w: int, gradient: float, phase: float) -> FloatArray:
 
 
 def render_board_view(
-    rays: FloatArray,
+    rays: NDArray[np.float32],
     R_cam_board: FloatArray,
     t_cam_board_mm: FloatArray,
     spec: CheckerboardSpec,
@@ -205,7 +211,11 @@ def board_visible(
         return False
     for cam, p in ((calib.left, pts), (calib.right, pts_r)):
         uv = project_camera(cam, p)
-        if np.any(uv < border_px) or np.any(uv[:, 0] > w - 1 - border_px) or np.any(uv[:, 1] > h - 1 - border_px):
+        if (
+            np.any(uv < border_px)
+            or np.any(uv[:, 0] > w - 1 - border_px)
+            or np.any(uv[:, 1] > h - 1 - border_px)
+        ):
             return False
     return True
 
@@ -326,7 +336,12 @@ def write_sample_set(
         "seed": seed,
         "calibration": calib.to_dict(),
         "views": [
-            {"name": n, "left": f"left_{n}.png", "right": f"right_{n}.png", "pose_left_cam": p.to_dict()}
+            {
+                "name": n,
+                "left": f"left_{n}.png",
+                "right": f"right_{n}.png",
+                "pose_left_cam": p.to_dict(),
+            }
             for n, p in zip(rs.names, rs.poses, strict=True)
         ],
     }
@@ -352,7 +367,9 @@ def load_truth(path: str | Path) -> tuple[StereoCalibration, CheckerboardSpec, l
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description="Regenerate the synthetic checkerboard sample set.")
+    parser = argparse.ArgumentParser(
+        description="Regenerate the synthetic checkerboard sample set."
+    )
     parser.add_argument("out_dir", nargs="?", default="sample_data/checkerboard")
     parser.add_argument("--calibration", default="sample_data/calibration.json")
     parser.add_argument("--views", type=int, default=14)
