@@ -68,14 +68,19 @@ class HoseDrogueParams:
 
     @property
     def hang_angle_rad(self) -> float:
-        """Hose droop below the horizontal at equilibrium: weight (drogue + hose) over drag."""
-        weight = (self.drogue_mass_kg + self.hose_mass_per_m * self.hose_length_m) * GRAVITY
-        return float(np.arctan2(weight, self.drag_n))
+        """Droop of the hose tangent at the drogue below the horizontal: drogue weight over drag."""
+        return float(np.arctan2(self.drogue_mass_kg * GRAVITY, self.drag_n))
 
     def equilibrium_m(self) -> FloatArray:
-        """Drogue centre at rest in the tanker frame (m; hose exit at the origin)."""
-        g = self.hang_angle_rad
-        return np.array([-self.hose_length_m * np.cos(g), 0.0, self.hose_length_m * np.sin(g)])
+        """Drogue centre at rest in the tanker frame (m; hose exit at the origin).
+
+        Static hose shape with the drag concentrated on the drogue: at arc length ``s`` from the
+        drogue the tangent droops by ``atan((m_d + λ s) g / D₀)``; integrate along the hose."""
+        s = np.linspace(0.0, self.hose_length_m, 401)
+        ang = np.arctan2((self.drogue_mass_kg + self.hose_mass_per_m * s) * GRAVITY, self.drag_n)
+        ds = np.diff(s)
+        mid = 0.5 * (ang[1:] + ang[:-1])
+        return np.array([-np.sum(np.cos(mid) * ds), 0.0, np.sum(np.sin(mid) * ds)])
 
 
 class HoseDrogue:
@@ -100,8 +105,11 @@ class HoseDrogue:
         return self.v.copy()
 
     def normal(self) -> FloatArray:
-        """Unit normal of the drogue's opening, pointing aft towards the receiver: along the hose."""
-        n = self.position_m
+        """Unit normal of the drogue's opening, pointing aft towards the receiver: the hose tangent
+        at the drogue, tilted by the deflection over the hose length."""
+        g = self.params.hang_angle_rad
+        t = np.array([-np.cos(g), 0.0, np.sin(g)]) * self.params.hose_length_m
+        n = t + np.array([0.0, self.d[1], self.d[2]])
         return n / np.linalg.norm(n)
 
     def bow_wave_force(self, nose_m: FloatArray, nose_axis: FloatArray) -> FloatArray:
