@@ -43,22 +43,20 @@ def epipolar_distances(F: FloatArray, x_left: FloatArray, x_right: FloatArray) -
     return np.asarray(0.5 * np.abs(alg) * (1.0 / nr + 1.0 / nl))
 
 
+def _match(i: int, j: int, desc_dist: FloatArray, epi: FloatArray) -> Match:
+    return Match(
+        left_index=i,
+        right_index=j,
+        descriptor_distance=float(desc_dist[i, j]),
+        epipolar_px=float(epi[i, j]),
+    )
+
+
 def match_min_distance(desc_dist: FloatArray, epi: FloatArray) -> list[Match]:
     """The paper's matcher: per left FP, the right FP at minimum descriptor distance."""
     if desc_dist.size == 0:
         return []
-    matches = []
-    for i in range(desc_dist.shape[0]):
-        j = int(np.argmin(desc_dist[i]))
-        matches.append(
-            Match(
-                left_index=i,
-                right_index=j,
-                descriptor_distance=float(desc_dist[i, j]),
-                epipolar_px=float(epi[i, j]),
-            )
-        )
-    return matches
+    return [_match(i, int(np.argmin(row)), desc_dist, epi) for i, row in enumerate(desc_dist)]
 
 
 def _assign(cost: FloatArray, gate: np.ndarray) -> list[tuple[int, int]]:
@@ -93,16 +91,9 @@ def match_epipolar(
     masked = np.where(gate, cost, _BIG)
     best_for_left = np.argmin(masked, axis=1)
     best_for_right = np.argmin(masked, axis=0)
-    matches = []
-    for i, j in pairs:
-        if best_for_left[i] != j and best_for_right[j] != i:
-            continue  # a leftover of the assignment that neither side prefers
-        matches.append(
-            Match(
-                left_index=i,
-                right_index=j,
-                descriptor_distance=float(desc_dist[i, j]),
-                epipolar_px=float(epi[i, j]),
-            )
-        )
-    return matches
+    # Drop leftovers of the assignment that neither side prefers (mutual consistency).
+    return [
+        _match(i, j, desc_dist, epi)
+        for i, j in pairs
+        if best_for_left[i] == j or best_for_right[j] == i
+    ]
