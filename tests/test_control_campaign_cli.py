@@ -1,0 +1,93 @@
+"""Monte-Carlo campaign through Dask and the CLI's output shapes."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import pytest
+
+from app.cli.main import main
+from app.sim.campaign import run_campaign, summarise, write_outputs
+from app.sim.docking import DockingConfig
+
+
+def test_small_campaign_on_two_dask_workers_writes_csv_json(tmp_path):
+    cfg = DockingConfig(turbulence="light", vision=False, station_keep_s=0.5)
+    seen = []
+    rows = run_campaign(cfg, runs=8, workers=2, on_result=seen.append)
+    assert len(rows) == 8 and len(seen) == 8
+    assert [r["seed"] for r in rows] == list(range(8))
+    summary = summarise(rows, cfg)
+    assert summary["runs"] == 8
+    assert summary["success_rate"] == sum(r["captured"] for r in rows) / 8
+    assert summary["success_rate"] >= 0.75
+    paths = write_outputs(tmp_path, rows, summary)
+    with paths["csv"].open() as fh:
+        assert len(list(csv.DictReader(fh))) == 8
+    data = json.loads(paths["json"].read_text())
+    for key in (
+        "runs",
+        "success_rate",
+        "miss_p50_m",
+        "miss_p95_m",
+        "abort_rate",
+        "mean_time_to_capture_s",
+    ):
+        assert key in data
+    assert paths["png"].stat().st_size > 1000
+
+
+def test_simulate_cli_json_shape(capsys):
+    code = main(
+        [
+            "simulate",
+            "--turbulence",
+            "none",
+            "--truth-measurements",
+            "--json",
+            "--station-keep",
+            "0.2",
+        ]
+    )
+    assert code == 0
+    out = json.loads(capsys.readouterr().out)
+    assert set(out) == {
+        "captured",
+        "miss_distance_m",
+        "closure_speed_mps",
+        "time_to_capture_s",
+        "aborts",
+        "max_control_saturation",
+    }
+    assert out["captured"] is True and isinstance(out["miss_distance_m"], float)
+    assert isinstance(out["aborts"], int)
+
+
+def test_simulate_cli_plots(tmp_path, capsys):
+    code = main(
+        [
+            "simulate",
+            "--turbulence",
+            "light",
+            "--truth-measurements",
+            "--plot",
+            str(tmp_path),
+            "--station-keep",
+            "0.5",
+        ]
+    )
+    assert code == 0
+    assert sorted(p.name for p in tmp_path.glob("*.png")) == [
+        "fig14_relative_position.png",
+        "fig15_attitude.png",
+        "fig16_controls.png",
+    ]
+
+
+def test_cli_bad_input_exit_code_2(capsys):
+    assert main(["simulate", "--camera-hz", "-3", "--json"]) == 2
+    assert main(["campaign", "--runs", "0"]) == 2
+    with pytest.raises(SystemExit) as exc:
+        main(["simulate", "--turbulence", "hurricane"])
+    assert exc.value.code == 2

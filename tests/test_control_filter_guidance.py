@@ -1,0 +1,59 @@
+"""Drogue Kalman filter (gating, coasting) and breakaway logic."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from app.control.abort import predicted_miss_m, should_abort
+from app.control.drogue_filter import DrogueFilter
+from app.control.reference import GuidanceConfig, ReferenceGenerator
+
+
+def test_filter_tracks_constant_velocity_and_gates_outlier():
+    f = DrogueFilter(accel_sigma=0.5)
+    rng = np.random.default_rng(0)
+    r = np.eye(3) * 0.01**2
+    dt = 0.02
+    v = np.array([0.0, 0.3, -0.2])
+    p = np.array([-14.0, 0.0, 4.0])
+    for _k in range(200):
+        f.predict(dt)
+        p = p + v * dt
+        assert f.update(p + rng.normal(0, 0.01, 3), r)
+    assert np.allclose(f.velocity, v, atol=0.05)
+    f.predict(dt)
+    p = p + v * dt
+    assert not f.update(p + np.array([0.0, 1.0, 0.0]), r)  # 1 m outlier is rejected
+    assert np.linalg.norm(f.position - p) < 0.05
+    for _ in range(10):
+        f.predict(dt)
+    assert f.coast_time_s > 0.2
+
+
+def test_predicted_miss_and_abort_rules():
+    rel = np.array([0.8, 0.1, 0.0])
+    vel = np.array([-1.0, 0.5, 0.0])  # closing at 1 m/s, drifting 0.5 m/s sideways
+    assert abs(predicted_miss_m(rel, vel) - (0.1 + 0.5 * 0.8)) < 1e-9
+    assert should_abort(0.8, 0.5, 0.305, lock_lost=False) == "predicted_miss"
+    assert should_abort(0.8, 0.1, 0.305, lock_lost=True) == "lock_lost"
+    assert should_abort(3.0, 0.5, 0.305, lock_lost=False) is None  # outside the last metre
+
+
+def test_reference_closes_at_commanded_speed_and_backs_off():
+    g = ReferenceGenerator(GuidanceConfig(closure_speed_mps=1.2), start_gap_m=10.0)
+    drogue = np.array([-14.0, 0.3, 4.0])
+    ref = None
+    for _ in range(100):  # 2 s
+        ref, vel = g.update(0.02, drogue, np.zeros(3), True)
+    assert ref is not None
+    assert abs((drogue[0] - ref[0]) - (10.0 - 2.4)) < 1e-6
+    assert np.allclose(ref[1:], drogue[1:])
+    assert g.phase == "approach"
+    for _ in range(300):  # 6 more s: gap 0.4 m, inside the final metre
+        ref, vel = g.update(0.02, drogue, np.zeros(3), True)
+    assert g.phase == "final"
+    g.start_backoff()
+    gap0 = g.gap_cmd
+    ref, vel = g.update(0.02, drogue, np.zeros(3), False)
+    assert g.phase == "backoff" and g.gap_cmd > gap0
+    assert vel[0] < 0.0  # reference moves aft, away from the drogue

@@ -1,0 +1,98 @@
+"""Closed-loop stability of the docking controller (eq. 20) and observer convergence (eq. 19)."""
+
+from __future__ import annotations
+
+import control
+import numpy as np
+
+from app.control.lqr import IntegralLqr, augment_integral, continuous_lqr, discrete_lqr
+from app.control.observer import StateObserver, continuous_observer_gain
+from app.sim.docking import LQR_Q_INT, LQR_Q_STATE, LQR_R, _build_models
+from app.sim.receiver import LinearReceiver
+
+DT = 0.02
+
+
+def _models():
+    return _build_models(120.0, 0.909, DT, (3.0, 0.0, -0.3))
+
+
+def test_receiver_trim_is_an_equilibrium_and_open_loop_has_unstable_or_neutral_modes():
+    rec = LinearReceiver()
+    # trim residual: the linear model's drift at x = 0, u = 0 is zero by construction; check the
+    # nonlinear model directly: straight-and-level, no acceleration
+    from app.sim.receiver import nonlinear_dynamics
+
+    xd = nonlinear_dynamics(
+        rec.params, rec.condition, rec.t_max, rec.x_trim, rec.u_trim, np.zeros(3)
+    )
+    assert np.allclose(xd[:9], 0.0, atol=1e-6)
+    assert np.allclose(xd[9:], 0.0, atol=1e-6)  # moves with the tanker
+    # position states are pure integrators: the open loop is not asymptotically stable
+    assert np.max(np.linalg.eigvals(rec.A).real) >= -1e-9
+
+
+def test_discrete_integral_lqr_closed_loop_inside_unit_circle():
+    m = _models()
+    ctrl = IntegralLqr(kp=m.lqr_kp, ki=m.lqr_ki, c=m.c_tip, dt=DT)
+    eig = np.linalg.eigvals(ctrl.closed_loop_matrix(m.ad, m.bd))
+    assert eig.shape == (15,)
+    assert np.max(np.abs(eig)) < 1.0
+
+
+def test_discrete_lqr_matches_python_control_dlqr():
+    m = _models()
+    a_aug, b_aug = augment_integral(m.ad, m.bd, m.c_tip, DT)
+    q = np.diag(np.concatenate([LQR_Q_STATE, LQR_Q_INT]))
+    r = np.diag(LQR_R)
+    k_ours = discrete_lqr(a_aug, b_aug, q, r)
+    k_ctrl, _, _ = control.dlqr(a_aug, b_aug, q, r)
+    assert np.allclose(k_ours, k_ctrl, rtol=1e-5, atol=1e-8)
+
+
+def test_continuous_eq20_gain_places_poles_in_left_half_plane():
+    rec = LinearReceiver()
+    n = 12
+    c = np.zeros((3, n))
+    c[:, 9:] = np.eye(3)
+    a = np.zeros((15, 15))
+    a[:n, :n] = rec.A
+    a[n:, :n] = c
+    b = np.vstack([rec.B, np.zeros((3, 4))])
+    q = np.diag(np.concatenate([LQR_Q_STATE, LQR_Q_INT]))
+    r = np.diag(LQR_R)
+    k = continuous_lqr(a, b, q, r)
+    eig = np.linalg.eigvals(a - b @ k)
+    assert np.max(eig.real) < 0.0
+    k_ctrl, _, _ = control.lqr(a, b, q, r)
+    assert np.allclose(k, k_ctrl, rtol=1e-5, atol=1e-8)
+
+
+def test_continuous_observer_gain_eq19_matches_python_control_lqe():
+    rec = LinearReceiver()
+    c = np.zeros((9, 12))
+    for row, idx in enumerate(range(3, 12)):
+        c[row, idx] = 1.0
+    q0 = np.eye(12) * 0.1
+    r0 = np.eye(9) * 0.01
+    gain = continuous_observer_gain(rec.A, c, q0, r0)
+    gain_ctrl, _, _ = control.lqe(rec.A, np.eye(12), c, q0, r0)
+    assert np.allclose(gain, gain_ctrl, rtol=1e-5, atol=1e-8)
+    assert np.max(np.linalg.eigvals(rec.A - gain @ c).real) < 0.0
+
+
+def test_observer_converges_from_wrong_initial_state():
+    m = _models()
+    obs = StateObserver(m.ad, m.bd, m.c_meas, m.ed @ m.ed.T + np.eye(12) * 1e-6, np.eye(9) * 1e-4)
+    assert np.max(np.abs(np.linalg.eigvals(obs.error_matrix()))) < 1.0
+    rng = np.random.default_rng(3)
+    x = np.zeros(12)
+    x_hat0 = np.array([4.0, -2.0, 1.5, 0.2, -0.1, 0.1, 0.1, -0.05, 0.08, 3.0, -2.0, 1.0])
+    obs.reset(x_hat0)
+    e0 = np.linalg.norm(obs.x_hat - x)
+    u = np.zeros(4)
+    for _ in range(int(10.0 / DT)):  # 10 s, small random inputs to excite the plant
+        u = rng.normal(0.0, [0.02, 0.002, 0.002, 0.002])
+        x = m.ad @ x + m.bd @ u
+        obs.update(u, m.c_meas @ x)
+    assert np.linalg.norm(obs.x_hat - x) < 1e-3 * e0
