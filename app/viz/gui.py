@@ -37,7 +37,7 @@ class DockingGui:
         self.server = server
         self.actions = actions
         gui = server.gui
-        gui.configure_theme(control_width="large")
+        gui.configure_theme(control_width="medium")
         self.status = gui.add_markdown("**starting…**")
         self._buf: dict[str, deque[float]] = {}
         self._syncing = False
@@ -203,7 +203,7 @@ class DockingGui:
         )
 
     def set_status(self, record: Any, tick_rate_hz: float, dropped: int) -> None:
-        lock = "🟢 **LOCK**" if record.lock else f"🔴 **NO LOCK** — {record.lock_reason or '?'}"
+        lock = "**LOCK**" if record.lock else f"**NO LOCK** ({record.lock_reason or '?'})"
         lat = record.timings_ms.get("step", record.timings_ms.get("total", float("nan")))
         lines = [
             lock,
@@ -215,7 +215,7 @@ class DockingGui:
             r = record.rel_position_m
             lines.append(f"drogue − probe: ({r[0]:+.2f}, {r[1]:+.2f}, {r[2]:+.2f}) m")
         if record.captured is not None:
-            cap = "✅ captured" if record.captured else "not captured"
+            cap = "**captured**" if record.captured else "not captured"
             miss = f" · miss {record.miss_m:.3f} m" if record.miss_m is not None else ""
             lines.append(cap + miss)
         self.status.content = "  \n".join(lines)

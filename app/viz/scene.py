@@ -198,7 +198,7 @@ class DockingScene:
             width=40.0,
             height=20.0,
             plane="xy",
-            position=(-10.0, 0.0, 4.0),
+            position=(-12.0, 0.0, 12.0),
             cell_size=1.0,
             section_size=5.0,
         )

@@ -89,6 +89,10 @@ class VizService:
     def start(self) -> int:
         self.server = start_viser(self.host, self.port)
         self.server.gui.set_panel_label("aar-dock: probe-and-drogue docking")
+        # a view from the side and above, between the receiver and the drogue (tanker frame, z down)
+        cam = self.server.initial_camera
+        cam.position = (-15.5, 6.0, 4.5)
+        cam.look_at = (-15.0, 1.2, 6.2)
         try:
             geometry: ReceiverGeometry | None = ReceiverGeometry.from_docking_defaults()
         except ImportError:  # pragma: no cover - the simulation is part of the package
