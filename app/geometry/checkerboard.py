@@ -145,16 +145,23 @@ def detect_corners(
     """Inner corners (N×2, px, row-major; pixel centres at integers) or None if not found.
 
     ``findChessboardCornersSB`` finds the board and localises the corners to sub-pixel
-    accuracy; ``accurate`` adds ``CALIB_CB_ACCURACY`` (the image is up-sampled for the
-    sub-pixel step, ≈ 3× slower). ``corner_subpix`` refines further with ``cv2.cornerSubPix``
+    accuracy; ``accurate`` then repeats it with ``CALIB_CB_ACCURACY`` (the image is up-sampled
+    for the sub-pixel step, ≈ 4× slower; a miss stays fast). ``corner_subpix`` refines further with ``cv2.cornerSubPix``
     (window ≈ a quarter of the corner spacing) — off by default: on the synthetic set it biased
     the recovered focal lengths by +0.03 % to +0.06 %, against < 0.01 % without
     (docs/calibration.md). ``classic_fallback`` tries ``findChessboardCorners`` when SB fails
     (≈ 4× slower on a miss, rarely finds more).
     """
     gray = to_gray(image)
-    flags = cv2.CALIB_CB_NORMALIZE_IMAGE | (cv2.CALIB_CB_ACCURACY if accurate else 0)
+    flags = cv2.CALIB_CB_NORMALIZE_IMAGE
     ok, corners = cv2.findChessboardCornersSB(gray, pattern_size, flags=flags)
+    if ok and corners is not None and accurate:
+        # the board is there: locate the corners again on the up-sampled image
+        ok_acc, corners_acc = cv2.findChessboardCornersSB(
+            gray, pattern_size, flags=flags | cv2.CALIB_CB_ACCURACY
+        )
+        if ok_acc and corners_acc is not None:
+            corners = corners_acc
     if (not ok or corners is None) and classic_fallback:
         ok, corners = cv2.findChessboardCorners(
             gray, pattern_size, flags=cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
@@ -509,6 +516,12 @@ def calibrate_checkerboard(
     """Whole workflow on in-memory images: size checks, detection, calibration, report."""
     if model not in MODEL_FLAGS:
         raise CheckerboardError(f"model {model!r}: expected one of {sorted(MODEL_FLAGS)}")
+    if len(names) < MIN_VIEWS:
+        check_image_sizes(names, lefts, rights)
+        raise CheckerboardError(
+            f"too few usable views: only {len(names)} pairs given, need at least {MIN_VIEWS} "
+            "(10-20 varied board poses are recommended)"
+        )
     detections = detect_pairs(names, lefts, rights, board.pattern_size, progress=progress)
 
     def hint() -> str | None:
