@@ -99,6 +99,8 @@ class DockingConfig:
     camera_body_m: tuple[float, float, float] = (0.0, -0.35, -0.35)
     camera_aim_ahead_m: float = 0.0
     abort_margin: float = 1.0
+    roi_tracking: bool = False  # render + process only a window around the predicted ring
+    roi_margin_px: int = 48
 
     def validate(self) -> None:
         if self.turbulence not in LEVELS:
@@ -150,6 +152,8 @@ class DockingTick:
     rel_position_m: FloatArray  # drogue minus probe tip
     uav_state_names: tuple[str, ...] = STATE_NAMES
     control_names: tuple[str, ...] = INPUT_NAMES
+    # with roi_tracking: top-left pixel of the left/right windows the images were cut from
+    image_offsets_px: tuple[tuple[int, int], tuple[int, int]] | None = None
 
 
 @dataclass
@@ -336,6 +340,7 @@ class DockingSimulation:
         self._failed = False
         self._last_lock = False
         self._last_reason: str | None = "no frame yet"
+        self._image_offsets: tuple[tuple[int, int], tuple[int, int]] | None = None
         self._prev_tip = self.probe_tip()
         self._prev_drogue = self.drogue.position_m.copy()
         self._prev_normal = self.drogue.normal()
@@ -354,24 +359,86 @@ class DockingSimulation:
         return r_tb @ self.R_bc, x[9:12] + r_tb @ self.r_cam_b
 
     # ------------------------------------------------------------------ sensing
+    def _roi(
+        self, x_hat: FloatArray
+    ) -> tuple[Any, Any, tuple[tuple[int, int], tuple[int, int]]] | None:
+        """Tracking window around the ring *predicted* by the drogue filter and own-state estimate:
+        a calibration with shifted principal points (exact for the pinhole + distortion model) and
+        a pipeline for it; None for a full frame (acquisition, or lost track)."""
+        from app.geometry.calibration import CameraIntrinsics, StereoCalibration
+        from app.geometry.projection import project_stereo
+        from app.vision.pipeline import NavigationPipeline
+
+        cfg = self.config
+        if not (cfg.roi_tracking and self.filter.initialised):
+            return None
+        if self.filter.coast_time_s > 0.5 * cfg.coast_limit_s:
+            return None
+        calib = self._calibration
+        assert calib is not None
+        r_tc_hat, cam_hat = self._camera_pose(x_hat)
+        c_cam = r_tc_hat.T @ (self.filter.position - cam_hat)
+        if c_cam[2] < 0.5:
+            return None
+        sigma = float(np.sqrt(np.max(np.diag(self.filter.P)[:3])))
+        reach = (cfg.ring_radius_m + 3.0 * sigma + 0.05) * 1000.0
+        pts = c_cam * 1000.0 + reach * np.array(
+            [[0, 0, 0], [1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0]], float
+        )
+        pl, pr = project_stereo(calib, pts)
+        w_img, h_img = calib.image_size
+        boxes = []
+        for px in (pl, pr):
+            lo = np.floor(px.min(axis=0)) - cfg.roi_margin_px
+            hi = np.ceil(px.max(axis=0)) + cfg.roi_margin_px
+            boxes.append((lo, hi))
+        # window sizes rounded up to 64 px: few distinct shapes (the renderer caches per shape)
+        w = int(min(64 * np.ceil(max(b[1][0] - b[0][0] for b in boxes) / 64), w_img))
+        h = int(min(64 * np.ceil(max(b[1][1] - b[0][1] for b in boxes) / 64), h_img))
+        offs = []
+        for lo, hi in boxes:
+            cx, cy = 0.5 * (lo + hi)
+            x0 = int(np.clip(round(cx - w / 2), 0, w_img - w))
+            y0 = int(np.clip(round(cy - h / 2), 0, h_img - h))
+            offs.append((x0, y0))
+
+        def shifted(cam: CameraIntrinsics, off: tuple[int, int]) -> CameraIntrinsics:
+            k = cam.K.copy()
+            k[0, 2] -= off[0]
+            k[1, 2] -= off[1]
+            return CameraIntrinsics(K=k, dist=cam.dist.copy())
+
+        roi_cal = StereoCalibration(
+            image_size=(w, h),
+            left=shifted(calib.left, offs[0]),
+            right=shifted(calib.right, offs[1]),
+            R=calib.R,
+            T=calib.T,
+        )
+        pipe = NavigationPipeline(roi_cal, self._pipeline.config)
+        return roi_cal, pipe, (offs[0], offs[1])
+
     def _camera_measurement(
         self, x_hat: FloatArray
     ) -> tuple[FloatArray | None, FloatArray | None, Any, Any, Any, FloatArray | None]:
         """Render + pipeline. Returns (z_T, R_T, pose, left, right, led_truth_cam_mm)."""
         from app.sim.stereo_render import render_pair
 
+        roi = self._roi(x_hat)
+        calib_used, pipeline = (self._calibration, self._pipeline) if roi is None else roi[:2]
+        self._image_offsets = None if roi is None else roi[2]
         r_tc, cam_t = self._camera_pose(self.x)
         c_cam_m = r_tc.T @ (self.drogue.position_m - cam_t)
         n_cam = r_tc.T @ self.drogue.normal()
         pair = render_pair(
-            self._calibration,  # type: ignore[arg-type]
+            calib_used,  # type: ignore[arg-type]
             c_cam_m * 1000.0,
             n_cam,
             settings=self._render_settings,
             ring=self._ring,
             seed=int(self._frame_seed.integers(2**31)),
         )
-        pose = self._pipeline.process(pair.left, pair.right)
+        pose = pipeline.process(pair.left, pair.right)
         leds = np.asarray(pair.truth.led_xyz_mm, float)
         if not pose.lock or pose.drogue is None:
             return None, None, pose, pair.left, pair.right, leds
@@ -413,6 +480,7 @@ class DockingSimulation:
         self.filter.predict(dt)
         z_t = r_t = None
         pose = left = right = leds = None
+        self._image_offsets = None
         frame_due = self.t + 1e-9 >= self._next_frame_t
         if frame_due:
             self._next_frame_t += self._camera_period
@@ -519,6 +587,7 @@ class DockingSimulation:
             captured=self.captured,
             miss_m=miss_now,
             rel_position_m=d_pos - tip,
+            image_offsets_px=self._image_offsets,
         )
 
     def _abort(self) -> None:
