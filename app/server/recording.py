@@ -47,6 +47,7 @@ class Recorder:
         self.scene_serializer_factory = scene_serializer_factory
         self._lock = threading.Lock()
         self._info: RecordingInfo | None = None
+        self._finishing: RecordingInfo | None = None  # being serialized by stop()
         self._fh: Any = None
         self._serializer: SceneSerializer | None = None
         self._t0 = 0.0
@@ -122,6 +123,7 @@ class Recorder:
             if info is None:
                 return None
             self._info = None
+            self._finishing = info
             fh, self._fh = self._fh, None
             ser, self._serializer = self._serializer, None
         if fh is not None:
@@ -134,21 +136,26 @@ class Recorder:
             except Exception:
                 log.exception("scene serialization failed")
                 info.scene_file = None
-        info.active = False
-        info.stopped_wall = time.time()
-        info.stop_reason = reason
-        self._meta_path(info.id).write_text(info.model_dump_json(indent=2))
-        return info
+        done = info.model_copy(
+            update={"active": False, "stopped_wall": time.time(), "stop_reason": reason}
+        )
+        self._meta_path(info.id).write_text(done.model_dump_json(indent=2))
+        with self._lock:
+            self._finishing = None
+        return done
 
     def list(self) -> list[RecordingInfo]:
         out: list[RecordingInfo] = []
-        active = self._info
-        if active is not None:
-            out.append(active.model_copy())
+        for live in (self._info, self._finishing):
+            if live is not None:
+                out.append(live.model_copy())
+        ids = {r.id for r in out}
         if self.directory.is_dir():
             for meta in sorted(self.directory.glob("rec-*.json"), reverse=True):
                 try:
-                    out.append(RecordingInfo.model_validate_json(meta.read_text()))
+                    rec = RecordingInfo.model_validate_json(meta.read_text())
+                    if rec.id not in ids:
+                        out.append(rec)
                 except Exception:
                     log.warning("unreadable recording metadata %s", meta)
         return out
@@ -156,9 +163,9 @@ class Recorder:
     def get(self, rec_id: str) -> RecordingInfo | None:
         if not ID_RE.match(rec_id):
             return None
-        active = self._info
-        if active is not None and active.id == rec_id:
-            return active.model_copy()
+        for live in (self._info, self._finishing):
+            if live is not None and live.id == rec_id:
+                return live.model_copy()
         meta = self._meta_path(rec_id)
         if not meta.is_file():
             return None
