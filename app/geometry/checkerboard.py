@@ -44,6 +44,10 @@ SKEW_NOTE = (
     "OpenCV's camera model has no skew term: γ is not estimated and is written as 0 "
     "(the paper's Table 1 lists γ = -4.5 / -0.49 px)."
 )
+SKEW_REFINED_NOTE = (
+    "Skew γ estimated: OpenCV's skew-free result was refined jointly with γ (both cameras, "
+    "rig and board poses) by sparse least squares."
+)
 _TERM = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 200, 1e-10)
 
 
@@ -321,7 +325,7 @@ class CalibrationReport:
     views_used: int
     views: list[ViewReport]
     rejected: list[RejectedView]
-    left_rms_px: float  # single-camera calibration RMS
+    left_rms_px: float  # single-camera calibration RMS (with skew: of the joint refinement)
     right_rms_px: float
     stereo_rms_px: float  # joint refinement RMS over both cameras
     max_stereo_rms_px: float
@@ -358,7 +362,7 @@ def _intrinsics_summary(K: FloatArray, dist: FloatArray) -> dict[str, float]:
     return {
         "fx": float(K[0, 0]),
         "fy": float(K[1, 1]),
-        "skew": 0.0,
+        "skew": float(K[0, 1]),
         "u0": float(K[0, 2]),
         "v0": float(K[1, 2]),
         "k1": float(d[0]),
@@ -382,16 +386,179 @@ def _too_few_message(detections: Sequence[PairDetection], n_ok: int) -> str:
     )
 
 
+def _rodrigues_many(rvecs: FloatArray) -> FloatArray:
+    """(N, 3) rotation vectors → (N, 3, 3) matrices."""
+    theta = np.linalg.norm(rvecs, axis=1)
+    safe = np.where(theta > 1e-12, theta, 1.0)
+    k = rvecs / safe[:, None]
+    kx = np.zeros((len(rvecs), 3, 3))
+    kx[:, 0, 1], kx[:, 0, 2] = -k[:, 2], k[:, 1]
+    kx[:, 1, 0], kx[:, 1, 2] = k[:, 2], -k[:, 0]
+    kx[:, 2, 0], kx[:, 2, 1] = -k[:, 1], k[:, 0]
+    s = np.sin(theta)[:, None, None]
+    c = (1 - np.cos(theta))[:, None, None]
+    return np.asarray(np.eye(3)[None] + s * kx + c * (kx @ kx), dtype=np.float64)
+
+
+def _project_skew(cam: FloatArray, n_dist: int, X: FloatArray) -> FloatArray:
+    """Eqs. 2 + 7 with skew: camera-frame points (..., 3) → distorted pixels (..., 2).
+
+    ``cam`` = [fx, fy, γ, u0, v0, k1, k2(, p1, p2, k3)]; same model as
+    :func:`app.geometry.projection.project_camera`.
+    """
+    fx, fy, g, u0, v0 = cam[:5]
+    k1, k2 = cam[5], cam[6]
+    p1, p2, k3 = (cam[7], cam[8], cam[9]) if n_dist == 5 else (0.0, 0.0, 0.0)
+    x = X[..., 0] / X[..., 2]
+    y = X[..., 1] / X[..., 2]
+    r2 = x * x + y * y
+    radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+    yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+    return np.stack([fx * xd + g * yd + u0, fy * yd + v0], axis=-1)
+
+
+@dataclass
+class _SkewFit:
+    K_l: FloatArray
+    d_l: FloatArray
+    K_r: FloatArray
+    d_r: FloatArray
+    R: FloatArray
+    T: FloatArray
+    per_view: FloatArray  # (N, 2) RMS px, left/right
+    rms: float
+    rms_l: float
+    rms_r: float
+
+
+def refine_with_skew(
+    obj: FloatArray,
+    img_l: Sequence[FloatArray],
+    img_r: Sequence[FloatArray],
+    K_l: FloatArray,
+    d_l: FloatArray,
+    K_r: FloatArray,
+    d_r: FloatArray,
+    R: FloatArray,
+    T: FloatArray,
+    rvecs: Sequence[FloatArray],
+    tvecs: Sequence[FloatArray],
+    model: str,
+) -> _SkewFit:
+    """Joint refinement of both cameras *with* the skew γ of eq. 2, the rig (R, T) and every
+    board pose, by sparse least squares (scipy), started from OpenCV's skew-free result.
+
+    This restores the parameter the paper's calibration (Zhang's method) estimates and
+    OpenCV's model lacks.
+    """
+    from scipy.optimize import least_squares
+    from scipy.sparse import lil_matrix
+
+    n_dist = 2 if model == "paper" else 5
+    nc = 5 + n_dist
+    n_views = len(img_l)
+    obs_l = np.stack([np.asarray(p, dtype=np.float64).reshape(-1, 2) for p in img_l])
+    obs_r = np.stack([np.asarray(p, dtype=np.float64).reshape(-1, 2) for p in img_r])
+    n_pts = obs_l.shape[1]
+    X = np.asarray(obj, dtype=np.float64).reshape(-1, 3)
+
+    def cam_vec(K: FloatArray, d: FloatArray) -> FloatArray:
+        dd = np.zeros(5)
+        dd[: min(5, d.size)] = d.ravel()[:5]
+        terms = dd[:2] if n_dist == 2 else dd
+        return np.concatenate([[K[0, 0], K[1, 1], K[0, 1], K[0, 2], K[1, 2]], terms])
+
+    x0 = np.concatenate(
+        [
+            cam_vec(K_l, d_l),
+            cam_vec(K_r, d_r),
+            cv2.Rodrigues(np.asarray(R, dtype=np.float64))[0].ravel(),
+            np.asarray(T, dtype=np.float64).ravel(),
+            np.concatenate(
+                [
+                    np.concatenate([np.ravel(rv), np.ravel(tv)])
+                    for rv, tv in zip(rvecs, tvecs, strict=True)
+                ]
+            ),
+        ]
+    )
+    o_rig = 2 * nc
+    o_views = o_rig + 6
+
+    def residuals(x: FloatArray) -> FloatArray:
+        poses = x[o_views:].reshape(n_views, 6)
+        Rv = _rodrigues_many(poses[:, :3])
+        Xl = np.einsum("nij,pj->npi", Rv, X) + poses[:, None, 3:]
+        R_rig = _rodrigues_many(x[o_rig : o_rig + 3][None])[0]
+        Xr = Xl @ R_rig.T + x[o_rig + 3 : o_rig + 6]
+        el = _project_skew(x[:nc], n_dist, Xl) - obs_l
+        er = _project_skew(x[nc : 2 * nc], n_dist, Xr) - obs_r
+        return np.concatenate([el, er], axis=1).ravel()
+
+    n_res = n_views * 2 * n_pts * 2
+    sparsity = lil_matrix((n_res, x0.size), dtype=np.int8)
+    for i in range(n_views):
+        base = i * 4 * n_pts
+        left_rows = slice(base, base + 2 * n_pts)
+        right_rows = slice(base + 2 * n_pts, base + 4 * n_pts)
+        view_cols = slice(o_views + 6 * i, o_views + 6 * i + 6)
+        sparsity[left_rows, 0:nc] = 1
+        sparsity[left_rows, view_cols] = 1
+        sparsity[right_rows, nc : 2 * nc] = 1
+        sparsity[right_rows, o_rig : o_rig + 6] = 1
+        sparsity[right_rows, view_cols] = 1
+    sol = least_squares(
+        residuals,
+        x0,
+        jac_sparsity=sparsity,
+        method="trf",
+        x_scale="jac",
+        xtol=1e-12,
+        ftol=1e-12,
+        gtol=1e-12,
+        max_nfev=200,
+    )
+    x = sol.x
+    e = residuals(x).reshape(n_views, 2, n_pts, 2)
+    sq = np.sum(e**2, axis=3)  # (views, cam, pts)
+    per_view = np.sqrt(np.mean(sq, axis=2))
+
+    def unpack(v: FloatArray) -> tuple[FloatArray, FloatArray]:
+        K = np.array([[v[0], v[2], v[3]], [0.0, v[1], v[4]], [0.0, 0.0, 1.0]])
+        d = np.zeros(5)
+        d[:n_dist] = v[5 : 5 + n_dist] if n_dist == 5 else v[5:7]
+        return K, d
+
+    Kl, dl = unpack(x[:nc])
+    Kr, dr = unpack(x[nc : 2 * nc])
+    return _SkewFit(
+        K_l=Kl,
+        d_l=dl,
+        K_r=Kr,
+        d_r=dr,
+        R=_rodrigues_many(x[o_rig : o_rig + 3][None])[0],
+        T=x[o_rig + 3 : o_rig + 6].copy(),
+        per_view=per_view,
+        rms=float(np.sqrt(np.mean(sq))),
+        rms_l=float(np.sqrt(np.mean(sq[:, 0]))),
+        rms_r=float(np.sqrt(np.mean(sq[:, 1]))),
+    )
+
+
 def calibrate_from_detections(
     detections: Sequence[PairDetection],
     board: Board,
     model: Model | str = "paper",
     max_stereo_rms_px: float = DEFAULT_MAX_STEREO_RMS_PX,
     hint: Callable[[], str | None] | None = None,
+    estimate_skew: bool = False,
 ) -> CheckerboardCalibration:
     """Calibrate both cameras, then the rig (Zhang's method via OpenCV), from detected corners.
 
-    ``hint`` is called when too few views are usable to add e.g. a board-size suggestion.
+    ``estimate_skew``: afterwards refine everything jointly with the skew γ of eq. 2
+    (:func:`refine_with_skew`; OpenCV alone writes γ = 0). ``hint`` is called when too few
+    views are usable to add e.g. a board-size suggestion.
     """
     if model not in MODEL_FLAGS:
         raise CheckerboardError(f"model {model!r}: expected one of {sorted(MODEL_FLAGS)}")
@@ -434,12 +601,30 @@ def calibrate_from_detections(
         raise CheckerboardError(
             f"calibration failed in OpenCV ({first}); check the views"
         ) from None
-    stereo_rms, K_l_cv, d_l_cv, K_r_cv, d_r_cv, R, T, _E, _F, _rv, _tv, per_view = res
+    stereo_rms, K_l_cv, d_l_cv, K_r_cv, d_r_cv, R, T, _E, _F, rvecs, tvecs, per_view = res
     K_l = np.asarray(K_l_cv, dtype=np.float64)
     K_r = np.asarray(K_r_cv, dtype=np.float64)
     d_l = np.asarray(d_l_cv, dtype=np.float64).ravel()
     d_r = np.asarray(d_r_cv, dtype=np.float64).ravel()
     K_l[0, 1] = K_r[0, 1] = 0.0
+    if estimate_skew:
+        fit = refine_with_skew(
+            board.object_points().astype(np.float64),
+            [np.asarray(p, dtype=np.float64) for p in img_l],
+            [np.asarray(p, dtype=np.float64) for p in img_r],
+            K_l,
+            d_l,
+            K_r,
+            d_r,
+            np.asarray(R, dtype=np.float64),
+            np.asarray(T, dtype=np.float64),
+            [np.asarray(v, dtype=np.float64) for v in rvecs],
+            [np.asarray(v, dtype=np.float64) for v in tvecs],
+            str(model),
+        )
+        K_l, d_l, K_r, d_r = fit.K_l, fit.d_l, fit.K_r, fit.d_r
+        R, T = fit.R, fit.T
+        stereo_rms, per_view, rms_l, rms_r = fit.rms, fit.per_view, fit.rms_l, fit.rms_r
     data = {
         "image_size": [size[0], size[1]],
         "left": {"K": K_l.tolist(), "dist": d_l[:5].tolist()},
@@ -495,7 +680,7 @@ def calibrate_from_detections(
         intrinsics={"left": _intrinsics_summary(K_l, d_l), "right": _intrinsics_summary(K_r, d_r)},
         warnings=warnings,
         notes=[
-            SKEW_NOTE,
+            SKEW_REFINED_NOTE if estimate_skew else SKEW_NOTE,
             "Distortion model: "
             + ("k1, k2 only (the paper's eq. 7)" if model == "paper" else "k1, k2, p1, p2, k3"),
             "Convention: X_right = R * X_left + T (mm); left camera frame = world frame.",
@@ -512,6 +697,7 @@ def calibrate_checkerboard(
     model: Model | str = "paper",
     max_stereo_rms_px: float = DEFAULT_MAX_STEREO_RMS_PX,
     progress: bool = False,
+    estimate_skew: bool = False,
 ) -> CheckerboardCalibration:
     """Whole workflow on in-memory images: size checks, detection, calibration, report."""
     if model not in MODEL_FLAGS:
@@ -538,7 +724,9 @@ def calibrate_checkerboard(
             f"{cand[0]}x{cand[1]} board is visible in pair {names[0]} (--board counts inner corners)"
         )
 
-    return calibrate_from_detections(detections, board, model, max_stereo_rms_px, hint)
+    return calibrate_from_detections(
+        detections, board, model, max_stereo_rms_px, hint, estimate_skew=estimate_skew
+    )
 
 
 # ---------------------------------------------------------------------------------------
@@ -617,7 +805,11 @@ def report_png_bytes(
         f"T = ({rep.T_mm[0]:.2f}, {rep.T_mm[1]:.2f}, {rep.T_mm[2]:.2f}) mm",
         f"left  fx {il['fx']:.1f} fy {il['fy']:.1f} u0 {il['u0']:.1f} v0 {il['v0']:.1f} k1 {il['k1']:.4f} k2 {il['k2']:.4f}",
         f"right fx {ir['fx']:.1f} fy {ir['fy']:.1f} u0 {ir['u0']:.1f} v0 {ir['v0']:.1f} k1 {ir['k1']:.4f} k2 {ir['k2']:.4f}",
-        "skew: not estimated by OpenCV (0 in the output)",
+        (
+            f"skew estimated: left {il['skew']:.2f} px, right {ir['skew']:.2f} px"
+            if rep.notes and rep.notes[0] == SKEW_REFINED_NOTE
+            else "skew: not estimated by OpenCV (0 in the output)"
+        ),
     ]
     for r in rep.rejected[:6]:
         lines.append(f"rejected {r.name}: {r.reason}")

@@ -3,7 +3,7 @@
 Mounted by the service under ``/api/v1``. Multipart form: ``left`` and ``right`` (one file per
 image, repeated; pair k = k-th left file + k-th right file, in upload order), ``board``
 (inner corners, e.g. ``9x6``), ``square_mm``, optional ``model`` (``paper`` | ``full``),
-``max_rms_px`` and ``include_png``. Returns ``{"calibration": ..., "report": ...}`` (and
+``estimate_skew``, ``max_rms_px`` and ``include_png``. Returns ``{"calibration": ..., "report": ...}`` (and
 ``report_png_base64`` on request). The calibration is *not* activated here: send it to
 ``PUT /api/v1/calibration`` to switch to it.
 
@@ -58,11 +58,18 @@ def _calibrate(
     model: str,
     max_rms_px: float,
     include_png: bool,
+    estimate_skew: bool,
 ) -> dict[str, Any]:
     lefts = [_decode(b, lab) for b, lab in zip(left_bytes, left_labels, strict=True)]
     rights = [_decode(b, lab) for b, lab in zip(right_bytes, right_labels, strict=True)]
     result = calibrate_checkerboard(
-        names, lefts, rights, board, model=model, max_stereo_rms_px=max_rms_px
+        names,
+        lefts,
+        rights,
+        board,
+        model=model,
+        max_stereo_rms_px=max_rms_px,
+        estimate_skew=estimate_skew,
     )
     payload: dict[str, Any] = {
         "calibration": result.calibration.to_dict(),
@@ -88,6 +95,9 @@ async def calibrate_from_checkerboard(
     ] = "paper",
     max_rms_px: Annotated[float, Form(gt=0, description="warn above this stereo RMS (px)")] = 0.5,
     include_png: Annotated[bool, Form(description="add the report PNG (base64)")] = False,
+    estimate_skew: Annotated[
+        bool, Form(description="also estimate the skew γ (OpenCV alone writes γ = 0)")
+    ] = False,
 ) -> dict[str, Any]:
     """Calibrate the stereo rig from checkerboard pairs (Zhang's method, OpenCV); skew γ = 0."""
     if len(left) != len(right):
@@ -132,6 +142,7 @@ async def calibrate_from_checkerboard(
             model,
             max_rms_px,
             include_png,
+            estimate_skew,
         )
     except (CheckerboardError, CalibrationError) as exc:
         raise HTTPException(status_code=422, detail=str(exc)) from None
