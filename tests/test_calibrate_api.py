@@ -45,9 +45,8 @@ def _files(indices, right_override: dict[int, bytes] | None = None):
 
 def test_good_set_returns_calibration_and_report(client):
     idx = [0, 2, 4, 6, 8, 10, 12]
-    r = client.post(
-        URL, files=_files(idx), data={"board": "9x6", "square_mm": "25", "include_png": "true"}
-    )
+    form = {"board": "9x6", "square_mm": "25", "include_png": "true", "estimate_skew": "true"}
+    r = client.post(URL, files=_files(idx), data=form)
     assert r.status_code == 200, r.text
     body = r.json()
     calib = StereoCalibration.from_dict(body["calibration"])  # validates
@@ -59,6 +58,10 @@ def test_good_set_returns_calibration_and_report(client):
     assert [v["name"] for v in rep["views"]] == [f"{k:02d}" for k in idx]
     assert rep["stereo_rms_px"] < 0.3
     assert rep["baseline_mm"] == pytest.approx(calib.baseline_mm)
+    # the sample set is rendered with γ = 0: the estimated skew is near 0 (and reported)
+    assert abs(calib.left.skew) < 1.0 and rep["intrinsics"]["left"]["skew"] == calib.left.skew
+    # the sample set is rendered with γ = 0: the estimated skew is near 0 (and reported)
+    assert abs(calib.left.skew) < 1.0 and rep["intrinsics"]["left"]["skew"] == calib.left.skew
     png = base64.b64decode(body["report_png_base64"])
     img = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)
     assert img is not None and img.shape[0] > 400
