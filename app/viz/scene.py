@@ -71,7 +71,8 @@ def wxyz_from_matrix(R: np.ndarray) -> np.ndarray:
 def frame_from_z(n: np.ndarray) -> np.ndarray:
     """Rotation whose third column is ``n`` (unit); first column kept horizontal if possible."""
     z = np.asarray(n, dtype=float)
-    z = z / (np.linalg.norm(z) or 1.0)
+    norm = float(np.linalg.norm(z))
+    z = z / norm if norm > 1e-9 else np.array([-1.0, 0.0, 0.0])
     ref = np.array([0.0, 0.0, 1.0]) if abs(z[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
     x = np.cross(ref, z)
     x /= np.linalg.norm(x)

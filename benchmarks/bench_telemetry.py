@@ -1,0 +1,190 @@
+"""Tick → WebSocket latency (p50/p99) at 30 Hz with 2 telemetry clients, and the tick rate held.
+
+Runs the real service (uvicorn, FastAPI, viser on a free port) in-process twice:
+
+* ``baseline``: a trivial step source (no rendering, no vision) — the transport alone;
+* ``sim, vision off``: the docking simulation fed the true drogue position (no rendering);
+* ``sim``: the docking simulation with vision in the loop (1280×1024 stereo render + pipeline).
+
+Latency = client receive time − the record's ``wall_time`` (stamped when the tick is published;
+same machine, same clock). Prints a table with medians and the sim/baseline ratio.
+
+    .venv/bin/python benchmarks/bench_telemetry.py [--seconds 10] [--clients 2] [--hz 30]
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import socket
+import statistics
+import sys
+import threading
+import time
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from app.server.main import create_app  # noqa: E402
+from app.server.settings import Settings  # noqa: E402
+from app.vision.result import PoseResult  # noqa: E402
+
+
+class TrivialSource:
+    """Baseline: publishes a tick without any simulation work."""
+
+    def __init__(self, config, calibration) -> None:
+        self.dt = 1.0 / config.tick_hz
+        self.k = 0
+        self.done = False
+
+    def step(self):
+        self.k += 1
+        z = np.zeros(3)
+        return SimpleNamespace(
+            t_s=self.k * self.dt,
+            phase="approach",
+            drogue_truth_m=z,
+            drogue_normal=z,
+            drogue_measured_m=z,
+            drogue_estimate_m=z,
+            probe_tip_m=z,
+            uav_state=np.zeros(12),
+            reference_m=z,
+            control=np.zeros(4),
+            lock=True,
+            lock_reason=None,
+            pose=PoseResult(lock=True),
+            left_image=None,
+            right_image=None,
+            led_truth_cam_mm=None,
+            captured=False,
+            miss_m=None,
+            rel_position_m=z,
+        )
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def run_server(app, port: int):
+    import uvicorn
+
+    server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning"))
+    th = threading.Thread(target=server.run, daemon=True)
+    th.start()
+    deadline = time.time() + 30
+    while not server.started and time.time() < deadline:
+        time.sleep(0.05)
+    return server, th
+
+
+async def client(url: str, seconds: float, lat: list[float], seqs: list[int]) -> None:
+    import websockets
+
+    async with websockets.connect(url, max_size=None) as ws:
+        t_end = time.time() + seconds
+        while time.time() < t_end:
+            msg = await asyncio.wait_for(ws.recv(), timeout=5)
+            now = time.time()
+            rec = json.loads(msg)
+            lat.append((now - rec["wall_time"]) * 1e3)
+            seqs.append(rec["seq"])
+
+
+def measure(name: str, factory, seconds: float, n_clients: int, hz: float) -> dict:
+    port = free_port()
+    settings = Settings(
+        port=port,
+        viser_port=0,
+        tick_hz=hz,
+        recordings_dir=Path("/tmp/aar-bench-rec"),
+        sim_auto_restart_s=0.5,
+    )  # type: ignore[call-arg]
+    app = create_app(settings, source_factory=factory)
+    server, th = run_server(app, port)
+    try:
+        time.sleep(1.0)  # warm-up
+        loop_state = app.state.aar.loop
+        t0, d0 = loop_state.ticks, loop_state.dropped
+        lats = [[] for _ in range(n_clients)]
+        seqs = [[] for _ in range(n_clients)]
+        url = f"ws://127.0.0.1:{port}/api/v1/telemetry"
+
+        async def main() -> None:
+            await asyncio.gather(
+                *(client(url, seconds, lats[i], seqs[i]) for i in range(n_clients))
+            )
+
+        start = time.time()
+        asyncio.run(main())
+        elapsed = time.time() - start
+        ticks, dropped = loop_state.ticks - t0, loop_state.dropped - d0
+        step_ms = statistics.median(loop_state.stage_ms.get("step", [0.0]))
+    finally:
+        server.should_exit = True
+        th.join(timeout=15)
+    all_lat = np.concatenate([np.asarray(x) for x in lats])
+    per_client_rate = [len(s) / elapsed for s in seqs]
+    return {
+        "name": name,
+        "p50_ms": float(np.percentile(all_lat, 50)),
+        "p99_ms": float(np.percentile(all_lat, 99)),
+        "max_ms": float(all_lat.max()),
+        "tick_rate_hz": ticks / elapsed,
+        "client_rate_hz": float(np.mean(per_client_rate)),
+        "dropped": dropped,
+        "step_ms": step_ms,
+        "n": int(all_lat.size),
+    }
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seconds", type=float, default=10.0)
+    ap.add_argument("--clients", type=int, default=2)
+    ap.add_argument("--hz", type=float, default=30.0)
+    args = ap.parse_args()
+    from app.server.tick_loop import default_source_factory
+
+    def no_vision(config, calibration):
+        return default_source_factory(config.model_copy(update={"vision": False}), calibration)
+
+    rows = [
+        measure("baseline (no sim work)", TrivialSource, args.seconds, args.clients, args.hz),
+        measure("sim, vision off", no_vision, args.seconds, args.clients, args.hz),
+        measure("sim (render+vision)", None, args.seconds, args.clients, args.hz),
+    ]
+    print(
+        f"\ntick → WebSocket latency, {args.clients} clients, target {args.hz:g} Hz, "
+        f"{args.seconds:g} s each\n"
+    )
+    hdr = (
+        f"{'stream':<24}{'p50 ms':>9}{'p99 ms':>9}{'max ms':>9}{'tick Hz':>9}"
+        f"{'client Hz':>11}{'dropped':>9}{'step ms':>9}{'samples':>9}"
+    )
+    print(hdr)
+    print("-" * len(hdr))
+    for r in rows:
+        print(
+            f"{r['name']:<24}{r['p50_ms']:>9.2f}{r['p99_ms']:>9.2f}{r['max_ms']:>9.1f}"
+            f"{r['tick_rate_hz']:>9.1f}{r['client_rate_hz']:>11.1f}{r['dropped']:>9d}"
+            f"{r['step_ms']:>9.1f}{r['n']:>9d}"
+        )
+    b, s = rows[0], rows[-1]
+    print(
+        f"\nratio sim/baseline: p50 latency ×{s['p50_ms'] / b['p50_ms']:.2f}, "
+        f"p99 ×{s['p99_ms'] / b['p99_ms']:.2f}, tick rate ×{s['tick_rate_hz'] / b['tick_rate_hz']:.2f}"
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
