@@ -90,3 +90,19 @@ def test_roi_tracking_window_keeps_lock_and_accuracy():
     assert windowed > 50  # all but the acquisition frame(s)
     assert len(errs) == 60
     assert np.median(errs) < 0.05
+
+
+def test_no_lock_without_leds_holds_the_gap_and_never_captures():
+    cfg = DockingConfig(
+        turbulence="none", seed=0, vision=True, led_dropout=(1, 2, 3, 4, 5), max_time_s=1.5
+    )
+    sim = DockingSimulation(cfg)
+    ticks = []
+    while not sim.done:
+        ticks.append(sim.step())
+    assert all(not t.lock and t.lock_reason for t in ticks)
+    assert all(t.drogue_measured_m is None for t in ticks)
+    out = sim.outcome()
+    assert not out.captured and out.aborts == 0
+    # the probe did not close on a drogue it cannot see
+    assert ticks[-1].rel_position_m[0] > 9.0

@@ -23,6 +23,7 @@ class DrogueFilter:
         self.x = np.zeros(6)
         self.P = np.eye(6) * 1e3
         self.initialised = False
+        self.ever_initialised = False
         self.coast_time_s = 0.0
         self.rejected = 0
 
@@ -57,7 +58,7 @@ class DrogueFilter:
             self.P = np.zeros((6, 6))
             self.P[:3, :3] = r
             self.P[3:, 3:] = np.eye(3) * 1.0
-            self.initialised = True
+            self.initialised = self.ever_initialised = True
             self.coast_time_s = 0.0
             return True
         h = np.hstack([np.eye(3), np.zeros((3, 3))])

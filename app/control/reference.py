@@ -72,7 +72,7 @@ class ReferenceGenerator:
                 gap_rate = c.backoff_speed_mps
             elif lock:
                 self.phase = "approach"
-        elif self.gap_cmd > -c.overshoot_m:
+        elif self.gap_cmd > -c.overshoot_m and lock:  # close only while the drogue is tracked
             self.gap_cmd -= c.closure_speed_mps * dt
             gap_rate = -c.closure_speed_mps
         if self.phase in ("approach", "final"):

@@ -509,6 +509,8 @@ class DockingSimulation:
             )
             if reason is None and not lock and g.phase == "approach":
                 reason = "lock_lost"
+            if not self.filter.ever_initialised:
+                reason = None  # never acquired: hold the gap (guidance) instead of aborting
             if reason is not None:
                 self._abort()
         ref, ref_vel = g.update(dt, d_hat, d_vel, lock)
