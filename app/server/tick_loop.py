@@ -197,6 +197,7 @@ class TickLoop:
         self._stop = threading.Event()
         self._next_t: float | None = None
         self.heartbeat: float | None = None
+        self.started_at: float | None = None
 
     # ---- configuration ------------------------------------------------------------
     def _history_len(self) -> int:
@@ -375,6 +376,7 @@ class TickLoop:
             return
         self._stop.clear()
         self._next_t = None
+        self.started_at = self.clock.now()
         self._thread = threading.Thread(target=self._run, name="aar-tick-loop", daemon=True)
         self._thread.start()
 
