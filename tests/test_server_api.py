@@ -380,3 +380,56 @@ def test_bad_calibration_file_fails_startup(tmp_path: Path) -> None:
     with pytest.raises(Exception, match="calibration field"):
         with TestClient(app):
             pass
+
+
+def test_settings_env_and_cli_flags_override(monkeypatch: pytest.MonkeyPatch) -> None:
+    from app.cli.main import build_parser
+    from app.cli.serve import settings_from_args
+
+    monkeypatch.setenv("AAR_PORT", "9100")
+    monkeypatch.setenv("AAR_VISER_PORT", "9101")
+    monkeypatch.setenv("AAR_TICK_HZ", "20")
+    monkeypatch.setenv("AAR_TOKEN", "tok")
+    monkeypatch.setenv("AAR_MAX_UPLOAD_MB", "3")
+    s = settings_from_args(build_parser().parse_args(["serve"]))
+    assert (s.port, s.viser_port, s.tick_hz, s.token, s.max_upload_mb) == (
+        9100,
+        9101,
+        20.0,
+        "tok",
+        3.0,
+    )
+    assert s.host == "127.0.0.1"
+    s = settings_from_args(
+        build_parser().parse_args(
+            ["serve", "--port", "9200", "--viser-port", "9201", "--host", "0.0.0.0"]
+        )
+    )
+    assert (s.port, s.viser_port, s.host, s.tick_hz) == (9200, 9201, "0.0.0.0", 20.0)
+    monkeypatch.setenv("AAR_TICK_HZ", "-5")
+    with pytest.raises(Exception, match="tick_hz"):
+        settings_from_args(build_parser().parse_args(["serve"]))
+
+
+def test_serve_refuses_taken_viser_port(tmp_path: Path) -> None:
+    import socket
+    import subprocess
+    import sys
+
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen(1)
+        vport = busy.getsockname()[1]
+        with socket.socket() as s2:
+            s2.bind(("127.0.0.1", 0))
+            port = s2.getsockname()[1]
+        r = subprocess.run(
+            [sys.executable, "-m", "app", "serve", "--port", str(port), "--viser-port", str(vport)],
+            capture_output=True,
+            text=True,
+            timeout=60,
+            cwd=REPO,
+        )
+    assert r.returncode == 2
+    assert f"viser port {vport} is in use" in r.stderr
+    assert "Traceback" not in r.stderr

@@ -43,10 +43,8 @@ def _port_free(host: str, port: int) -> bool:
     return True
 
 
-def run(args: argparse.Namespace) -> int:
-    from pydantic import ValidationError
-
-    from app.geometry.calibration import CalibrationError, StereoCalibration
+def settings_from_args(args: argparse.Namespace) -> Any:
+    """Environment (``AAR_*``) first, then the flags that were given override it."""
     from app.server.settings import Settings
 
     overrides: dict[str, Any] = {}
@@ -65,8 +63,16 @@ def run(args: argparse.Namespace) -> int:
         overrides["viser_enabled"] = False
     if args.no_sim:
         overrides["sim_autostart"] = False
+    return Settings(**overrides)
+
+
+def run(args: argparse.Namespace) -> int:
+    from pydantic import ValidationError
+
+    from app.geometry.calibration import CalibrationError, StereoCalibration
+
     try:
-        settings = Settings(**overrides)
+        settings = settings_from_args(args)
     except ValidationError as exc:
         print(f"aar-dock serve: invalid setting: {exc}", file=sys.stderr)
         return 2
