@@ -125,7 +125,7 @@ def test_one_sided_pair_is_rejected_and_reported(tmp_path, capsys):
     blank = np.full((1024, 1280), 95, np.uint8)
     cv2.imwrite(str(folder / "right_03.png"), blank)
     report = tmp_path / "report"
-    code, out, err = _run(capsys, folder, "--report", str(report))
+    code, out, err = _run(capsys, folder, "--report", str(report), "--fast")
     assert code == 0, err
     assert "warning: pair 03 rejected: board found in the left image only" in err
     assert "views used      6 of 7 (1 rejected)" in out

@@ -261,8 +261,10 @@ def detect_pairs(
     rights: Sequence[NDArray[Any]],
     pattern_size: tuple[int, int],
     progress: bool = False,
+    accurate: bool = True,
 ) -> list[PairDetection]:
-    """Detect the board in every pair (sizes checked first). ``progress``: tqdm on stderr."""
+    """Detect the board in every pair (sizes checked first). ``progress``: tqdm on stderr;
+    ``accurate``: see :func:`detect_corners`."""
     size = check_image_sizes(names, lefts, rights)
     indices: Any = range(len(names))
     if progress:
@@ -271,8 +273,8 @@ def detect_pairs(
         indices = tqdm(indices, desc="corners", unit="pair")
     out: list[PairDetection] = []
     for k in indices:
-        cl = detect_corners(lefts[k], pattern_size)
-        cr = detect_corners(rights[k], pattern_size)
+        cl = detect_corners(lefts[k], pattern_size, accurate=accurate)
+        cr = detect_corners(rights[k], pattern_size, accurate=accurate)
         if cl is not None and cr is not None:
             cr = _match_orientation(cl, cr)
         out.append(PairDetection(names[k], size, cl, cr))
@@ -698,6 +700,7 @@ def calibrate_checkerboard(
     max_stereo_rms_px: float = DEFAULT_MAX_STEREO_RMS_PX,
     progress: bool = False,
     estimate_skew: bool = False,
+    accurate: bool = True,
 ) -> CheckerboardCalibration:
     """Whole workflow on in-memory images: size checks, detection, calibration, report."""
     if model not in MODEL_FLAGS:
@@ -708,7 +711,9 @@ def calibrate_checkerboard(
             f"too few usable views: only {len(names)} pairs given, need at least {MIN_VIEWS} "
             "(10-20 varied board poses are recommended)"
         )
-    detections = detect_pairs(names, lefts, rights, board.pattern_size, progress=progress)
+    detections = detect_pairs(
+        names, lefts, rights, board.pattern_size, progress=progress, accurate=accurate
+    )
 
     def hint() -> str | None:
         if any(d.left is not None or d.right is not None for d in detections):
