@@ -1,6 +1,7 @@
 """Tick → WebSocket latency (p50/p99) at 30 Hz with 2 telemetry clients, and the tick rate held.
 
-Runs the real service (uvicorn, FastAPI, viser on a free port) in-process twice:
+Runs the real service (uvicorn, FastAPI, viser on a free port) in a child process, as deployed,
+with the WebSocket clients in this process, for three streams:
 
 * ``baseline``: a trivial step source (no rendering, no vision) — the transport alone;
 * ``sim, vision off``: the docking simulation fed the true drogue position (no rendering);
@@ -18,9 +19,7 @@ import argparse
 import asyncio
 import json
 import socket
-import statistics
 import sys
-import threading
 import time
 from pathlib import Path
 from types import SimpleNamespace
@@ -74,16 +73,25 @@ def free_port() -> int:
         return int(s.getsockname()[1])
 
 
-def run_server(app, port: int):
+def serve(mode: str, port: int, hz: float) -> None:
+    """Child process: the service with the given stream on ``port`` (uvicorn, one worker)."""
     import uvicorn
 
-    server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning"))
-    th = threading.Thread(target=server.run, daemon=True)
-    th.start()
-    deadline = time.time() + 30
-    while not server.started and time.time() < deadline:
-        time.sleep(0.05)
-    return server, th
+    from app.server.tick_loop import default_source_factory
+
+    def no_vision(config, calibration):
+        return default_source_factory(config.model_copy(update={"vision": False}), calibration)
+
+    factory = {"baseline": TrivialSource, "novision": no_vision, "sim": None}[mode]
+    settings = Settings(
+        port=port,
+        viser_port=0,
+        tick_hz=hz,
+        recordings_dir=Path("/tmp/aar-bench-rec"),
+        sim_auto_restart_s=0.5,
+    )  # type: ignore[call-arg]
+    app = create_app(settings, source_factory=factory)
+    uvicorn.run(app, host="127.0.0.1", port=port, log_level="warning")
 
 
 async def client(url: str, seconds: float, lat: list[float], seqs: list[int]) -> None:
@@ -99,23 +107,48 @@ async def client(url: str, seconds: float, lat: list[float], seqs: list[int]) ->
             seqs.append(rec["seq"])
 
 
-def measure(name: str, factory, seconds: float, n_clients: int, hz: float) -> dict:
+def _health(port: int) -> dict:
+    import urllib.request
+
+    with urllib.request.urlopen(f"http://127.0.0.1:{port}/api/v1/healthz", timeout=5) as r:
+        return json.loads(r.read())
+
+
+def _step_ms(port: int) -> float:
+    import urllib.request
+
+    with urllib.request.urlopen(f"http://127.0.0.1:{port}/api/v1/metrics", timeout=5) as r:
+        for line in r.read().decode().splitlines():
+            if line.startswith('aar_stage_latency_ms{stage="step",quantile="0.5"}'):
+                return float(line.split()[-1])
+    return float("nan")
+
+
+def measure(name: str, mode: str, seconds: float, n_clients: int, hz: float) -> dict:
+    """Server in a child process (as deployed); the clients here, in separate processes' shoes."""
+    import subprocess
+
     port = free_port()
-    settings = Settings(
-        port=port,
-        viser_port=0,
-        tick_hz=hz,
-        recordings_dir=Path("/tmp/aar-bench-rec"),
-        sim_auto_restart_s=0.5,
-    )  # type: ignore[call-arg]
-    app = create_app(settings, source_factory=factory)
-    server, th = run_server(app, port)
+    proc = subprocess.Popen(
+        [sys.executable, __file__, "--serve", mode, "--port", str(port), "--hz", str(hz)],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     try:
+        deadline = time.time() + 60
+        while True:
+            try:
+                if _health(port)["ticks"] > 0:
+                    break
+            except OSError:
+                pass
+            if time.time() > deadline or proc.poll() is not None:
+                raise RuntimeError(f"server ({mode}) did not start")
+            time.sleep(0.2)
         time.sleep(1.0)  # warm-up
-        loop_state = app.state.aar.loop
-        t0, d0 = loop_state.ticks, loop_state.dropped
-        lats = [[] for _ in range(n_clients)]
-        seqs = [[] for _ in range(n_clients)]
+        h0 = _health(port)
+        lats: list[list[float]] = [[] for _ in range(n_clients)]
+        seqs: list[list[int]] = [[] for _ in range(n_clients)]
         url = f"ws://127.0.0.1:{port}/api/v1/telemetry"
 
         async def main() -> None:
@@ -126,11 +159,12 @@ def measure(name: str, factory, seconds: float, n_clients: int, hz: float) -> di
         start = time.time()
         asyncio.run(main())
         elapsed = time.time() - start
-        ticks, dropped = loop_state.ticks - t0, loop_state.dropped - d0
-        step_ms = statistics.median(loop_state.stage_ms.get("step", [0.0]))
+        h1 = _health(port)
+        step_ms = _step_ms(port)
     finally:
-        server.should_exit = True
-        th.join(timeout=15)
+        proc.terminate()
+        proc.wait(15)
+    ticks, dropped = h1["ticks"] - h0["ticks"], h1["dropped_ticks"] - h0["dropped_ticks"]
     all_lat = np.concatenate([np.asarray(x) for x in lats])
     per_client_rate = [len(s) / elapsed for s in seqs]
     return {
@@ -151,16 +185,16 @@ def main() -> int:
     ap.add_argument("--seconds", type=float, default=10.0)
     ap.add_argument("--clients", type=int, default=2)
     ap.add_argument("--hz", type=float, default=30.0)
+    ap.add_argument("--serve", choices=("baseline", "novision", "sim"), help=argparse.SUPPRESS)
+    ap.add_argument("--port", type=int, default=0, help=argparse.SUPPRESS)
     args = ap.parse_args()
-    from app.server.tick_loop import default_source_factory
-
-    def no_vision(config, calibration):
-        return default_source_factory(config.model_copy(update={"vision": False}), calibration)
-
+    if args.serve:
+        serve(args.serve, args.port, args.hz)
+        return 0
     rows = [
-        measure("baseline (no sim work)", TrivialSource, args.seconds, args.clients, args.hz),
-        measure("sim, vision off", no_vision, args.seconds, args.clients, args.hz),
-        measure("sim (render+vision)", None, args.seconds, args.clients, args.hz),
+        measure("baseline (no sim work)", "baseline", args.seconds, args.clients, args.hz),
+        measure("sim, vision off", "novision", args.seconds, args.clients, args.hz),
+        measure("sim (render+vision)", "sim", args.seconds, args.clients, args.hz),
     ]
     print(
         f"\ntick → WebSocket latency, {args.clients} clients, target {args.hz:g} Hz, "
