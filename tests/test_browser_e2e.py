@@ -174,6 +174,31 @@ def test_operators_page_end_to_end(service) -> None:
             page.screenshot(path=str(ARTIFACTS / "operators_page.png"), full_page=True)
             if os.environ.get("AAR_UPDATE_SCREENSHOT"):
                 page.screenshot(path=str(REPO / "docs" / "screenshot.png"), full_page=True)
+            # 4. record a few seconds from the page, then replay the .viser file offline in
+            #    the locally served viser client
+            page.click("#rec-start")
+            page.wait_for_function(
+                "document.getElementById('rec-msg').textContent.startsWith('recording')",
+                timeout=10_000,
+            )
+            page.wait_for_timeout(2000)
+            page.click("#rec-stop")
+            page.wait_for_selector("#rec-list a:has-text('replay 3-D')", timeout=20_000)
+            replay_href = page.get_attribute("#rec-list a:has-text('replay 3-D')", "href")
+            assert replay_href is not None and "playbackPath=" in replay_href
+            replay = browser.new_page(viewport={"width": 900, "height": 600})
+            logs: list[str] = []
+            replay.on("console", lambda m: logs.append(m.text))
+            replay.goto(base + replay_href)
+            replay.wait_for_selector("canvas", timeout=60_000)
+            deadline = time.time() + 30
+            while not any("File loaded" in m for m in logs) and time.time() < deadline:
+                replay.wait_for_timeout(200)
+            assert any("File loaded" in m for m in logs), logs[:10]
+            replay.wait_for_timeout(3000)
+            shot = replay.screenshot(path=str(ARTIFACTS / "replay.png"))
+            rimg = cv2.imdecode(np.frombuffer(shot, np.uint8), cv2.IMREAD_COLOR)
+            assert float(rimg.std()) > 10.0
             assert not errors, errors
         finally:
             browser.close()
