@@ -433,3 +433,31 @@ def test_serve_refuses_taken_viser_port(tmp_path: Path) -> None:
     assert r.returncode == 2
     assert f"viser port {vport} is in use" in r.stderr
     assert "Traceback" not in r.stderr
+
+
+def test_config_refused_by_the_simulation_is_422_and_kept(tmp_path: Path) -> None:
+    def factory(cfg: SimConfig, cal: object) -> FakeSim:
+        if cfg.clutter == 13:
+            raise ValueError("clutter 13 is unlucky")
+        return FakeSim(cfg, cal)
+
+    with TestClient(create_app(_settings(tmp_path), source_factory=factory)) as c:
+        run0 = c.get("/api/v1/sim").json()["run"]
+        r = c.put("/api/v1/sim/config", json={"clutter": 13})
+        assert r.status_code == 422 and "unlucky" in r.json()["detail"]
+        assert c.get("/api/v1/sim/config").json()["clutter"] == 0
+        assert c.get("/api/v1/sim").json()["run"] == run0
+
+
+def test_failing_steps_stop_the_stream_and_show_in_healthz() -> None:
+    class Broken(FakeSim):
+        def step(self):  # type: ignore[override]
+            raise RuntimeError("boom")
+
+    clock = FakeClock()
+    loop = TickLoop(SimConfig(), None, clock=clock, source_factory=lambda c, k: Broken(c, k))
+    loop.start_sim()
+    loop.run_iterations(200)
+    assert loop.running is False
+    assert loop.errors == 10 and loop.last_error == "RuntimeError: boom"
+    assert loop.ticks == 0

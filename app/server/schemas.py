@@ -110,6 +110,8 @@ class Health(BaseModel):
     last_tick_age_s: float | None
     ticks: int
     dropped_ticks: int
+    errors: int = 0
+    last_error: str | None = None
     viser: bool
 
 

@@ -23,6 +23,7 @@ from app.server.schemas import Control, SimConfig, TickRecord
 
 log = logging.getLogger(__name__)
 
+MAX_CONSECUTIVE_ERRORS = 10  # then the simulated stream stops (healthz shows last_error)
 STAGES = ("preprocess", "extract", "describe", "match", "triangulate", "pose", "total")
 
 
@@ -186,6 +187,7 @@ class TickLoop:
         self.ticks = 0
         self.dropped = 0
         self.errors = 0
+        self._consecutive_errors = 0
         self.last_error: str | None = None
         self._tick_times: deque[float] = deque(maxlen=256)
         self.stage_ms: dict[str, deque[float]] = {}
@@ -221,17 +223,27 @@ class TickLoop:
         return bool(src is not None and src.done)
 
     def set_config(self, config: SimConfig) -> None:
-        """Apply a new config: the simulation is rebuilt (a new run)."""
+        """Apply a new config: the simulation is rebuilt (a new run).
+
+        The new simulation is built first: if that raises (e.g. ``ValueError``), the running
+        one and its config are kept and the exception propagates.
+        """
         with self._lock:
+            source = self._factory(config, self._calibration)
             self._config = config
             hist = list(self._history)
             self._history = deque(hist, maxlen=self._history_len())
-            self._rebuild()
+            self._source = source
+            self.run += 1
+            self._done_at = None
 
     def set_calibration(self, calibration: Any) -> None:
         with self._lock:
+            source = self._factory(self._config, calibration)
             self._calibration = calibration
-            self._rebuild()
+            self._source = source
+            self.run += 1
+            self._done_at = None
 
     def _rebuild(self) -> None:
         self._source = self._factory(self._config, self._calibration)
@@ -322,9 +334,15 @@ class TickLoop:
                 raw = src.step()
             except Exception as exc:
                 self.errors += 1
+                self._consecutive_errors += 1
                 self.last_error = f"{type(exc).__name__}: {exc}"
                 log.exception("simulation step failed")
+                if self._consecutive_errors >= MAX_CONSECUTIVE_ERRORS:
+                    log.error("simulation stopped after %d failed steps", MAX_CONSECUTIVE_ERRORS)
+                    self.running = False
+                    self._consecutive_errors = 0
                 return None
+            self._consecutive_errors = 0
             step_ms = (time.perf_counter() - t0) * 1e3
             run = self.run
         record = tick_to_record(

@@ -33,8 +33,13 @@ def put_calibration(data: Annotated[dict[str, Any], Body()], state: StateDep) ->
             status_code=422,
             content={"detail": str(exc), "field": exc.field},
         )
+    try:
+        state.apply_calibration(calib)
+    except (ValueError, TypeError) as exc:  # the simulation refused it: the old one stays
+        return JSONResponse(
+            status_code=422, content={"detail": f"calibration rejected: {exc}", "field": "<root>"}
+        )
     state.calibrations.replace(calib)
-    state.apply_calibration(calib)
     return calib.to_dict()
 
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from fastapi import APIRouter, Body, Depends
+from fastapi import APIRouter, Body, Depends, HTTPException
 from fastapi.exceptions import RequestValidationError
 from pydantic import ValidationError
 
@@ -61,5 +61,8 @@ def put_sim_config(update: Annotated[SimConfigUpdate, Body()], state: StateDep) 
         raise RequestValidationError(
             [{**e, "loc": ("body", *e["loc"])} for e in exc.errors(include_url=False)]
         ) from None
-    state.apply_sim_config(config)
+    try:
+        state.apply_sim_config(config)
+    except (ValueError, TypeError) as exc:  # the simulation refused it: nothing changed
+        raise HTTPException(422, f"simulation rejected the config: {exc}") from None
     return config

@@ -55,6 +55,8 @@ def healthz(state: StateDep) -> Health:
         last_tick_age_s=None if age is None else round(age, 4),
         ticks=loop.ticks,
         dropped_ticks=loop.dropped,
+        errors=loop.errors,
+        last_error=loop.last_error,
         viser=state.viz is not None,
     )
 
