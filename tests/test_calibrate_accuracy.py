@@ -297,3 +297,21 @@ def test_skew_recovered_from_corners_of_the_paper_rig(sample, board, model):
         assert all(abs(skew[f"{s}_d{a}0"]) < 5.0 for s in ("left", "right") for a in "uv")
         assert all(abs(skew[f"{s}_f{a}_pct"]) < 0.3 for s in ("left", "right") for a in "xy")
     assert res.report.stereo_rms_px < 0.1
+
+
+def test_skew_model_matches_the_projection_module():
+    """The refinement's projection (eqs. 2 + 7) equals app.geometry.projection's, 5 terms + γ."""
+    from app.geometry.calibration import CameraIntrinsics
+    from app.geometry.checkerboard import _project_skew
+
+    K = np.array([[2394.4, -4.5, 692.7], [0.0, 2394.0, 590.8], [0.0, 0.0, 1.0]])
+    dist = np.array([0.07, -0.13, 1e-3, -2e-3, 0.05])
+    cam = CameraIntrinsics(K=K, dist=dist)
+    rng = np.random.default_rng(0)
+    X = np.column_stack(
+        [rng.uniform(-300, 300, 50), rng.uniform(-250, 250, 50), rng.uniform(600, 1500, 50)]
+    )
+    vec = np.array([K[0, 0], K[1, 1], K[0, 1], K[0, 2], K[1, 2], *dist])
+    np.testing.assert_allclose(_project_skew(vec, 5, X), project_camera(cam, X), atol=1e-6)
+    cam2 = CameraIntrinsics(K=K, dist=np.array([0.07, -0.13, 0.0, 0.0, 0.0]))
+    np.testing.assert_allclose(_project_skew(vec[:7], 2, X), project_camera(cam2, X), atol=1e-6)

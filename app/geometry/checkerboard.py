@@ -8,11 +8,14 @@ Here the same is done with OpenCV:
    ``cv2.findChessboardCornersSB`` (``CALIB_CB_ACCURACY``; ``cv2.cornerSubPix`` and the classic
    detector are options, see :func:`detect_corners`);
 2. each camera is calibrated (``cv2.calibrateCamera``: Zhang's closed form + Levenberg–Marquardt);
-3. the rig is refined jointly (``cv2.stereoCalibrate``, intrinsics as initial guess).
+3. the rig is refined jointly (``cv2.stereoCalibrate``, intrinsics as initial guess);
+4. optionally (``estimate_skew``) everything is refined once more *with* the skew γ
+   (:func:`refine_with_skew`, sparse least squares), which OpenCV's model lacks.
 
 Distortion models: ``"paper"`` estimates k1, k2 only (``CALIB_FIX_K3 | CALIB_ZERO_TANGENT_DIST``,
 the paper's eq. 7); ``"full"`` estimates OpenCV's five terms k1, k2, p1, p2, k3.
-OpenCV's pinhole model has no skew: γ is **not** estimated and is 0 in the output.
+OpenCV's pinhole model has no skew: without step 4, γ is **not** estimated and is 0 in the
+output.
 
 Bad input raises :class:`CheckerboardError` (a ``ValueError``) with a one-line message.
 This module is pure (numpy/OpenCV; matplotlib only inside :func:`write_report_png`).
@@ -529,7 +532,7 @@ def refine_with_skew(
     def unpack(v: FloatArray) -> tuple[FloatArray, FloatArray]:
         K = np.array([[v[0], v[2], v[3]], [0.0, v[1], v[4]], [0.0, 0.0, 1.0]])
         d = np.zeros(5)
-        d[:n_dist] = v[5 : 5 + n_dist] if n_dist == 5 else v[5:7]
+        d[:n_dist] = v[5 : 5 + n_dist]
         return K, d
 
     Kl, dl = unpack(x[:nc])
