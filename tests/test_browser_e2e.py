@@ -199,6 +199,17 @@ def test_operators_page_end_to_end(service) -> None:
             shot = replay.screenshot(path=str(ARTIFACTS / "replay.png"))
             rimg = cv2.imdecode(np.frombuffer(shot, np.uint8), cv2.IMREAD_COLOR)
             assert float(rimg.std()) > 10.0
+            # 5. the API docs render offline (local Swagger UI assets)
+            docs = browser.new_page()
+            external: list[str] = []
+            docs.on(
+                "request",
+                lambda r: external.append(r.url) if not r.url.startswith(base) else None,
+            )
+            docs.goto(base + "/docs")
+            docs.wait_for_selector(".swagger-ui .title", timeout=30_000)
+            assert "aar-dock" in docs.inner_text(".swagger-ui .title")
+            assert not external, external
             assert not errors, errors
         finally:
             browser.close()

@@ -16,7 +16,8 @@ from pathlib import Path
 from typing import Any
 
 from fastapi import FastAPI
-from fastapi.responses import FileResponse, JSONResponse
+from fastapi.openapi.docs import get_swagger_ui_html
+from fastapi.responses import FileResponse, HTMLResponse, JSONResponse
 from fastapi.staticfiles import StaticFiles
 
 from app.geometry.calibration import StereoCalibration
@@ -38,6 +39,15 @@ def _viser_client_dir() -> Path | None:
     except ImportError:
         return None
     return viser_client_dir()
+
+
+def _swagger_static_dir() -> Path | None:
+    try:
+        import swagger_ui
+    except ImportError:
+        return None
+    path = Path(swagger_ui.__file__).resolve().parent / "static"
+    return path if (path / "swagger-ui-bundle.js").is_file() else None
 
 
 def create_app(
@@ -111,12 +121,29 @@ def create_app(
             if st.viz is not None:
                 st.viz.stop()
 
+    swagger_dir = _swagger_static_dir()
     app = FastAPI(
         title="aar-dock",
         version="0.1.0",
         description="Vision-based probe-and-drogue docking (Luo et al. 2019): live service",
         lifespan=lifespan,
+        docs_url=None if swagger_dir is not None else "/docs",
+        redoc_url=None,
     )
+    if swagger_dir is not None:
+        # Swagger UI from local files (FastAPI's default loads it from a CDN)
+        app.mount("/docs-static", StaticFiles(directory=swagger_dir), name="docs-static")
+
+        @app.get("/docs", include_in_schema=False)
+        def swagger_docs() -> HTMLResponse:
+            return get_swagger_ui_html(
+                openapi_url=app.openapi_url or "/openapi.json",
+                title="aar-dock API",
+                swagger_js_url="/docs-static/swagger-ui-bundle.js",
+                swagger_css_url="/docs-static/swagger-ui.css",
+                swagger_favicon_url="/docs-static/favicon-32x32.png",
+            )
+
     app.state.aar = None
     app.state.settings = settings
     for module in (state, sim, stereo, calibration, recording, telemetry):
