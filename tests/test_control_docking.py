@@ -106,3 +106,16 @@ def test_no_lock_without_leds_holds_the_gap_and_never_captures():
     assert not out.captured and out.aborts == 0
     # the probe did not close on a drogue it cannot see
     assert ticks[-1].rel_position_m[0] > 9.0
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_large_start_offset_is_absorbed_without_saturation_blowup(seed):
+    """A 1.5 m (1σ) start offset: the bounded position error keeps the loop out of actuator
+    saturation, so the approach still captures."""
+    cfg = DockingConfig(
+        turbulence="moderate", seed=seed, vision=False, start_offset_sigma_m=1.5, station_keep_s=0.2
+    )
+    out = DockingSimulation(cfg).run()
+    assert out.captured
+    assert out.miss_distance_m < 0.2
+    assert out.max_control_saturation < 0.9

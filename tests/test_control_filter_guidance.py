@@ -57,3 +57,21 @@ def test_reference_closes_at_commanded_speed_and_backs_off():
     ref, vel = g.update(0.02, drogue, np.zeros(3), False)
     assert g.phase == "backoff" and g.gap_cmd > gap0
     assert vel[0] < 0.0  # reference moves aft, away from the drogue
+
+
+def test_filter_reseeds_after_consistent_rejections():
+    """If the drogue really jumped, consecutive consistent measurements re-seed the filter."""
+    f = DrogueFilter(accel_sigma=0.5)
+    r = np.eye(3) * 0.005**2
+    p = np.array([-14.0, 0.0, 4.0])
+    for _ in range(50):
+        f.predict(0.02)
+        f.update(p, r)
+    jumped = p + np.array([0.0, 0.5, 0.0])
+    results = []
+    for _ in range(3):
+        f.predict(0.02)
+        results.append(f.update(jumped, r))
+    assert results == [False, False, True]
+    assert f.reseeds == 1
+    assert np.allclose(f.position, jumped, atol=1e-6)

@@ -3,7 +3,8 @@
 Constant-velocity model per axis with white-acceleration process noise (σ_a, m/s²); measurement
 noise from the stereo geometry (supplied per measurement). Outliers are rejected by innovation
 gating: normalised innovation squared ``νᵀ S⁻¹ ν`` above the χ²(3) threshold (default 99.9 %,
-16.27). Without accepted measurements the filter coasts (predicts only); :attr:`coast_time_s`
+16.27). Three consecutive rejections mean the filter (not the measurements) is wrong — it lagged a
+manoeuvre — and it is re-seeded from the measurement, keeping its velocity. Without accepted measurements the filter coasts (predicts only); :attr:`coast_time_s`
 tells the guidance how long, so it can command a back-off after a bounded time.
 """
 
@@ -17,9 +18,14 @@ CHI2_3_999 = 16.266
 
 
 class DrogueFilter:
-    def __init__(self, accel_sigma: float = 1.5, gate: float = CHI2_3_999) -> None:
+    def __init__(
+        self, accel_sigma: float = 2.5, gate: float = CHI2_3_999, reseed_after: int = 3
+    ) -> None:
         self.accel_sigma = accel_sigma
         self.gate = gate
+        self.reseed_after = reseed_after
+        self.consecutive_rejections = 0
+        self.reseeds = 0
         self.x = np.zeros(6)
         self.P = np.eye(6) * 1e3
         self.initialised = False
@@ -28,7 +34,7 @@ class DrogueFilter:
         self.rejected = 0
 
     def reset(self) -> None:
-        self.__init__(self.accel_sigma, self.gate)  # type: ignore[misc]
+        self.__init__(self.accel_sigma, self.gate, self.reseed_after)  # type: ignore[misc]
 
     @property
     def position(self) -> FloatArray:
@@ -67,11 +73,18 @@ class DrogueFilter:
         nis = float(nu @ np.linalg.solve(s, nu))
         if nis > self.gate:
             self.rejected += 1
-            # persistent disagreement means the filter, not the measurement, is wrong: re-seed
-            if self.coast_time_s > 1.0:
+            self.consecutive_rejections += 1
+            # persistent disagreement means the filter, not the measurement, is wrong (it lagged
+            # a manoeuvre): re-seed from the measurement, keeping the velocity estimate
+            if self.consecutive_rejections >= self.reseed_after:
+                vel = self.x[3:].copy()
                 self.initialised = False
-                return self.update(z, r)
+                self.update(z, r)
+                self.x[3:] = vel
+                self.reseeds += 1
+                return True
             return False
+        self.consecutive_rejections = 0
         k = self.P @ h.T @ np.linalg.inv(s)
         self.x = self.x + k @ nu
         self.P = (np.eye(6) - k @ h) @ self.P

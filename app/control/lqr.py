@@ -53,6 +53,11 @@ class IntegralLqr:
     c: FloatArray
     dt: float
     integral_limit: float = 5.0
+    # per-state bound on |x̂ − x*| fed to the gain (None: unbounded). Keeps the commands in the
+    # linear range of the rate-limited actuators after a large reference jump (re-acquisition,
+    # big start offset): the loop then closes the error at a bounded rate instead of saturating.
+    error_clip: FloatArray | None = None
+    output_error_clip: float = float("inf")
 
     @classmethod
     def design(
@@ -84,7 +89,10 @@ class IntegralLqr:
 
     def control(self, x_hat: FloatArray, x_ref: FloatArray, y_ref: FloatArray) -> FloatArray:
         """Control deviation from trim; advances the integrator by one tick."""
-        u = -self.kp @ (x_hat - x_ref) - self.ki @ self.zeta
-        err = self.c @ x_hat - y_ref
+        dx = x_hat - x_ref
+        if self.error_clip is not None:
+            dx = np.clip(dx, -self.error_clip, self.error_clip)
+        u = -self.kp @ dx - self.ki @ self.zeta
+        err = np.clip(self.c @ x_hat - y_ref, -self.output_error_clip, self.output_error_clip)
         self.zeta = np.clip(self.zeta + self.dt * err, -self.integral_limit, self.integral_limit)
         return np.asarray(u)

@@ -210,6 +210,9 @@ LQR_Q_STATE = np.array(
     [2.0, 2.0, 2.0, 0.1, 0.1, 0.1, 10.0, 10.0, 10.0, 5.0, 600.0, 600.0]
 )  # u v w p q r φ θ ψ x y z
 LQR_Q_INT = np.array([3.0, 300.0, 300.0])
+# |x̂ − x*| bounds: only the position error is bounded (a reference jump then closes at a bounded
+# rate); velocities, rates and angles keep their full feedback, which supplies the damping
+LQR_ERROR_CLIP = np.array([np.inf] * 9 + [0.6, 0.6, 0.6])
 LQR_R = np.array([300.0, 4000.0, 4000.0, 4000.0])  # throttle, aileron, elevator, rudder
 
 
@@ -317,7 +320,14 @@ class DockingSimulation:
         self.obs = StateObserver.__new__(StateObserver)
         self.obs.ad, self.obs.bd, self.obs.c, self.obs.gain = m.ad, m.bd, m.c_meas, m.obs_gain
         self.obs.reset(self.x)
-        self.lqr = IntegralLqr(kp=m.lqr_kp, ki=m.lqr_ki, c=m.c_tip, dt=self.dt)
+        self.lqr = IntegralLqr(
+            kp=m.lqr_kp,
+            ki=m.lqr_ki,
+            c=m.c_tip,
+            dt=self.dt,
+            error_clip=LQR_ERROR_CLIP,
+            output_error_clip=0.3,
+        )
         self.act = Actuators(m.receiver.u_trim, m.receiver.limits, self.dt)
         self.u_applied = np.zeros(4)
         self.filter = DrogueFilter()
