@@ -230,3 +230,27 @@ def test_saturated_and_striped_frames(calib):
     stripes[:, ::7] = 255
     assert not NavigationPipeline(calib).process(stripes, stripes).lock
     cv2.circle(stripes, (100, 100), 5, 255, -1)
+
+
+def test_background_level_matches_numpy_median_and_mad():
+    rng = np.random.default_rng(3)
+    img = np.clip(rng.normal(40, 5, (200, 240)), 0, 255).astype(np.uint8)
+    from app.vision.preprocess import background_level
+
+    med, sigma = background_level(img)
+    sub = img[::4, ::4].astype(float)
+    assert med == pytest.approx(np.median(sub), abs=0.5)
+    assert sigma == pytest.approx(1.4826 * np.median(np.abs(sub - np.median(sub))), abs=1.5)
+    assert 3.5 < sigma < 6.5
+
+
+def test_descriptor_on_crop_equals_full_frame(calib):
+    from app.sim.stereo_render import render_pair
+    from app.vision.ihwt import describe
+
+    pair = render_pair(calib, np.array([0.0, 0.0, 800.0]), np.array([0.0, 0.0, -1.0]), seed=2)
+    img = pair.left
+    mask = median_filter(binarize(img, choose_threshold(img)), 3)
+    blobs, _ = extract_blobs(img, mask, 12.0)
+    assert len(blobs) == 5
+    assert np.allclose(describe(img, blobs), describe(img, blobs, ii=integral_image(img)))

@@ -84,16 +84,26 @@ def describe(
     min_window_px: int = 16,
     ii: FloatArray | None = None,
 ) -> FloatArray:
-    """IHWT descriptors of all blobs: (N, 64) array (rows aligned with ``blobs``)."""
+    """IHWT descriptors of all blobs: (N, 64) array (rows aligned with ``blobs``).
+
+    Without ``ii``, the integral image is built only over the crop that holds every window
+    (the LEDs cover a small part of the frame); the result is the same as on the full frame.
+    """
     if not blobs:
         return np.zeros((0, DESCRIPTOR_SIZE))
+    windows = [window_side_px(b.area_px, window_factor, min_window_px) for b in blobs]
+    ox = oy = 0
     if ii is None:
-        ii = integral_image(gray)
+        h, w = gray.shape[:2]
+        margin = max(windows) / 2.0 + max(windows) / (4 * SAMPLES_PER_SUBSQUARE) + 3.0
+        us = [b.centroid_px[0] for b in blobs]
+        vs = [b.centroid_px[1] for b in blobs]
+        ox, oy = max(0, int(min(us) - margin)), max(0, int(min(vs) - margin))
+        ex, ey = min(w, int(max(us) + margin) + 2), min(h, int(max(vs) + margin) + 2)
+        ii = integral_image(np.ascontiguousarray(gray[oy:ey, ox:ex]))
     return np.stack(
         [
-            describe_point(
-                ii, b.centroid_px, window_side_px(b.area_px, window_factor, min_window_px)
-            )
-            for b in blobs
+            describe_point(ii, (b.centroid_px[0] - ox, b.centroid_px[1] - oy), win)
+            for b, win in zip(blobs, windows, strict=True)
         ]
     )

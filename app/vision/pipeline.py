@@ -20,7 +20,7 @@ from app.geometry.projection import undistort_pixels
 from app.geometry.ring import RingFit, RingParams, find_ring
 from app.geometry.triangulation import refine_reprojection, triangulate_linear
 from app.vision.features import BlobGate, extract_blobs
-from app.vision.ihwt import describe, integral_image
+from app.vision.ihwt import describe
 from app.vision.matching import (
     descriptor_distances,
     epipolar_distances,
@@ -95,13 +95,14 @@ class NavigationPipeline:
         cfg = self.config
         gray = to_gray(image)
         t0 = time.perf_counter()
-        bg, _ = background_level(gray)
-        threshold = choose_threshold(gray, cfg.threshold)
+        stats = background_level(gray)
+        bg = stats[0]
+        threshold = choose_threshold(gray, cfg.threshold, stats)
         mask = median_filter(binarize(gray, threshold), cfg.median_ksize)
         t1 = time.perf_counter()
         blobs, rejected = extract_blobs(gray, mask, bg, cfg.gate)
         t2 = time.perf_counter()
-        desc = describe(gray, blobs, cfg.window_factor, cfg.min_window_px, integral_image(gray))
+        desc = describe(gray, blobs, cfg.window_factor, cfg.min_window_px)
         t3 = time.perf_counter()
         self._stage_ms["preprocess"] += (t1 - t0) * 1e3
         self._stage_ms["extract"] += (t2 - t1) * 1e3
