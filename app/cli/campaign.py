@@ -23,6 +23,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     )
     p.add_argument("--matcher", default="epipolar", choices=["epipolar", "paper"])
     p.add_argument(
+        "--roi", action="store_true", help="render/process a tracking window around the drogue"
+    )
+    p.add_argument(
         "--station-keep", type=float, default=1.0, help="seconds after contact (default 1)"
     )
     p.add_argument("--first-seed", type=int, default=0)
@@ -47,6 +50,7 @@ def run(args: argparse.Namespace) -> int:
             vision=not args.truth_measurements,
             camera_hz=args.camera_hz,
             matcher=args.matcher,
+            roi_tracking=args.roi,
             station_keep_s=args.station_keep,
         )
         cfg.validate()

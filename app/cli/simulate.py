@@ -21,6 +21,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     )
     p.add_argument("--matcher", default="epipolar", choices=["epipolar", "paper"])
     p.add_argument(
+        "--roi", action="store_true", help="render/process a tracking window around the drogue"
+    )
+    p.add_argument(
         "--station-keep", type=float, default=12.0, help="refuelling seconds after contact"
     )
     p.add_argument("--plot", default=None, metavar="DIR", help="write PNG figures to DIR")
@@ -93,6 +96,7 @@ def run(args: argparse.Namespace) -> int:
             vision=not args.truth_measurements,
             camera_hz=args.camera_hz,
             matcher=args.matcher,
+            roi_tracking=args.roi,
             station_keep_s=args.station_keep,
         )
         cfg.validate()
