@@ -73,7 +73,10 @@ def main() -> None:
         ("vision, 50 Hz camera", replace(base, vision=True)),
         ("vision, 25 Hz camera", replace(base, vision=True, camera_hz=25.0)),
         ("vision, 50 Hz, ROI window", replace(base, vision=True, roi_tracking=True)),
-        ("vision, 10 Hz, ROI window", replace(base, vision=True, camera_hz=10.0, roi_tracking=True)),
+        (
+            "vision, 10 Hz, ROI window",
+            replace(base, vision=True, camera_hz=10.0, roi_tracking=True),
+        ),
     ]
     print(f"## Simulated seconds per wall second (one core, 50 Hz tick, median of {args.repeats})")
     print(
