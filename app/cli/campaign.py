@@ -6,25 +6,17 @@ import argparse
 import json
 import sys
 
+from app.cli.simulate import add_docking_options
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p = subparsers.add_parser("campaign", help="Monte-Carlo docking campaign on Dask")
     p.add_argument("--runs", type=int, required=True, help="number of runs (seeds first-seed..)")
-    p.add_argument("--turbulence", default="light", choices=["none", "light", "moderate", "severe"])
+    add_docking_options(p)
     p.add_argument(
         "--scheduler", default=None, help="Dask scheduler address (default: LocalCluster)"
     )
     p.add_argument("--workers", type=int, default=2, help="LocalCluster worker processes")
-    p.add_argument(
-        "--truth-measurements", action="store_true", help="no vision: true drogue centre"
-    )
-    p.add_argument(
-        "--camera-hz", type=float, default=None, help="camera rate (default: every tick)"
-    )
-    p.add_argument("--matcher", default="epipolar", choices=["epipolar", "paper"])
-    p.add_argument(
-        "--roi", action="store_true", help="render/process a tracking window around the drogue"
-    )
     p.add_argument(
         "--station-keep", type=float, default=1.0, help="seconds after contact (default 1)"
     )

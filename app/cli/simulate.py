@@ -9,10 +9,9 @@ from pathlib import Path
 from typing import Any
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
-    p = subparsers.add_parser("simulate", help="closed-loop docking simulation (one run)")
+def add_docking_options(p: argparse.ArgumentParser) -> None:
+    """Options shared by ``simulate`` and ``campaign``."""
     p.add_argument("--turbulence", default="light", choices=["none", "light", "moderate", "severe"])
-    p.add_argument("--seed", type=int, default=0)
     p.add_argument(
         "--truth-measurements", action="store_true", help="no vision: true drogue centre"
     )
@@ -23,6 +22,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     p.add_argument(
         "--roi", action="store_true", help="render/process a tracking window around the drogue"
     )
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    p = subparsers.add_parser("simulate", help="closed-loop docking simulation (one run)")
+    add_docking_options(p)
+    p.add_argument("--seed", type=int, default=0)
     p.add_argument(
         "--station-keep", type=float, default=12.0, help="refuelling seconds after contact"
     )

@@ -22,6 +22,7 @@ import numpy as np
 import viser
 import viser.transforms as vtf
 
+from app.sim.frames import euler_to_matrix
 from app.viz.overlay import LED_COLORS_RGB, draw_detections, led_color
 
 DROGUE_RADIUS_M = 0.305
@@ -80,18 +81,7 @@ def frame_from_z(n: np.ndarray) -> np.ndarray:
     return np.column_stack([x, y, z])
 
 
-def euler_matrix(phi: float, theta: float, psi: float) -> np.ndarray:
-    """``R_TB`` for 3-2-1 Euler angles (rad)."""
-    cf, sf = math.cos(phi), math.sin(phi)
-    ct, st = math.cos(theta), math.sin(theta)
-    cp, sp = math.cos(psi), math.sin(psi)
-    return np.array(
-        [
-            [ct * cp, sf * st * cp - cf * sp, cf * st * cp + sf * sp],
-            [ct * sp, sf * st * sp + cf * cp, cf * st * sp - sf * cp],
-            [-st, sf * ct, cf * ct],
-        ]
-    )
+euler_matrix = euler_to_matrix  # one 3-2-1 convention, from the simulation core
 
 
 def basket_mesh(radius: float = DROGUE_RADIUS_M, n: int = 32) -> tuple[np.ndarray, np.ndarray]:
