@@ -40,6 +40,9 @@ from app.vision.preprocess import (
 from app.vision.result import DrogueResult, LedResult, PoseResult, StageTimings
 from app.vision.types import FeatureSet, Match
 
+OUR_WINDOW_FACTOR = 8.0
+PAPER_WINDOW_FACTOR = 80.0
+
 __all__ = ["ImageError", "NavigationPipeline", "PipelineConfig", "PipelineTrace"]
 
 
@@ -50,7 +53,10 @@ class PipelineConfig:
     threshold: ThresholdMode = "auto"  # eq. 10: int DN, "auto" (half-max) or "otsu"
     median_ksize: int = 3
     gate: BlobGate = field(default_factory=BlobGate)
-    window_factor: float = 8.0  # IHWT window side = factor × blob equivalent radius
+    # IHWT window side = factor × blob equivalent radius; None → per matcher: ours 8 (the LED
+    # and its fringe), the paper's 80 (§4.3: "as the area described becomes larger, the
+    # description is more detailed": a window spanning the neighbouring LEDs).
+    window_factor: float | None = None
     min_window_px: int = 16
     matcher: Literal["epipolar", "paper"] = "epipolar"
     epipolar_tol_px: float = 2.0
@@ -90,6 +96,13 @@ class NavigationPipeline:
         fbar = 0.5 * (calibration.left.fx + calibration.right.fx)
         self._f_times_b = fbar * calibration.baseline_mm
 
+    @property
+    def window_factor(self) -> float:
+        """IHWT window factor in use (the config's, else the matcher's default)."""
+        if self.config.window_factor is not None:
+            return float(self.config.window_factor)
+        return PAPER_WINDOW_FACTOR if self.config.matcher == "paper" else OUR_WINDOW_FACTOR
+
     # ------------------------------------------------------------------ stages
     def _features(self, image: np.ndarray) -> tuple[FeatureSet, int, float]:
         cfg = self.config
@@ -102,7 +115,7 @@ class NavigationPipeline:
         t1 = time.perf_counter()
         blobs, rejected = extract_blobs(gray, mask, bg, cfg.gate)
         t2 = time.perf_counter()
-        desc = describe(gray, blobs, cfg.window_factor, cfg.min_window_px)
+        desc = describe(gray, blobs, self.window_factor, cfg.min_window_px)
         t3 = time.perf_counter()
         self._stage_ms["preprocess"] += (t1 - t0) * 1e3
         self._stage_ms["extract"] += (t2 - t1) * 1e3
