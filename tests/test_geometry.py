@@ -11,6 +11,7 @@ import pytest
 
 from app.geometry.calibration import CalibrationError, StereoCalibration
 from app.geometry.circle_fit import FitError, fit_circle_3d
+from app.geometry.led_ids import led_ids_for_angles, roll_from_offset
 from app.geometry.projection import project_camera, project_ideal, project_stereo, undistort_pixels
 from app.geometry.ring import RingFit, RingParams, find_ring
 from app.geometry.triangulation import refine_reprojection, triangulate_linear
@@ -222,8 +223,10 @@ def test_ring_search_rejects_clutter_points():
     fit = find_ring(pts, RingParams())
     assert isinstance(fit, RingFit)
     assert sorted(fit.indices) == list(range(5, 10))
-    assert fit.ids == (1, 2, 3, 4, 5)
-    assert [fit.indices[k] for k in range(5)] == [5, 6, 7, 8, 9]
+    roll = roll_from_offset(fit.offset_deg, 5)
+    assert abs(roll) < 1e-6
+    ids = led_ids_for_angles(fit.offset_deg + 72.0 * np.array(fit.slots), roll, 5)
+    assert dict(zip(fit.indices, ids.tolist(), strict=True)) == {5: 1, 6: 2, 7: 3, 8: 4, 9: 5}
 
 
 def test_ring_of_wrong_radius_is_rejected():

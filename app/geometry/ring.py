@@ -1,42 +1,96 @@
-"""Find the drogue's LED ring among triangulated points, label the LEDs, reject clutter.
+"""Find the drogue's LED ring among triangulated points, with an integrity test (paper §5.2).
 
-A consensus search (RANSAC over all triples, exhaustive for the few points we have) keeps the
-circle of the expected radius that explains the most points; points off that circle, or off the
-ring's evenly spaced LED slots, are clutter. LEDs are labelled 1..N clockwise from the top as
-seen by the cameras (paper Table 5): slot angles are measured clockwise from the camera's up
-direction (−y) projected on the ring plane; slot 1 is the first slot at or after 12 o'clock.
+The LEDs sit on evenly spaced *slots* of a circle of known radius R. Every candidate point is
+considered (no cap):
+
+1. **Pairs** — two LEDs are a chord 2R·sin(πk/N) apart (k = 1..⌊N/2⌋); a table of pairwise
+   distances keeps only pairs at a chord length (within the depth-dependent tolerances).
+2. **Seeds** — triples whose three pairs are all chords, whose circumcircle has the expected
+   radius, faces the cameras and puts the three points on distinct, evenly spaced slots.
+3. **Hypotheses** — each seed is refined: plane + circle fit, slot offset, and *slot
+   assignment* (one point per slot: the on-circle point nearest the slot's angle, never one
+   that fits the slot worse than the point it displaces), iterated until stable.
+4. **Integrity** — each hypothesis gets an a-contrario number of false alarms (NFA): the expected
+   number of m-point configurations that would fit as well among the n candidates if the
+   candidates were unrelated points spread over their bounding volume. The best hypothesis is
+   locked only if its NFA is small (stricter with 3 LEDs), no competing hypothesis fits nearly
+   as well ("ambiguous"), and the ring does not carry extra points off its slots (a ring of a
+   different LED count).
+
+Slot angles are measured clockwise from the camera's up direction (−y) projected on the ring
+plane (:func:`app.geometry.circle_fit.plane_basis`); ids are assigned from the slot offset by
+:mod:`app.geometry.led_ids`.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
-from itertools import combinations
 
 import numpy as np
 
 from app.geometry.calibration import FloatArray
 from app.geometry.circle_fit import Circle3D, FitError, fit_circle_3d, plane_basis
 
-MAX_POINTS = 24  # consensus search is O(N^3); more candidates than this are trimmed
+MAX_SEEDS = 20_000  # refinement budget; seeds are ordered by fit quality (never reached in tests)
 
 
 @dataclass(frozen=True)
 class RingParams:
-    """The ring we look for (mm, deg)."""
+    """The ring we look for and the tolerances (mm, deg).
+
+    Tolerances grow with the depth noise σ_Z(z) = depth_sigma_per_mm · z² (mm), the stereo
+    depth noise for a disparity noise σ_d: σ_Z = z²σ_d/(f·B).
+    """
 
     radius_mm: float = 75.0
     led_count: int = 5
-    radius_tol_mm: float = 7.5  # |fitted − expected radius| allowed
-    inlier_tol_mm: float = 2.0  # distance from the circle for a point to count
-    angle_tol_deg: float = 12.0  # deviation from an evenly spaced LED slot
+    radius_tol_frac: float = 0.1  # |fitted − R| ≤ frac·R + 2σ_Z
+    inlier_tol_mm: float = 2.0  # floor of the distance from the circle (mm); ≥ 4σ_Z
+    angle_tol_deg: float = 2.0  # floor of the slot residual (deg); ≥ 2.5σ_Z/R
+    max_angle_tol_deg: float = 12.0
+    depth_sigma_per_mm: float = 0.0  # σ_Z / z² (1/mm); 0 → the floors only
     min_leds: int = 3
+    max_view_angle_deg: float = 85.0  # ring normal vs line of sight (edge-on limit)
+    log10_nfa_max: float = -2.0  # lock only if NFA ≤ 10^this
+    three_led_log10_margin: float = 1.0  # with 3 LEDs: NFA ≤ 10^(max − margin) (no prior)
+    ambiguity_log10: float = 2.0  # a competitor within this many decades of NFA is "as good"
+    max_extra_on_ring: int = 2  # more on-circle points off the slots → wrong led_count
+
+    def sigma_z(self, z_mm: FloatArray | float) -> FloatArray:
+        return np.asarray(self.depth_sigma_per_mm * np.square(z_mm), dtype=np.float64)
+
+    def inlier_tol(self, z_mm: FloatArray | float) -> FloatArray:
+        return np.maximum(self.inlier_tol_mm, 4.0 * self.sigma_z(z_mm))
+
+    def radius_tol(self, z_mm: FloatArray | float) -> FloatArray:
+        return self.radius_tol_frac * self.radius_mm + 2.0 * self.sigma_z(z_mm)
+
+    def angle_tol_deg_at(self, z_mm: FloatArray | float) -> FloatArray:
+        a = np.degrees(2.5 * self.sigma_z(z_mm) / self.radius_mm)
+        return np.clip(a, self.angle_tol_deg, self.max_angle_tol_deg)
+
+
+@dataclass(frozen=True)
+class RingPrior:
+    """A recent lock used to judge 3-LED hypotheses (mm, unit normal)."""
+
+    center_mm: FloatArray
+    normal: FloatArray
+    gate_mm: float = 30.0
+    gate_deg: float = 15.0
 
 
 @dataclass(frozen=True)
 class RingFit:
     circle: Circle3D  # normal oriented from the drogue towards the cameras
-    indices: tuple[int, ...]  # input point indices on the ring (sorted by id)
-    ids: tuple[int, ...]  # 1..led_count, aligned with ``indices``
+    indices: tuple[int, ...]  # input point indices on the ring
+    slots: tuple[int, ...]  # slot of each index, 0..N−1 counted from ``offset_deg``
+    offset_deg: float  # angle of slot 0, in [0, 360/N), clockwise from the top
+    residual_deg: tuple[float, ...]  # angular residual of each point from its slot
+    log10_nfa: float  # the a-contrario number of false alarms of this fit (log10)
+    candidates: int  # points considered
+    hypotheses: int  # distinct hypotheses found
 
 
 @dataclass(frozen=True)
@@ -44,9 +98,25 @@ class RingRejection:
     reason: str
 
 
-def _oriented(circle: Circle3D) -> Circle3D:
+@dataclass
+class _Hypothesis:
+    members: np.ndarray  # point indices, one per slot
+    points: FloatArray  # their coordinates (mm)
+    slots: np.ndarray
+    resid_deg: np.ndarray
+    circle: Circle3D
+    offset_deg: float
+    cost: float
+    angle_tol: float
+    inlier_tol: float
+    extra_on_ring: int
+    log10_nfa: float = math.inf
+
+
+def oriented(circle: Circle3D) -> Circle3D:
+    """The circle with its normal pointing towards the cameras at the origin."""
     n = circle.normal
-    if float(n @ (-circle.center)) < 0:  # point towards the cameras at the origin
+    if float(n @ (-circle.center)) < 0:
         n = -n
     return Circle3D(circle.center, n, circle.radius, circle.rms, circle.plane_rms)
 
@@ -66,17 +136,6 @@ def _circumcircles(p: FloatArray, triples: np.ndarray) -> tuple[FloatArray, Floa
     return center, normal, radius
 
 
-def _distances(
-    p: FloatArray, center: FloatArray, normal: FloatArray, radius: FloatArray
-) -> FloatArray:
-    """(T, N) 3-D distance of each point to each candidate circle."""
-    rel = p[None, :, :] - center[:, None, :]
-    off = np.einsum("tnk,tk->tn", rel, normal)
-    in_plane = rel - off[:, :, None] * normal[:, None, :]
-    radial = np.linalg.norm(in_plane, axis=2) - radius[:, None]
-    return np.asarray(np.sqrt(radial**2 + off**2))
-
-
 def slot_angles_deg(points: FloatArray, circle: Circle3D) -> FloatArray:
     """Angle of each point around the ring, clockwise from the top as seen by the cameras."""
     e_up, e_right = plane_basis(circle.normal)
@@ -84,84 +143,306 @@ def slot_angles_deg(points: FloatArray, circle: Circle3D) -> FloatArray:
     return np.asarray(np.degrees(np.arctan2(rel @ e_right, rel @ e_up)) % 360.0)
 
 
-def _slots(angles: FloatArray, count: int) -> tuple[FloatArray, FloatArray, float]:
-    """Nearest evenly spaced slot for each angle: (slot index, residual deg, offset deg)."""
+def slot_offset_deg(angles_deg: FloatArray, count: int) -> float:
+    """Offset of the evenly spaced slot pattern that best fits ``angles_deg``, in [0, 360/N)."""
+    phase = np.radians(np.asarray(angles_deg) * count)  # one slot period → 2π
+    return float(np.degrees(np.angle(np.mean(np.exp(1j * phase)))) / count) % (360.0 / count)
+
+
+def slot_residuals(
+    angles_deg: FloatArray, offset_deg: float, count: int
+) -> tuple[np.ndarray, FloatArray]:
+    """(slot index 0..N−1, signed residual deg) of each angle for the given slot offset."""
     spacing = 360.0 / count
-    phase = np.radians(angles * count)  # one slot period → 2π
-    offset = float(np.degrees(np.angle(np.mean(np.exp(1j * phase)))) / count) % spacing
-    k = np.rint((angles - offset) / spacing)
-    resid = angles - offset - k * spacing
-    return np.mod(k, count), resid, offset
+    k = np.rint((np.asarray(angles_deg) - offset_deg) / spacing)
+    resid = np.asarray(angles_deg) - offset_deg - k * spacing
+    return np.mod(k, count).astype(np.int64), resid
+
+
+def _circle_distances(p: FloatArray, circle: Circle3D) -> FloatArray:
+    rel = p - circle.center
+    off = rel @ circle.normal
+    radial = np.linalg.norm(rel - off[:, None] * circle.normal, axis=1) - circle.radius
+    return np.asarray(np.sqrt(radial**2 + off**2))
+
+
+def _compatible_pairs(p: FloatArray, params: RingParams) -> np.ndarray:
+    """(n, n) bool: the two points are one chord of the ring apart (within tolerance)."""
+    n = len(p)
+    R, N = params.radius_mm, params.led_count
+    d = np.linalg.norm(p[:, None, :] - p[None, :, :], axis=2)
+    z = np.maximum(p[:, None, 2], p[None, :, 2])
+    alpha = np.radians(params.angle_tol_deg_at(z))
+    rtol = params.radius_tol(z)
+    itol = params.inlier_tol(z)
+    ok = np.zeros((n, n), dtype=bool)
+    for k in range(1, N // 2 + 1):
+        s, c = math.sin(math.pi * k / N), math.cos(math.pi * k / N)
+        chord = 2.0 * R * s
+        tol = 2.0 * rtol * s + 2.0 * R * abs(c) * alpha + 2.0 * itol
+        ok |= np.abs(d - chord) <= tol
+    np.fill_diagonal(ok, False)
+    return ok
+
+
+def _seed_triples(adj: np.ndarray) -> np.ndarray:
+    """All triples i < j < k whose three pairs are compatible, (T, 3)."""
+    out = []
+    n = len(adj)
+    upper = np.triu(adj, 1)
+    for i in range(n - 2):
+        js = np.flatnonzero(upper[i])
+        if len(js) < 2:
+            continue
+        sub = upper[np.ix_(js, js)]
+        a, b = np.nonzero(sub)
+        if len(a):
+            out.append(np.column_stack([np.full(len(a), i), js[a], js[b]]))
+    return np.vstack(out) if out else np.zeros((0, 3), dtype=np.int64)
+
+
+def _fit_hypothesis(p: FloatArray, members: np.ndarray, params: RingParams) -> _Hypothesis | None:
+    """Refine a seed: circle fit, slot offset, slot assignment over all points; iterate."""
+    N = params.led_count
+    current = np.sort(members)
+    for _ in range(4):
+        try:
+            circle = oriented(fit_circle_3d(p[current]))
+        except FitError:
+            return None
+        z = float(circle.center[2])
+        itol, atol = float(params.inlier_tol(z)), float(params.angle_tol_deg_at(z))
+        angles_m = slot_angles_deg(p[current], circle)
+        offset = slot_offset_deg(angles_m, N)
+        dist = _circle_distances(p, circle)
+        near = np.flatnonzero(dist <= itol)
+        angles = slot_angles_deg(p[near], circle)
+        slots, resid = slot_residuals(angles, offset, N)
+        chosen: dict[int, int] = {}
+        for j, (s, r) in enumerate(zip(slots, resid, strict=True)):
+            if abs(r) > atol:
+                continue
+            if s not in chosen or abs(r) < abs(resid[chosen[s]]):
+                chosen[int(s)] = j
+        new = np.sort(near[list(chosen.values())]) if chosen else np.zeros(0, dtype=np.int64)
+        if len(new) < 3:
+            return None
+        if np.array_equal(new, current):
+            break
+        current = new
+    sel = [j for j in range(len(near)) if near[j] in set(current.tolist())]
+    m_slots, m_resid = slots[sel], resid[sel]
+    order = np.argsort(near[sel])
+    members_sorted = near[sel][order]
+    d_m = dist[members_sorted]
+    cost = float(np.sum((d_m / itol) ** 2) + np.sum((m_resid[order] / atol) ** 2))
+    extra = int(len(near) - len(sel))
+    # the fit must still be the ring we look for
+    if abs(circle.radius - params.radius_mm) > float(params.radius_tol(z)):
+        return None
+    if circle.rms > itol:
+        return None
+    view = -circle.center / max(float(np.linalg.norm(circle.center)), 1e-9)
+    if math.degrees(math.acos(np.clip(float(circle.normal @ view), -1, 1))) > (
+        params.max_view_angle_deg
+    ):
+        return None
+    return _Hypothesis(
+        members=members_sorted,
+        points=p[members_sorted],
+        slots=m_slots[order],
+        resid_deg=m_resid[order],
+        circle=circle,
+        offset_deg=offset,
+        cost=cost,
+        angle_tol=atol,
+        inlier_tol=itol,
+        extra_on_ring=extra,
+    )
+
+
+def _log10_comb(n: int, k: int) -> float:
+    if k < 0 or k > n:
+        return -math.inf
+    return (math.lgamma(n + 1) - math.lgamma(k + 1) - math.lgamma(n - k + 1)) / math.log(10)
+
+
+def log10_nfa(m: int, n: int, volume_mm3: float, h: _Hypothesis, params: RingParams) -> float:
+    """A-contrario number of false alarms (log10) of an m-point ring among n candidates.
+
+    Background model: n unrelated points uniform in ``volume_mm3``. An m-point fit is tested
+    C(n, m)·N!/(N−m)! times (point sets × slot labellings). "As well as this fit" uses the
+    hypothesis' own precision ρ (its largest distance from the circle, slot residual and
+    radius error, in mm; at least 3σ_Z, the measurement noise): by chance, the 2nd point lands
+    at a chord length (a shell 4πc²·2δ), the 3rd on the 1-DOF family of slot positions left by
+    the first two (a torus 2πR·πρ²), and every further point in its fixed slot cell (a ball
+    of radius ρ).
+    """
+    R, N = params.radius_mm, params.led_count
+    if m < 3 or n < m:
+        return math.inf
+    z = float(h.circle.center[2])
+    floor = max(0.3, 3.0 * float(params.sigma_z(z)))
+    dist = _circle_distances(h.points, h.circle)
+    rho = max(
+        floor,
+        float(np.max(dist)) if len(dist) else 0.0,
+        R * math.radians(float(np.max(np.abs(h.resid_deg)))),
+    )
+    delta = 2.0 * rho + max(floor, abs(h.circle.radius - R))
+    chord = 2.0 * R * math.sin(math.pi * (N // 2) / N)
+    v = max(volume_mm3, 1.0)
+    p2 = min(1.0, 4.0 * math.pi * chord**2 * 2.0 * delta / v)
+    p3 = min(1.0, 2.0 * math.pi * R * math.pi * rho**2 / v)
+    p4 = min(1.0, 4.0 / 3.0 * math.pi * rho**3 / v)
+    labellings = math.lgamma(N + 1) - math.lgamma(N - m + 1)
+    return (
+        _log10_comb(n, m)
+        + labellings / math.log(10)
+        + math.log10(p2)
+        + math.log10(p3)
+        + (m - 3) * math.log10(p4)
+    )
+
+
+def _volume(p: FloatArray, params: RingParams) -> float:
+    """Bounding volume of the candidates (mm³), each side at least 4R."""
+    side = np.maximum(np.ptp(p, axis=0), 4.0 * params.radius_mm)
+    return float(np.prod(side))
+
+
+def _radius_only_count(p: FloatArray, params: RingParams, triples: np.ndarray) -> int:
+    """Most points on one circle of the ring's radius (ignoring the slots): diagnosis only."""
+    if len(triples) == 0:
+        return 0
+    c, nrm, r = _circumcircles(p, triples)
+    z = c[:, 2]
+    ok = np.abs(r - params.radius_mm) <= params.radius_tol(z)
+    best = 0
+    for t in np.flatnonzero(ok)[:2000]:
+        circle = Circle3D(c[t], nrm[t], float(r[t]), 0.0, 0.0)
+        cnt = int(np.sum(_circle_distances(p, circle) <= params.inlier_tol(z[t])))
+        best = max(best, cnt)
+    return best
 
 
 def find_ring(
-    points: FloatArray, params: RingParams, order_hint: FloatArray | None = None
+    points: FloatArray, params: RingParams, prior: RingPrior | None = None
 ) -> RingFit | RingRejection:
-    """Locate the LED ring among ``points`` (N×3, mm). ``order_hint`` (N,) ranks points for
-    trimming when there are more than MAX_POINTS (lower is better)."""
+    """Locate the LED ring among ``points`` (N×3, mm, left camera frame) with the integrity
+    tests of the module docstring. ``prior``: a recent lock (for 3-LED hypotheses)."""
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    finite = np.all(np.isfinite(pts), axis=1)
-    index_map = np.flatnonzero(finite)
-    if len(index_map) > MAX_POINTS:
-        rank = np.zeros(len(pts)) if order_hint is None else np.asarray(order_hint, float)
-        index_map = index_map[np.argsort(rank[index_map], kind="stable")[:MAX_POINTS]]
+    index_map = np.flatnonzero(np.all(np.isfinite(pts), axis=1))
     p = pts[index_map]
-    n = len(p)
+    n, N = len(p), params.led_count
     if n < params.min_leds:
         return RingRejection(f"only {n} matched LED(s); need at least {params.min_leds}")
-    triples = np.array(list(combinations(range(n), 3)), dtype=np.int64)
-    center, normal, radius = _circumcircles(p, triples)
-    plausible = np.abs(radius - params.radius_mm) <= params.radius_tol_mm
-    if not np.any(plausible):
+    adj = _compatible_pairs(p, params)
+    triples = _seed_triples(adj)
+    hyps: list[_Hypothesis] = []
+    if len(triples):
+        c, nrm, r = _circumcircles(p, triples)
+        z = c[:, 2]
+        keep = np.abs(r - params.radius_mm) <= params.radius_tol(z)
+        # seed slot check: the three points on distinct, evenly spaced slots
+        seeds = []
+        for t in np.flatnonzero(keep):
+            circle = oriented(Circle3D(c[t], nrm[t], float(r[t]), 0.0, 0.0))
+            ang = slot_angles_deg(p[triples[t]], circle)
+            off = slot_offset_deg(ang, N)
+            sl, res = slot_residuals(ang, off, N)
+            atol = float(params.angle_tol_deg_at(z[t]))
+            if len(set(sl.tolist())) == 3 and np.max(np.abs(res)) <= 1.5 * atol:
+                seeds.append((float(np.sum(res**2)), t))
+        seeds.sort()
+        covered: list[set[int]] = []
+        seen: set[tuple[int, ...]] = set()
+        for _, t in seeds[:MAX_SEEDS]:
+            tri = set(triples[t].tolist())
+            if any(tri <= cov for cov in covered):
+                continue  # already explained by a refined hypothesis
+            h = _fit_hypothesis(p, triples[t], params)
+            if h is None:
+                continue
+            key = tuple(h.members.tolist())
+            covered.append(set(key))
+            if key in seen:
+                continue
+            seen.add(key)
+            hyps.append(h)
+    if not hyps:
+        most = _radius_only_count(p, params, triples)
+        if most >= 4:
+            return RingRejection(
+                f"{most} points lie on a ring of radius {params.radius_mm:.0f} mm but not on "
+                f"{N} evenly spaced slots: check led_count (the ring may carry a different "
+                f"number of LEDs)"
+            )
         return RingRejection(
-            f"no 3 matched points lie on a ring of radius {params.radius_mm:.0f} ± "
-            f"{params.radius_tol_mm:.1f} mm"
+            f"no 3 matched points lie on evenly spaced slots of a ring of radius "
+            f"{params.radius_mm:.0f} mm ({n} candidate point(s))"
         )
-    center, normal, radius = center[plausible], normal[plausible], radius[plausible]
-    dist = _distances(p, center, normal, radius)
-    inl = dist <= params.inlier_tol_mm
-    score = inl.sum(axis=1) - np.where(inl, dist, 0).sum(axis=1) / (params.inlier_tol_mm * n + 1)
-    best = int(np.argmax(score))
-    members = np.flatnonzero(inl[best])
-    try:
-        circle = _oriented(fit_circle_3d(p[members]))
-    except FitError as exc:
-        return RingRejection(f"ring fit failed: {exc}")
-    # Slot check: LEDs sit on evenly spaced slots; at most one point per slot.
-    angles = slot_angles_deg(p[members], circle)
-    slot, resid, _ = _slots(angles, params.led_count)
-    keep: dict[int, int] = {}
-    for m, s, r in zip(members, slot.astype(int), resid, strict=True):
-        if abs(r) > params.angle_tol_deg:
-            continue
-        d = float(dist[best, m])
-        if s not in keep or d < float(dist[best, keep[s]]):
-            keep[s] = int(m)
-    members = np.array(sorted(keep.values()), dtype=np.int64)
-    if len(members) < params.min_leds:
+    volume = _volume(p, params)
+    for h in hyps:
+        h.log10_nfa = log10_nfa(len(h.members), n, volume, h, params)
+        if prior is not None and _agrees(h, prior):
+            # a hypothesis predicted by a recent lock is tested only against its neighbourhood
+            near = np.linalg.norm(p - prior.center_mm, axis=1) <= params.radius_mm + prior.gate_mm
+            local = float((2.0 * (params.radius_mm + prior.gate_mm)) ** 3)
+            h.log10_nfa = min(
+                h.log10_nfa, log10_nfa(len(h.members), int(near.sum()), local, h, params)
+            )
+    hyps.sort(key=lambda h: (-len(h.members), h.cost))
+    best = hyps[0]
+    m = len(best.members)
+    limit = params.log10_nfa_max
+    if m == 3 and not (prior is not None and _agrees(best, prior)):
+        limit -= params.three_led_log10_margin
+    if best.log10_nfa > limit:
         return RingRejection(
-            f"only {len(members)} point(s) fit an evenly spaced ring of radius "
-            f"{params.radius_mm:.0f} mm; need at least {params.min_leds}"
+            f"not distinctive: a {m}-LED ring fit is expected by chance "
+            f"(NFA 10^{best.log10_nfa:.1f} > 10^{limit:.1f}) among {n} candidate points"
         )
-    try:
-        circle = _oriented(fit_circle_3d(p[members]))
-    except FitError as exc:
-        return RingRejection(f"ring fit failed: {exc}")
-    if abs(circle.radius - params.radius_mm) > params.radius_tol_mm:
+    best_set = set(best.members.tolist())
+    rivals = [
+        h
+        for h in hyps[1:]
+        if not set(h.members.tolist()) <= best_set
+        and h.log10_nfa <= params.log10_nfa_max
+        and (
+            len(h.members) == m
+            or (len(h.members) == m - 1 and h.log10_nfa <= best.log10_nfa + params.ambiguity_log10)
+        )
+    ]
+    if rivals:
         return RingRejection(
-            f"fitted ring radius {circle.radius:.1f} mm is outside {params.radius_mm:.0f} ± "
-            f"{params.radius_tol_mm:.1f} mm"
+            f"ambiguous: {len(rivals) + 1} ring hypotheses fit ({m} and "
+            f"{len(rivals[0].members)} LEDs, NFA 10^{best.log10_nfa:.1f} vs "
+            f"10^{rivals[0].log10_nfa:.1f})"
         )
-    if circle.rms > params.inlier_tol_mm:
+    if best.extra_on_ring > params.max_extra_on_ring:
         return RingRejection(
-            f"ring fit RMS {circle.rms:.2f} mm exceeds {params.inlier_tol_mm:.2f} mm"
+            f"{best.extra_on_ring} points lie on the ring between its {N} LED slots: check "
+            f"led_count (the ring may carry a different number of LEDs)"
         )
-    angles = slot_angles_deg(p[members], circle)
-    slot, _, _ = _slots(angles, params.led_count)
-    ids = slot.astype(int) + 1
-    order = np.argsort(ids, kind="stable")
+    if m < params.min_leds:
+        return RingRejection(
+            f"only {m} point(s) fit an evenly spaced ring of radius {params.radius_mm:.0f} mm; "
+            f"need at least {params.min_leds}"
+        )
     return RingFit(
-        circle=circle,
-        indices=tuple(int(index_map[members[o]]) for o in order),
-        ids=tuple(int(ids[o]) for o in order),
+        circle=best.circle,
+        indices=tuple(int(index_map[i]) for i in best.members),
+        slots=tuple(int(s) for s in best.slots),
+        offset_deg=best.offset_deg,
+        residual_deg=tuple(float(r) for r in best.resid_deg),
+        log10_nfa=best.log10_nfa,
+        candidates=n,
+        hypotheses=len(hyps),
     )
+
+
+def _agrees(h: _Hypothesis, prior: RingPrior) -> bool:
+    dc = float(np.linalg.norm(h.circle.center - np.asarray(prior.center_mm)))
+    cosang = float(np.clip(h.circle.normal @ np.asarray(prior.normal), -1.0, 1.0))
+    return dc <= prior.gate_mm and math.degrees(math.acos(cosang)) <= prior.gate_deg

@@ -8,7 +8,7 @@ The ring's ``normal`` is a unit vector pointing from the drogue towards the came
     p_k = c + r (cos θ_k e_up + sin θ_k e_right)
 
 where ``e_up`` is the camera "up" direction (−y) projected onto the ring plane and
-``e_right = e_up × normal`` (≈ +x head on).
+``e_right = e_up × normal`` (≈ +x head on). The id convention is :mod:`app.geometry.led_ids`.
 """
 
 from __future__ import annotations
@@ -19,6 +19,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from app.geometry.calibration import FloatArray, StereoCalibration
+from app.geometry.circle_fit import plane_basis
+from app.geometry.led_ids import DEFAULT_PHASE_DEG
 from app.geometry.projection import project_stereo
 
 HEAD_ON = np.array([0.0, 0.0, -1.0])
@@ -31,7 +33,7 @@ class LedRing:
     radius_mm: float = 75.0
     count: int = 5
     led_diameter_mm: float = 5.0
-    phase_deg: float = 36.0
+    phase_deg: float = DEFAULT_PHASE_DEG
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.radius_mm) and self.radius_mm > 0):
@@ -74,16 +76,11 @@ def check_pose(center_mm: object, normal: object) -> tuple[FloatArray, FloatArra
 
 
 def ring_basis(normal: object) -> tuple[FloatArray, FloatArray]:
-    """In-plane unit vectors (e_up, e_right) of the ring plane with the given normal."""
+    """In-plane unit vectors (e_up, e_right) of the ring plane with the given normal: the
+    pipeline's own basis (:func:`app.geometry.circle_fit.plane_basis`), so both measure LED
+    angles the same way (:mod:`app.geometry.led_ids`)."""
     _, n = check_pose(np.zeros(3), normal)
-    up = np.array([0.0, -1.0, 0.0])
-    e_up = up - float(up @ n) * n
-    if float(np.linalg.norm(e_up)) < 1e-6:  # ring plane faces straight up/down
-        fwd = np.array([0.0, 0.0, 1.0])
-        e_up = fwd - float(fwd @ n) * n
-    e_up = e_up / np.linalg.norm(e_up)
-    e_right = np.cross(e_up, n)
-    return e_up, e_right / np.linalg.norm(e_right)
+    return plane_basis(n)
 
 
 def led_angles_rad(ring: LedRing, roll_rad: float = 0.0) -> FloatArray:

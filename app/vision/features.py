@@ -22,7 +22,18 @@ class BlobGate:
     max_area_px: int = 6000
     max_aspect: float = 2.5  # bounding-box long side / short side
     min_fill: float = 0.45  # area / bounding-box area (a disc fills π/4 ≈ 0.785)
-    max_blobs: int = 64  # keep at most this many (largest mass first)
+    max_blobs: int = 512  # more candidates than this: refuse the frame (never drop LEDs)
+
+
+class TooManyBlobs(ValueError):
+    """More LED candidates than ``BlobGate.max_blobs``: the frame is refused, not trimmed."""
+
+    def __init__(self, count: int, limit: int) -> None:
+        super().__init__(
+            f"{count} LED-sized bright blobs (more than {limit}): refusing the frame rather "
+            f"than dropping candidates (flooded or overexposed image?)"
+        )
+        self.count = count
 
 
 def _gate(area: int, w: int, h: int, gate: BlobGate) -> str | None:
@@ -88,12 +99,7 @@ def extract_blobs(
         centre = (x + (w - 1) / 2.0, y + (h - 1) / 2.0)
         rejected.append(RejectedBlob(centroid_px=centre, area_px=area, reason=reason))
     if len(candidates) > gate.max_blobs:
-        candidates.sort(key=lambda i: -int(stats[i, cv2.CC_STAT_AREA]))
-        for i in candidates[gate.max_blobs :][:MAX_REJECTED_REPORTED]:
-            x, y, w, h, area = (int(v) for v in stats[i])
-            centre = (x + (w - 1) / 2.0, y + (h - 1) / 2.0)
-            rejected.append(RejectedBlob(centroid_px=centre, area_px=area, reason="too many blobs"))
-        candidates = candidates[: gate.max_blobs]
+        raise TooManyBlobs(len(candidates), gate.max_blobs)
     for i in candidates:
         x, y, w, h, area = (int(v) for v in stats[i])
         pad = max(2, int(round(0.5 * np.sqrt(area))))

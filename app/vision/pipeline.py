@@ -10,16 +10,18 @@ circle fit (§5.2) → lock decision.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Literal
 
 import numpy as np
 
 from app.geometry.calibration import StereoCalibration
+from app.geometry.led_ids import DEFAULT_PHASE_DEG, led_ids_for_angles, roll_from_offset
 from app.geometry.projection import undistort_pixels
-from app.geometry.ring import RingFit, RingParams, find_ring
+from app.geometry.ring import RingFit, RingParams, RingPrior, find_ring
 from app.geometry.triangulation import refine_reprojection, triangulate_linear
-from app.vision.features import BlobGate, extract_blobs
+from app.vision.appearance import AppearanceConfig, appearance_reasons, blob_color_bgr
+from app.vision.features import BlobGate, TooManyBlobs, extract_blobs
 from app.vision.ihwt import describe
 from app.vision.matching import (
     descriptor_distances,
@@ -63,12 +65,17 @@ class PipelineConfig:
     depth_range_mm: tuple[float, float] = (100.0, 50_000.0)
     ring_radius_mm: float = 75.0
     led_count: int = 5
+    led_phase_deg: float = DEFAULT_PHASE_DEG  # angle of LED 1 at roll 0 (app.geometry.led_ids)
+    led_diameter_mm: float = 5.0  # physical LED size, for the appearance test
     ring_radius_tol_frac: float = 0.1  # of the expected radius, plus depth noise
     ring_inlier_tol_mm: float = 2.0  # floor; grows with the depth noise σ_Z ≈ Z²σ_d/(fB)
     disparity_sigma_px: float = 0.05  # assumed centroid disparity noise for the tolerances
-    angle_tol_deg: float = 12.0
+    angle_tol_deg: float = 2.0  # floor of the slot residual; grows with σ_Z (max 12°)
     min_leds: int = 3
     max_reprojection_px: float = 1.5  # matched points reprojecting worse are dropped
+    appearance: AppearanceConfig = field(default_factory=AppearanceConfig)
+    log10_nfa_max: float = -2.0  # a-contrario integrity: lock only if NFA ≤ 10^this
+    track_frames: int = 5  # a lock this many frames old still serves as the prior
 
 
 @dataclass
@@ -81,10 +88,27 @@ class PipelineTrace:
     xyz_mm: np.ndarray | None = None
     ring: RingFit | None = None
     thresholds: tuple[int, int] = (0, 0)
+    appearance_rejected: dict[int, list[str]] = field(default_factory=dict)  # match → reasons
+    roll_deg: float | None = None
+
+
+@dataclass
+class _Track:
+    """The last lock: prior for the next frame's ids (roll continuity) and 3-LED integrity."""
+
+    center_mm: np.ndarray
+    normal: np.ndarray
+    roll_deg: float
+    age: int = 0
 
 
 class NavigationPipeline:
-    """Stateless per frame pair; holds the calibration and the configuration."""
+    """Holds the calibration, the configuration and the last lock (the track).
+
+    Each frame pair is solved on its own; the track only continues the LED ids through roll
+    (:mod:`app.geometry.led_ids`) and lets a 3-LED fit that agrees with it be judged locally.
+    ``reset()`` forgets it (a new, unrelated frame sequence).
+    """
 
     def __init__(
         self, calibration: StereoCalibration, config: PipelineConfig | None = None
@@ -95,6 +119,11 @@ class NavigationPipeline:
         self._F = calibration.fundamental
         fbar = 0.5 * (calibration.left.fx + calibration.right.fx)
         self._f_times_b = fbar * calibration.baseline_mm
+        self._track: _Track | None = None
+
+    def reset(self) -> None:
+        """Forget the track (ids restart from the acquisition convention)."""
+        self._track = None
 
     @property
     def window_factor(self) -> float:
@@ -114,6 +143,8 @@ class NavigationPipeline:
         mask = median_filter(binarize(gray, threshold), cfg.median_ksize)
         t1 = time.perf_counter()
         blobs, rejected = extract_blobs(gray, mask, bg, cfg.gate)
+        if image.ndim == 3 and cfg.appearance.enabled:
+            blobs = [replace(b, color_bgr=blob_color_bgr(image, b, threshold)) for b in blobs]
         t2 = time.perf_counter()
         desc = describe(gray, blobs, self.window_factor, cfg.min_window_px)
         t3 = time.perf_counter()
@@ -122,16 +153,17 @@ class NavigationPipeline:
         self._stage_ms["describe"] += (t3 - t2) * 1e3
         return FeatureSet(blobs=blobs, descriptors=desc, rejected=rejected), threshold, bg
 
-    def _ring_params(self, depth_mm: float) -> RingParams:
+    def _ring_params(self) -> RingParams:
         cfg = self.config
-        sigma_z = depth_mm**2 * cfg.disparity_sigma_px / self._f_times_b
         return RingParams(
             radius_mm=cfg.ring_radius_mm,
             led_count=cfg.led_count,
-            radius_tol_mm=cfg.ring_radius_tol_frac * cfg.ring_radius_mm + 2.0 * sigma_z,
-            inlier_tol_mm=max(cfg.ring_inlier_tol_mm, 4.0 * sigma_z),
+            radius_tol_frac=cfg.ring_radius_tol_frac,
+            inlier_tol_mm=cfg.ring_inlier_tol_mm,
             angle_tol_deg=cfg.angle_tol_deg,
+            depth_sigma_per_mm=cfg.disparity_sigma_px / self._f_times_b,
             min_leds=cfg.min_leds,
+            log10_nfa_max=cfg.log10_nfa_max,
         )
 
     # ------------------------------------------------------------------ main entry
@@ -151,16 +183,67 @@ class NavigationPipeline:
                     f"{name}: image is {img.shape[1]}×{img.shape[0]} px but the calibration "
                     f"is for {w}×{h} px"
                 )
-        feats_l, thr_l, _ = self._features(left)
-        feats_r, thr_r, _ = self._features(right)
+        try:
+            feats_l, thr_l, bg_l = self._features(left)
+            feats_r, thr_r, bg_r = self._features(right)
+        except TooManyBlobs as exc:
+            self._age_track()
+            result = PoseResult(lock=False, reason=str(exc))
+            self._stage_ms["total"] = (time.perf_counter() - t_start) * 1e3
+            result.timing_ms = StageTimings(**self._stage_ms)
+            return result
         self.trace.left, self.trace.right = feats_l, feats_r
         self.trace.thresholds = (thr_l, thr_r)
-        result = self._solve(feats_l, feats_r)
+        result = self._solve(feats_l, feats_r, (bg_l, bg_r))
+        if not result.lock:
+            self._age_track()
         self._stage_ms["total"] = (time.perf_counter() - t_start) * 1e3
         result.timing_ms = StageTimings(**self._stage_ms)
         return result
 
-    def _solve(self, feats_l: FeatureSet, feats_r: FeatureSet) -> PoseResult:
+    def _age_track(self) -> None:
+        if self._track is not None:
+            self._track.age += 1
+            if self._track.age > self.config.track_frames:
+                self._track = None
+
+    def _appearance_ok(
+        self,
+        matches: list[Match],
+        idx: np.ndarray,
+        X: np.ndarray,
+        feats_l: FeatureSet,
+        feats_r: FeatureSet,
+        background: tuple[float, float],
+    ) -> np.ndarray:
+        """Subset of ``idx`` whose matched blobs look like one LED (app.vision.appearance)."""
+        cfg, cal = self.config, self.calibration
+        if not cfg.appearance.enabled or len(idx) == 0:
+            return idx
+        z_r = (cal.R @ X[idx].T).T[:, 2] + float(cal.T[2])
+        keep = []
+        for k, i in enumerate(idx):
+            m = matches[int(i)]
+            reasons = appearance_reasons(
+                feats_l.blobs[m.left_index],
+                feats_r.blobs[m.right_index],
+                float(X[i, 2]),
+                float(z_r[k]),
+                cal.left.fx,
+                cal.right.fx,
+                cfg.led_diameter_mm,
+                background,
+                cfg.appearance,
+            )
+            if reasons:
+                self.trace.appearance_rejected[int(i)] = reasons
+            else:
+                keep.append(int(i))
+        return np.array(keep, dtype=np.int64)
+
+    def _solve(
+        self, feats_l: FeatureSet, feats_r: FeatureSet, background: tuple[float, float]
+    ) -> PoseResult:
         cfg, cal = self.config, self.calibration
         nl, nr = len(feats_l.blobs), len(feats_r.blobs)
         if nl < cfg.min_leds or nr < cfg.min_leds:
@@ -207,23 +290,43 @@ class NavigationPipeline:
                 reason=f"only {len(idx)} match(es) triangulate consistently "
                 f"(reprojection ≤ {cfg.max_reprojection_px} px); need at least {cfg.min_leds}",
             )
-        # --- ring consensus, plane + circle fit
-        depth_ref = float(np.median(X[idx, 2]))
-        order_hint = np.array([matches[i].descriptor_distance for i in idx])
-        ring = find_ring(X[idx], self._ring_params(depth_ref), order_hint)
+        # --- LED appearance, ring hypotheses with integrity test, plane + circle fit
+        n_matched = len(idx)
+        idx = self._appearance_ok(matches, idx, X, feats_l, feats_r, background)
+        if len(idx) < cfg.min_leds:
+            self._stage_ms["pose"] = (time.perf_counter() - t2) * 1e3
+            return PoseResult(
+                lock=False,
+                reason=f"only {len(idx)} of {n_matched} matched point(s) look like LEDs "
+                f"(size, stereo consistency, colour); need at least {cfg.min_leds}",
+            )
+        track = self._track
+        prior = None if track is None else RingPrior(track.center_mm, track.normal)
+        ring = find_ring(X[idx], self._ring_params(), prior)
         self._stage_ms["pose"] = (time.perf_counter() - t2) * 1e3
         if not isinstance(ring, RingFit):
             return PoseResult(lock=False, reason=ring.reason)
         self.trace.ring = ring
+        spacing = 360.0 / cfg.led_count
+        roll = roll_from_offset(
+            ring.offset_deg,
+            cfg.led_count,
+            cfg.led_phase_deg,
+            None if track is None else track.roll_deg,
+        )
+        slot_angles = ring.offset_deg + spacing * np.array(ring.slots, dtype=np.float64)
+        ids = led_ids_for_angles(slot_angles, roll, cfg.led_count, cfg.led_phase_deg)
+        self.trace.roll_deg = roll
+        self._track = _Track(ring.circle.center.copy(), ring.circle.normal.copy(), roll)
         leds = []
-        for k, led_id in zip(ring.indices, ring.ids, strict=True):
+        for k, led_id in sorted(zip(ring.indices, ids.tolist(), strict=True), key=lambda t: t[1]):
             m = matches[int(idx[k])]
             bl = feats_l.blobs[m.left_index].centroid_px
             br = feats_r.blobs[m.right_index].centroid_px
             x = X[int(idx[k])]
             leds.append(
                 LedResult(
-                    id=led_id,
+                    id=int(led_id),
                     left_px=(bl[0], bl[1]),
                     right_px=(br[0], br[1]),
                     xyz_mm=(float(x[0]), float(x[1]), float(x[2])),

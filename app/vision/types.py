@@ -19,6 +19,7 @@ class Blob:
     bbox: tuple[int, int, int, int]  # x, y, w, h (px)
     peak: float  # max gray level in the component
     mass: float  # sum of background-subtracted gray (eq. 11 denominator)
+    color_bgr: tuple[float, ...] | None = None  # mean (B, G, R) DN over the blob, colour input
 
 
 @dataclass(frozen=True)
