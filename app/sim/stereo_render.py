@@ -8,6 +8,16 @@ skew or the distortion stretch the image). It is drawn with anti-aliased supersa
 coverage, blurred with a symmetric Gaussian, and placed on a noisy background. Every step is
 point-symmetric about the projected centre, so an intensity-weighted centroid (eq. 11) of
 the noise-free blob returns the truth pixel to well under 0.01 px.
+
+Hostile extras (all off by default; they draw from their own random stream, so a render
+without them is byte-identical to one made before they existed):
+
+* ``glints``: 3-D glints that look exactly like LEDs — spheres of the LED diameter and
+  brightness, seen consistently by both cameras, at a depth near the drogue's, away from
+  the ring's image and from each other (each is a separate LED-sized blob);
+* ``mono_glints``: LED-sized glints seen by one camera only;
+* ``rim_reflections``: LED-sized bright spots ON the ring's circle, at a given angular
+  offset from a given LED (a reflection of that LED on the drogue's rim).
 """
 
 from __future__ import annotations
@@ -23,12 +33,16 @@ from numpy.typing import NDArray
 
 from app.geometry.calibration import CameraIntrinsics, FloatArray, StereoCalibration
 from app.geometry.projection import project_camera, project_stereo
-from app.sim.led_ring import LedRing, check_pose, ring_points
+from app.sim.led_ring import LedRing, check_pose, led_angles_rad, ring_basis, ring_points
 
 # (B, G, R) weights of an LED seen through the green filter (mostly green).
 LED_BGR = np.array([0.45, 1.0, 0.30], dtype=np.float32)
 NOISE_FIELD_PAD = 256  # px added to each side of the cached noise field (fast_noise)
 _MIN_DEPTH_MM = 1.0
+_EXTRAS_STREAM = 0x676C6E74  # second seed word of the hostile extras' random stream
+_GLINT_DEPTH_FACTORS = (0.87, 1.13)  # default glint depth window, × drogue centre depth
+_GLINT_GAP_PX = 4.0  # min gap between the discs of two glints (or a glint and clutter)
+_GLINT_TRIES = 2000  # draws per glint before it is given up (truth then has fewer rows)
 
 
 @dataclass(frozen=True)
@@ -45,6 +59,12 @@ class RenderSettings:
     occluded: tuple[int, ...] = ()  # LED ids (1..N) hidden in both images
     color: bool = False  # BGR output with mostly-green LEDs instead of grey
     fast_noise: bool = False  # noise from a cached field at a random offset (closed loop)
+    # ---- hostile extras (see the module docstring); none drawn by default
+    glints: int = 0  # LED-like 3-D glints (LED size and brightness, both cameras)
+    glint_depth_mm: tuple[float, float] | None = None  # None: drogue depth × (0.87, 1.13)
+    glint_led_color: bool = False  # colour images: glints in LED_BGR instead of whitish
+    mono_glints: int = 0  # LED-sized glints seen by one camera (alternating left/right)
+    rim_reflections: tuple[tuple[int, float], ...] = ()  # (LED id, offset deg) on the rim
 
     def __post_init__(self) -> None:
         for name in ("led_peak", "background", "noise_sigma", "blur_sigma_px"):
@@ -68,11 +88,60 @@ class RenderSettings:
                 f"RenderSettings.occluded must be LED ids (integers), got {self.occluded!r}"
             ) from None
         object.__setattr__(self, "occluded", occ)
+        for name in ("glints", "mono_glints"):
+            v = getattr(self, name)
+            if not isinstance(v, int | np.integer) or isinstance(v, bool) or v < 0:
+                raise ValueError(f"RenderSettings.{name} must be an integer >= 0, got {v!r}")
+            object.__setattr__(self, name, int(v))
+        if not isinstance(self.glint_led_color, bool | np.bool_):
+            raise ValueError(
+                f"RenderSettings.glint_led_color must be a bool, got {self.glint_led_color!r}"
+            )
+        object.__setattr__(self, "glint_led_color", bool(self.glint_led_color))
+        if self.glint_depth_mm is not None:
+            object.__setattr__(self, "glint_depth_mm", _check_depth_window(self.glint_depth_mm))
+        object.__setattr__(self, "rim_reflections", _check_reflections(self.rim_reflections))
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
         d["occluded"] = list(self.occluded)
+        d["glint_depth_mm"] = None if self.glint_depth_mm is None else list(self.glint_depth_mm)
+        d["rim_reflections"] = [[i, off] for i, off in self.rim_reflections]
         return d
+
+
+def _check_depth_window(value: object) -> tuple[float, float]:
+    msg = "RenderSettings.glint_depth_mm must be None or (near, far) mm with 1 <= near <= far"
+    try:
+        lo, hi = (float(v) for v in value)  # type: ignore[attr-defined]
+    except (TypeError, ValueError):
+        raise ValueError(f"{msg}, got {value!r}") from None
+    if not (math.isfinite(lo) and math.isfinite(hi) and _MIN_DEPTH_MM <= lo <= hi):
+        raise ValueError(f"{msg}, got {value!r}")
+    return lo, hi
+
+
+def _check_reflections(value: object) -> tuple[tuple[int, float], ...]:
+    msg = "RenderSettings.rim_reflections must be (LED id >= 1, finite offset deg) pairs"
+    try:
+        items = list(value)  # type: ignore[call-overload]
+    except TypeError:
+        raise ValueError(f"{msg}, got {value!r}") from None
+    out: list[tuple[int, float]] = []
+    for item in items:
+        try:
+            led_id, off = item
+            fid, foff = float(led_id), float(off)
+        except (TypeError, ValueError):
+            raise ValueError(f"{msg}, got entry {item!r}") from None
+        if isinstance(led_id, bool) or not (math.isfinite(fid) and fid == round(fid)):
+            raise ValueError(f"{msg}: LED id must be an integer, got {led_id!r}")
+        if fid < 1:
+            raise ValueError(f"{msg}: LED id must be >= 1, got {led_id!r}")
+        if not math.isfinite(foff):
+            raise ValueError(f"{msg}: offset must be finite, got {off!r}")
+        out.append((int(fid), foff))
+    return tuple(out)
 
 
 def _nan_to_none(value: Any) -> Any:
@@ -95,6 +164,12 @@ class RenderTruth:
     would show it), so its centroid is biased: keep accuracy poses away from the borders.
     Clutter pixel rows are NaN where that item is not in that image (monocular glints, or out
     of frame).
+
+    Hostile extras: ``glint_*`` rows are the LED-like 3-D glints actually placed (centre mm;
+    its projection in each image, always inside both); ``mono_glint_left_px`` /
+    ``mono_glint_right_px`` one row per monocular glint, NaN in the image it is not in;
+    ``reflection_*`` one row per ``RenderSettings.rim_reflections`` entry, in that order
+    (the projection, NaN only behind a camera; drawn where it falls in the image).
     """
 
     led_xyz_mm: FloatArray
@@ -115,6 +190,14 @@ class RenderTruth:
     second_object_left_px: FloatArray | None = None
     second_object_right_px: FloatArray | None = None
     roll_rad: float = 0.0
+    glint_xyz_mm: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))
+    glint_left_px: FloatArray = field(default_factory=lambda: np.zeros((0, 2)))
+    glint_right_px: FloatArray = field(default_factory=lambda: np.zeros((0, 2)))
+    mono_glint_left_px: FloatArray = field(default_factory=lambda: np.zeros((0, 2)))
+    mono_glint_right_px: FloatArray = field(default_factory=lambda: np.zeros((0, 2)))
+    reflection_xyz_mm: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))
+    reflection_left_px: FloatArray = field(default_factory=lambda: np.zeros((0, 2)))
+    reflection_right_px: FloatArray = field(default_factory=lambda: np.zeros((0, 2)))
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict (lists; NaN → null)."""
@@ -471,6 +554,156 @@ def _make_clutter(
 
 
 # ----------------------------------------------------------------------------------------
+# Hostile extras: LED-like glints, monocular glints, rim reflections
+# ----------------------------------------------------------------------------------------
+@dataclass
+class _Extras:
+    left: list[_Blob] = field(default_factory=list)
+    right: list[_Blob] = field(default_factory=list)
+    glint_xyz: list[FloatArray] = field(default_factory=list)
+    glint_left_px: list[FloatArray] = field(default_factory=list)
+    glint_right_px: list[FloatArray] = field(default_factory=list)
+    mono_left_px: list[FloatArray] = field(default_factory=list)
+    mono_right_px: list[FloatArray] = field(default_factory=list)
+    refl_xyz: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))
+    refl_left_px: FloatArray = field(default_factory=lambda: np.zeros((0, 2)))
+    refl_right_px: FloatArray = field(default_factory=lambda: np.zeros((0, 2)))
+
+
+class _Occupied:
+    """Discs (centre, radius px) already placed in one image; new glints keep a gap."""
+
+    def __init__(self, blobs: list[_Blob]) -> None:
+        self.p = [b.center_px for b in blobs]
+        self.r = [_spectral_norm(b.shape_px) for b in blobs]
+
+    def ok(self, p: FloatArray, r_px: float) -> bool:
+        if not self.p:
+            return True
+        gaps = np.linalg.norm(np.array(self.p) - p, axis=1) - np.array(self.r) - r_px
+        return bool(np.all(gaps >= _GLINT_GAP_PX))
+
+    def add(self, p: FloatArray, r_px: float) -> None:
+        self.p.append(p)
+        self.r.append(r_px)
+
+
+def _disc_inside(p: FloatArray, r_px: float, size: tuple[int, int]) -> bool:
+    """The whole disc (plus 1 px) lies inside the image, so it is drawn unclipped."""
+    w, h = size
+    m = r_px + 1.0
+    return bool(m <= p[0] <= w - 1 - m and m <= p[1] <= h - 1 - m)
+
+
+def _make_extras(
+    calib: StereoCalibration,
+    settings: RenderSettings,
+    ring: LedRing,
+    rng: np.random.Generator,
+    center: FloatArray,
+    normal: FloatArray,
+    roll_rad: float,
+    keep: tuple[_Keepout, _Keepout] | None,
+    clutter: _Clutter,
+    led_bgr: NDArray[np.float32],
+) -> _Extras:
+    """Draw the hostile extras of ``settings`` (own random stream ``rng``)."""
+    out = _Extras()
+    size = calib.image_size
+    w, h = size
+    r_led = 0.5 * ring.led_diameter_mm
+    white = np.ones(3, dtype=np.float32)
+
+    def peak() -> float:
+        return float(settings.led_peak * rng.uniform(0.9, 1.1))
+
+    def colour() -> NDArray[np.float32]:
+        # drawn in every mode, so the glints' places do not depend on color/glint_led_color
+        tint = rng.uniform(-0.15, 0.15, 3).astype(np.float32)
+        if not settings.color:
+            return white
+        if settings.glint_led_color:
+            return LED_BGR
+        # whitish, like the clutter glints: similar grey level to the LEDs
+        return np.clip(white + tint, 0.2, 1.0)
+
+    if keep is not None:
+        keep_l, keep_r = keep
+        occ_l, occ_r = _Occupied(clutter.left), _Occupied(clutter.right)
+        range_mm = max(float(center[2]), 100.0)
+        lo, hi = settings.glint_depth_mm or tuple(f * range_mm for f in _GLINT_DEPTH_FACTORS)
+        fl = 0.5 * (calib.left.fx + calib.left.fy)
+        rad = np.array([r_led])
+        for _ in range(settings.glints):  # LED-like 3-D glints, seen by both cameras
+            for _try in range(_GLINT_TRIES):
+                z = rng.uniform(lo, hi)
+                u, v = rng.uniform(0, w - 1), rng.uniform(0, h - 1)
+                xyz = np.array([[(u - calib.left.u0) / fl * z, (v - calib.left.v0) / fl * z, z]])
+                pl, pr, _, _ = _project_checked(calib, xyz)
+                if not (np.all(np.isfinite(pl)) and np.all(np.isfinite(pr))):
+                    continue
+                al = _sphere_shapes(calib.left, xyz, rad)[0]
+                ar = _sphere_shapes(calib.right, _to_right(calib, xyz), rad)[0]
+                rl, rr = _spectral_norm(al), _spectral_norm(ar)
+                if not (_disc_inside(pl[0], rl, size) and _disc_inside(pr[0], rr, size)):
+                    continue
+                if not (keep_l.ok(pl[0], rl) and keep_r.ok(pr[0], rr)):
+                    continue
+                if not (occ_l.ok(pl[0], rl) and occ_r.ok(pr[0], rr)):
+                    continue
+                pk, col = peak(), colour()
+                out.left.append(_Blob(pl[0], al, pk, col))
+                out.right.append(_Blob(pr[0], ar, pk, col))
+                occ_l.add(pl[0], rl)
+                occ_r.add(pr[0], rr)
+                out.glint_xyz.append(xyz[0])
+                out.glint_left_px.append(pl[0])
+                out.glint_right_px.append(pr[0])
+                break
+
+        # monocular glints: a disc of the LEDs' image radius at the drogue's depth
+        z_r = max(float(_to_right(calib, center[None, :])[0, 2]), 100.0)
+        mono_r = (
+            0.5 * (calib.left.fx + calib.left.fy) * r_led / range_mm,
+            0.5 * (calib.right.fx + calib.right.fy) * r_led / z_r,
+        )
+        for i in range(settings.mono_glints):
+            left_side = i % 2 == 0
+            keep_i, occ_i = (keep_l, occ_l) if left_side else (keep_r, occ_r)
+            r_px = mono_r[0] if left_side else mono_r[1]
+            for _try in range(_GLINT_TRIES):
+                p = np.array([rng.uniform(0, w - 1), rng.uniform(0, h - 1)])
+                if not (_disc_inside(p, r_px, size) and keep_i.ok(p, r_px) and occ_i.ok(p, r_px)):
+                    continue
+                b = _Blob(p, np.eye(2) * r_px, peak(), colour())
+                (out.left if left_side else out.right).append(b)
+                occ_i.add(p, r_px)
+                nan2 = np.full(2, np.nan)
+                out.mono_left_px.append(p if left_side else nan2)
+                out.mono_right_px.append(nan2 if left_side else p)
+                break
+
+    if settings.rim_reflections:  # on the rim circle, θ_id + offset, LED size and colour
+        ids = np.array([i for i, _ in settings.rim_reflections], dtype=np.int64)
+        offs = np.radians([off for _, off in settings.rim_reflections])
+        th = led_angles_rad(ring, roll_rad)[ids - 1] + offs
+        e_up, e_right = ring_basis(normal)
+        xyz = center + ring.radius_mm * (np.outer(np.cos(th), e_up) + np.outer(np.sin(th), e_right))
+        pl, pr, _, _ = _project_checked(calib, xyz)
+        in_l, in_r = _in_frame(pl, size), _in_frame(pr, size)
+        rad = np.full(len(xyz), r_led)
+        al = _sphere_shapes(calib.left, xyz, rad)
+        ar = _sphere_shapes(calib.right, _to_right(calib, xyz), rad)
+        for k in range(len(xyz)):
+            if in_l[k]:
+                out.left.append(_Blob(pl[k], al[k], settings.led_peak, led_bgr))
+            if in_r[k]:
+                out.right.append(_Blob(pr[k], ar[k], settings.led_peak, led_bgr))
+        out.refl_xyz, out.refl_left_px, out.refl_right_px = xyz, pl, pr
+    return out
+
+
+# ----------------------------------------------------------------------------------------
 # Public entry point
 # ----------------------------------------------------------------------------------------
 def render_pair(
@@ -487,6 +720,11 @@ def render_pair(
     Deterministic for a given ``seed`` (``None`` → fresh randomness). LEDs behind a camera
     or outside an image are not drawn there (``truth.visible`` False); poses partly out of
     view never raise. Raises ValueError for a non-finite pose, a zero normal or bad ids.
+
+    The hostile extras of ``settings`` (``glints``, ``mono_glints``, ``rim_reflections``)
+    use a second random stream derived from ``seed``: with them off, the images are exactly
+    those of a renderer without them; with them on, the LEDs, clutter and noise are
+    unchanged and only the extras' own pixels differ.
     """
     settings = settings or RenderSettings()
     ring = ring or LedRing()
@@ -496,6 +734,9 @@ def render_pair(
     bad = [i for i in settings.occluded if not 1 <= i <= ring.count]
     if bad:
         raise ValueError(f"occluded LED ids must be in 1..{ring.count}, got {bad}")
+    bad = [i for i, _ in settings.rim_reflections if not 1 <= i <= ring.count]
+    if bad:
+        raise ValueError(f"rim_reflections LED ids must be in 1..{ring.count}, got {bad}")
     rng = np.random.default_rng(seed)
 
     xyz = ring_points(c, n, ring, roll_rad)
@@ -528,17 +769,38 @@ def render_pair(
     blobs_r = [_Blob(pr[k], a_r[k], settings.led_peak, led_bgr) for k in np.flatnonzero(draw_r)]
 
     clutter = _Clutter()
-    if settings.clutter > 0 or settings.second_object:
+    keep: tuple[_Keepout, _Keepout] | None = None
+    glinting = settings.glints > 0 or settings.mono_glints > 0
+    if settings.clutter > 0 or settings.second_object or glinting:
         cl, cr, _, _ = _project_checked(calib, c[None, :])
         keep_l = _Keepout(cl[0], pl, np.nan_to_num(rad_l, nan=0.0))
         keep_r = _Keepout(cr[0], pr, np.nan_to_num(rad_r, nan=0.0))
+        keep = (keep_l, keep_r)
+    if settings.clutter > 0 or settings.second_object:
         range_mm = max(float(c[2]), 100.0)
         clutter = _make_clutter(calib, settings, rng, range_mm, keep_l, keep_r, gray_bgr)
 
+    extras = _Extras()
+    if glinting or settings.rim_reflections:
+        # own stream, so the main one (clutter, noise) is the same with or without extras
+        rng_x = np.random.default_rng(None if seed is None else [int(seed), _EXTRAS_STREAM])
+        extras = _make_extras(
+            calib,
+            settings,
+            ring,
+            rng_x,
+            c,
+            n,
+            float(roll_rad),
+            keep if glinting else None,
+            clutter,
+            led_bgr,
+        )
+
     w, h = calib.image_size
     shape: tuple[int, ...] = (h, w, 3) if color else (h, w)
-    left = _compose(shape, blobs_l + clutter.left, settings, rng)
-    right = _compose(shape, blobs_r + clutter.right, settings, rng)
+    left = _compose(shape, blobs_l + clutter.left + extras.left, settings, rng)
+    right = _compose(shape, blobs_r + clutter.right + extras.right, settings, rng)
 
     def rows(items: list[FloatArray], dim: int) -> FloatArray:
         return np.array(items, dtype=np.float64).reshape(-1, dim)
@@ -562,5 +824,13 @@ def render_pair(
         second_object_left_px=clutter.second_left,
         second_object_right_px=clutter.second_right,
         roll_rad=float(roll_rad),
+        glint_xyz_mm=rows(extras.glint_xyz, 3),
+        glint_left_px=rows(extras.glint_left_px, 2),
+        glint_right_px=rows(extras.glint_right_px, 2),
+        mono_glint_left_px=rows(extras.mono_left_px, 2),
+        mono_glint_right_px=rows(extras.mono_right_px, 2),
+        reflection_xyz_mm=rows(list(extras.refl_xyz), 3),
+        reflection_left_px=rows(list(extras.refl_left_px), 2),
+        reflection_right_px=rows(list(extras.refl_right_px), 2),
     )
     return RenderedPair(left=left, right=right, truth=truth)
