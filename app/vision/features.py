@@ -50,6 +50,31 @@ def _gate(area: int, w: int, h: int, gate: BlobGate) -> str | None:
     return None
 
 
+def _label_with_stats(mask: U8Image) -> tuple[int, np.ndarray, np.ndarray]:
+    """OpenCV one-pass labelling (Algorithm 2) and the (x, y, w, h, area) stats of each label,
+    computed from the foreground pixels only (same values as ``connectedComponentsWithStats``,
+    whose stats pass costs a full-image scan per call)."""
+    n, labels = cv2.connectedComponents(mask, connectivity=8, ltype=cv2.CV_32S)
+    stats = np.zeros((n, 5), dtype=np.int64)
+    if n <= 1:
+        return n, labels, stats
+    nz = cv2.findNonZero(mask).reshape(-1, 2)  # (x, y), row-major: ~10× faster than np.nonzero
+    xs, ys = nz[:, 0].astype(np.int64), nz[:, 1].astype(np.int64)
+    lab = labels[ys, xs]
+    order = np.argsort(lab, kind="stable")
+    lab, xs, ys = lab[order], xs[order], ys[order]
+    starts = np.flatnonzero(np.r_[True, lab[1:] != lab[:-1]])
+    ids = lab[starts]
+    x0 = np.minimum.reduceat(xs, starts)
+    y0 = np.minimum.reduceat(ys, starts)
+    stats[ids, 0] = x0
+    stats[ids, 1] = y0
+    stats[ids, 2] = np.maximum.reduceat(xs, starts) - x0 + 1
+    stats[ids, 3] = np.maximum.reduceat(ys, starts) - y0 + 1
+    stats[ids, 4] = np.diff(np.r_[starts, len(lab)])
+    return n, labels, stats
+
+
 def extract_blobs(
     gray: U8Image,
     mask: U8Image,
@@ -74,8 +99,7 @@ def extract_blobs(
     ox, oy = max(0, bx - m), max(0, by - m)
     ex, ey = min(width, bx + bw + m), min(height, by + bh + m)
     gray_roi = gray[oy:ey, ox:ex]
-    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask[oy:ey, ox:ex], connectivity=8)
-    stats = stats.copy()
+    n, labels, stats = _label_with_stats(mask[oy:ey, ox:ex])
     stats[:, 0] += ox
     stats[:, 1] += oy
     blobs: list[Blob] = []
@@ -100,6 +124,7 @@ def extract_blobs(
         rejected.append(RejectedBlob(centroid_px=centre, area_px=area, reason=reason))
     if len(candidates) > gate.max_blobs:
         raise TooManyBlobs(len(candidates), gate.max_blobs)
+    kernels: dict[int, np.ndarray] = {}
     for i in candidates:
         x, y, w, h, area = (int(v) for v in stats[i])
         pad = max(2, int(round(0.5 * np.sqrt(area))))
@@ -107,21 +132,25 @@ def extract_blobs(
         x0, y0 = max(0, x - ox - pad), max(0, y - oy - pad)
         x1, y1 = min(ex - ox, x - ox + w + pad), min(ey - oy, y - oy + h + pad)
         lab = labels[y0:y1, x0:x1]
-        comp = (lab == i).astype(np.uint8)
-        kernel = np.ones((2 * pad + 1, 2 * pad + 1), np.uint8)
+        comp = lab == i
+        kernel = kernels.get(pad)
+        if kernel is None:
+            kernel = kernels[pad] = np.ones((2 * pad + 1, 2 * pad + 1), np.uint8)
         # Dilated support, but never a neighbouring component's pixels.
-        support = (cv2.dilate(comp, kernel) > 0) & ((lab == 0) | (comp > 0))
-        window = gray_roi[y0:y1, x0:x1].astype(np.float64)
-        weights = np.where(support, window - background, 0.0)
+        support = (cv2.dilate(comp.view(np.uint8), kernel) > 0) & ((lab == 0) | comp)
+        window = gray_roi[y0:y1, x0:x1]
+        weights = window.astype(np.float64) - background
+        weights[~support] = 0.0
         np.clip(weights, 0.0, None, out=weights)
         mass = float(weights.sum())
         if mass <= 0:
             cu, cv = x + (w - 1) / 2.0, y + (h - 1) / 2.0
         else:
-            vs, us = np.mgrid[y0 + oy : y1 + oy, x0 + ox : x1 + ox]
-            cu = float((weights * us).sum() / mass)
-            cv = float((weights * vs).sum() / mass)
-        peak = float(window[comp > 0].max())
+            us = np.arange(x0 + ox, x1 + ox, dtype=np.float64)
+            vs = np.arange(y0 + oy, y1 + oy, dtype=np.float64)
+            cu = float(weights.sum(axis=0) @ us / mass)
+            cv = float(weights.sum(axis=1) @ vs / mass)
+        peak = float(window[comp].max())
         blobs.append(
             Blob(centroid_px=(cu, cv), area_px=area, bbox=(x, y, w, h), peak=peak, mass=mass)
         )

@@ -43,38 +43,49 @@ def window_side_px(area_px: float, window_factor: float = 8.0, min_window_px: in
     return max(float(min_window_px), window_factor * r_eq)
 
 
-def describe_point(ii: FloatArray, center_px: tuple[float, float], window_px: float) -> FloatArray:
-    """The 64-D IHWT descriptor of one feature point (unit length, or zeros if flat)."""
+def describe_points(ii: FloatArray, centers_px: FloatArray, windows_px: FloatArray) -> FloatArray:
+    """64-D IHWT descriptors of P feature points at once, (P, 64), each unit length (or zeros
+    if flat). ``centers_px`` (P, 2) in the integral image's pixel frame, ``windows_px`` (P,)."""
+    centers = np.asarray(centers_px, dtype=np.float64).reshape(-1, 2)
+    win = np.asarray(windows_px, dtype=np.float64).reshape(-1)
     n = 4 * SAMPLES_PER_SUBSQUARE  # samples per window side
-    step = window_px / n
-    half = max(1, int(round(step)))  # Haar template half-size (px)
-    offsets = (np.arange(n) + 0.5) * step - window_px / 2.0
+    step = win / n  # (P,)
+    half = np.maximum(1, np.floor(step + 0.5)).astype(np.int64)[:, None, None]  # Haar half-size
+    offsets = (np.arange(n) + 0.5)[None, :] * step[:, None] - win[:, None] / 2.0  # (P, n)
     # The grid is anchored on the FP's pixel so that equal patches give equal descriptors.
-    cu, cv = np.floor(center_px[0] + 0.5), np.floor(center_px[1] + 0.5)
-    xs = (cu + np.floor(offsets + 0.5)).astype(np.int64)
-    ys = (cv + np.floor(offsets + 0.5)).astype(np.int64)
-    gx, gy = np.meshgrid(xs, ys)  # (n, n): row = v, col = u
-    # Horizontal Haar: right half minus left half; vertical: bottom half minus top half.
-    dx = box_sum(ii, gx, gy - half, gx + half, gy + half) - box_sum(
-        ii, gx - half, gy - half, gx, gy + half
-    )
-    dy = box_sum(ii, gx - half, gy, gx + half, gy + half) - box_sum(
-        ii, gx - half, gy - half, gx + half, gy
-    )
+    cu = np.floor(centers[:, 0] + 0.5)[:, None]
+    cv = np.floor(centers[:, 1] + 0.5)[:, None]
+    xs = (cu + np.floor(offsets + 0.5)).astype(np.int64)[:, None, :]  # (P, 1, n): u
+    ys = (cv + np.floor(offsets + 0.5)).astype(np.int64)[:, :, None]  # (P, n, 1): v
+    h, w = ii.shape[0] - 1, ii.shape[1] - 1
+    # Clipped corner coordinates (minus, centre, plus half a template), then eq. 13 on the
+    # 3×3 corner values: horizontal Haar = right half − left half, vertical = bottom − top.
+    xm, xc, xp = (np.clip(xs + d, 0, w) for d in (-half, 0, half))
+    ym, yc, yp = (np.clip(ys + d, 0, h) for d in (-half, 0, half))
+    mm, mc, mp = ii[ym, xm], ii[ym, xc], ii[ym, xp]
+    cm, cp = ii[yc, xm], ii[yc, xp]
+    pm, pc, pp = ii[yp, xm], ii[yp, xc], ii[yp, xp]
+    dx = (mc + pp - mp - pc) - (mm + pc - mc - pm)
+    dy = (cm + pp - cp - pm) - (mm + cp - mp - cm)
     s = SAMPLES_PER_SUBSQUARE
-    dx4 = dx.reshape(4, s, 4, s)
-    dy4 = dy.reshape(4, s, 4, s)
+    dx4 = dx.reshape(-1, 4, s, 4, s)
+    dy4 = dy.reshape(-1, 4, s, 4, s)
     desc = np.stack(
         [
-            dx4.sum(axis=(1, 3)),
-            np.abs(dx4).sum(axis=(1, 3)),
-            dy4.sum(axis=(1, 3)),
-            np.abs(dy4).sum(axis=(1, 3)),
+            dx4.sum(axis=(2, 4)),
+            np.abs(dx4).sum(axis=(2, 4)),
+            dy4.sum(axis=(2, 4)),
+            np.abs(dy4).sum(axis=(2, 4)),
         ],
         axis=-1,
-    ).reshape(DESCRIPTOR_SIZE)
-    norm = float(np.linalg.norm(desc))
-    return desc / norm if norm > 0 else desc
+    ).reshape(-1, DESCRIPTOR_SIZE)
+    norm = np.linalg.norm(desc, axis=1, keepdims=True)
+    return np.asarray(np.where(norm > 0, desc / np.where(norm > 0, norm, 1.0), desc))
+
+
+def describe_point(ii: FloatArray, center_px: tuple[float, float], window_px: float) -> FloatArray:
+    """The 64-D IHWT descriptor of one feature point (unit length, or zeros if flat)."""
+    return describe_points(ii, np.array([center_px]), np.array([window_px]))[0]
 
 
 def describe(
@@ -101,9 +112,5 @@ def describe(
         ox, oy = max(0, int(min(us) - margin)), max(0, int(min(vs) - margin))
         ex, ey = min(w, int(max(us) + margin) + 2), min(h, int(max(vs) + margin) + 2)
         ii = integral_image(np.ascontiguousarray(gray[oy:ey, ox:ex]))
-    return np.stack(
-        [
-            describe_point(ii, (b.centroid_px[0] - ox, b.centroid_px[1] - oy), win)
-            for b, win in zip(blobs, windows, strict=True)
-        ]
-    )
+    centers = np.array([b.centroid_px for b in blobs], dtype=np.float64) - np.array([ox, oy])
+    return describe_points(ii, centers, np.array(windows))
