@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from itertools import combinations
 
 import numpy as np
 
@@ -56,6 +57,7 @@ class RingParams:
     three_led_log10_margin: float = 1.0  # with 3 LEDs: NFA ≤ 10^(max − margin) (no prior)
     ambiguity_log10: float = 2.0  # a competitor within this many decades of NFA is "as good"
     max_extra_on_ring: int = 2  # more on-circle points off the slots → wrong led_count
+    fov_tan: tuple[float, float] | None = None  # (width/fx, height/fy): the cameras' field
 
     def sigma_z(self, z_mm: FloatArray | float) -> FloatArray:
         return np.asarray(self.depth_sigma_per_mm * np.square(z_mm), dtype=np.float64)
@@ -201,6 +203,29 @@ def _seed_triples(adj: np.ndarray) -> np.ndarray:
     return np.vstack(out) if out else np.zeros((0, 3), dtype=np.int64)
 
 
+def _seed_slots(
+    p: FloatArray, triples: np.ndarray, center: FloatArray, normal: FloatArray, count: int
+) -> tuple[FloatArray, np.ndarray]:
+    """Vectorised slot check of seed triples on their circumcircles: (T, 3) residuals (deg)
+    from the best evenly spaced slots, and whether the three slots are distinct (T,)."""
+    n = normal * np.where(np.sum(normal * -center, axis=1) < 0, -1.0, 1.0)[:, None]
+    up = np.array([0.0, -1.0, 0.0])
+    e_up = up[None, :] - (n @ up)[:, None] * n
+    e_up /= np.maximum(np.linalg.norm(e_up, axis=1), 1e-12)[:, None]
+    e_right = np.cross(e_up, n)
+    rel = p[triples] - center[:, None, :]
+    ang = np.degrees(
+        np.arctan2(np.einsum("tkj,tj->tk", rel, e_right), np.einsum("tkj,tj->tk", rel, e_up))
+    )
+    spacing = 360.0 / count
+    off = np.degrees(np.angle(np.mean(np.exp(1j * np.radians(ang * count)), axis=1))) / count
+    k = np.rint((ang - off[:, None]) / spacing)
+    res = ang - off[:, None] - k * spacing
+    sl = np.mod(k, count)
+    distinct = (sl[:, 0] != sl[:, 1]) & (sl[:, 0] != sl[:, 2]) & (sl[:, 1] != sl[:, 2])
+    return res, distinct
+
+
 def _fit_hypothesis(p: FloatArray, members: np.ndarray, params: RingParams) -> _Hypothesis | None:
     """Refine a seed: circle fit, slot offset, slot assignment over all points; iterate."""
     N = params.led_count
@@ -306,13 +331,25 @@ def log10_nfa(m: int, n: int, volume_mm3: float, h: _Hypothesis, params: RingPar
 
 
 def _volume(p: FloatArray, params: RingParams) -> float:
-    """Bounding volume of the candidates (mm³), each side at least 4R."""
-    side = np.maximum(np.ptp(p, axis=0), 4.0 * params.radius_mm)
-    return float(np.prod(side))
+    """Volume (mm³) over which background points could have fallen: the cameras' field of
+    view at the candidates' median depth times their depth spread (if the field is known),
+    at least their bounding box; every extent at least 4R."""
+    floor = 4.0 * params.radius_mm
+    side = np.maximum(np.ptp(p, axis=0), floor)
+    volume = float(np.prod(side))
+    if params.fov_tan is not None:
+        z = float(np.median(p[:, 2]))
+        width = max(params.fov_tan[0] * z, floor)
+        height = max(params.fov_tan[1] * z, floor)
+        volume = max(volume, width * height * float(side[2]))
+    return volume
 
 
 def _radius_only_count(p: FloatArray, params: RingParams, triples: np.ndarray) -> int:
-    """Most points on one circle of the ring's radius (ignoring the slots): diagnosis only."""
+    """Most points on one circle of the ring's radius (ignoring the slots): diagnosis only.
+    Few candidates: every triple; many: the chord-compatible ones."""
+    if len(p) <= 30:
+        triples = np.array(list(combinations(range(len(p)), 3)), dtype=np.int64).reshape(-1, 3)
     if len(triples) == 0:
         return 0
     c, nrm, r = _circumcircles(p, triples)
@@ -345,19 +382,14 @@ def find_ring(
         z = c[:, 2]
         keep = np.abs(r - params.radius_mm) <= params.radius_tol(z)
         # seed slot check: the three points on distinct, evenly spaced slots
-        seeds = []
-        for t in np.flatnonzero(keep):
-            circle = oriented(Circle3D(c[t], nrm[t], float(r[t]), 0.0, 0.0))
-            ang = slot_angles_deg(p[triples[t]], circle)
-            off = slot_offset_deg(ang, N)
-            sl, res = slot_residuals(ang, off, N)
-            atol = float(params.angle_tol_deg_at(z[t]))
-            if len(set(sl.tolist())) == 3 and np.max(np.abs(res)) <= 1.5 * atol:
-                seeds.append((float(np.sum(res**2)), t))
-        seeds.sort()
+        t_idx = np.flatnonzero(keep)
+        res, distinct = _seed_slots(p, triples[t_idx], c[t_idx], nrm[t_idx], N)
+        ok = distinct & (np.max(np.abs(res), axis=1) <= 1.5 * params.angle_tol_deg_at(z[t_idx]))
+        t_ok = t_idx[ok]
+        seeds = t_ok[np.argsort(np.sum(res[ok] ** 2, axis=1), kind="stable")]
         covered: list[set[int]] = []
         seen: set[tuple[int, ...]] = set()
-        for _, t in seeds[:MAX_SEEDS]:
+        for t in seeds[:MAX_SEEDS]:
             tri = set(triples[t].tolist())
             if any(tri <= cov for cov in covered):
                 continue  # already explained by a refined hypothesis

@@ -125,6 +125,8 @@ def extract_blobs(
     if len(candidates) > gate.max_blobs:
         raise TooManyBlobs(len(candidates), gate.max_blobs)
     kernels: dict[int, np.ndarray] = {}
+    integer_bg = float(background).is_integer() and 0 <= background <= 255
+    bg_u8 = float(background) if integer_bg else 0.0
     for i in candidates:
         x, y, w, h, area = (int(v) for v in stats[i])
         pad = max(2, int(round(0.5 * np.sqrt(area))))
@@ -137,19 +139,26 @@ def extract_blobs(
         if kernel is None:
             kernel = kernels[pad] = np.ones((2 * pad + 1, 2 * pad + 1), np.uint8)
         # Dilated support, but never a neighbouring component's pixels.
-        support = (cv2.dilate(comp.view(np.uint8), kernel) > 0) & ((lab == 0) | comp)
+        support = cv2.dilate(comp.view(np.uint8), kernel)
+        support[(lab != 0) & ~comp] = 0
         window = gray_roi[y0:y1, x0:x1]
-        weights = window.astype(np.float64) - background
-        weights[~support] = 0.0
-        np.clip(weights, 0.0, None, out=weights)
-        mass = float(weights.sum())
+        if integer_bg:  # P_i = max(gray − background, 0) on the support, exact in uint8
+            weights = cv2.subtract(window, bg_u8)
+            weights[support == 0] = 0
+            mom = cv2.moments(weights)
+            mass, m10, m01 = mom["m00"], mom["m10"], mom["m01"]
+        else:
+            wf = window.astype(np.float64) - background
+            wf[support == 0] = 0.0
+            np.clip(wf, 0.0, None, out=wf)
+            mass = float(wf.sum())
+            m10 = float(wf.sum(axis=0) @ np.arange(wf.shape[1], dtype=np.float64))
+            m01 = float(wf.sum(axis=1) @ np.arange(wf.shape[0], dtype=np.float64))
         if mass <= 0:
             cu, cv = x + (w - 1) / 2.0, y + (h - 1) / 2.0
         else:
-            us = np.arange(x0 + ox, x1 + ox, dtype=np.float64)
-            vs = np.arange(y0 + oy, y1 + oy, dtype=np.float64)
-            cu = float(weights.sum(axis=0) @ us / mass)
-            cv = float(weights.sum(axis=1) @ vs / mass)
+            cu = m10 / mass + x0 + ox
+            cv = m01 / mass + y0 + oy
         peak = float(window[comp].max())
         blobs.append(
             Blob(centroid_px=(cu, cv), area_px=area, bbox=(x, y, w, h), peak=peak, mass=mass)

@@ -120,6 +120,8 @@ class NavigationPipeline:
         fbar = 0.5 * (calibration.left.fx + calibration.right.fx)
         self._f_times_b = fbar * calibration.baseline_mm
         self._track: _Track | None = None
+        w, h = calibration.image_size
+        self._fov_tan = (w / calibration.left.fx, h / calibration.left.fy)
 
     def reset(self) -> None:
         """Forget the track (ids restart from the acquisition convention)."""
@@ -164,6 +166,7 @@ class NavigationPipeline:
             depth_sigma_per_mm=cfg.disparity_sigma_px / self._f_times_b,
             min_leds=cfg.min_leds,
             log10_nfa_max=cfg.log10_nfa_max,
+            fov_tan=(self._fov_tan),
         )
 
     # ------------------------------------------------------------------ main entry
