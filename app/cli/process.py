@@ -15,6 +15,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--matcher", choices=["epipolar", "paper"], default="epipolar")
     p.add_argument("--ring-radius-mm", type=float, default=75.0)
     p.add_argument("--leds", type=int, default=5, help="LEDs on the ring")
+    p.add_argument(
+        "--led-diameter-mm", type=float, default=5.0, help="LED size (for the appearance test)"
+    )
     p.add_argument("--threshold", default="auto", help="'auto', 'otsu' or a gray level 1..255")
     p.set_defaults(func=run)
 
@@ -71,6 +74,7 @@ def run(args: argparse.Namespace) -> int:
             matcher=args.matcher,
             ring_radius_mm=args.ring_radius_mm,
             led_count=args.leds,
+            led_diameter_mm=args.led_diameter_mm,
         )
         result = NavigationPipeline(calib, config).process(left, right)
     except (CalibrationError, ImageError, ValueError) as exc:

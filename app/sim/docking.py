@@ -275,6 +275,7 @@ class DockingSimulation:
             PipelineConfig(
                 ring_radius_mm=cfg.ring_radius_m * 1000.0,
                 led_count=cfg.led_count,
+                led_diameter_mm=cfg.led_diameter_mm,
                 matcher=cfg.matcher,  # type: ignore[arg-type]
             ),
         )

@@ -22,6 +22,7 @@ import numpy as np
 import viser
 import viser.transforms as vtf
 
+from app.geometry.led_ids import DEFAULT_PHASE_DEG
 from app.sim.frames import euler_to_matrix
 from app.viz.overlay import LED_COLORS_RGB, draw_detections, led_color
 
@@ -353,11 +354,13 @@ class DockingScene:
             leds_cam = record.led_truth_cam_mm
             if leds_cam is not None and cam_frame is not None and len(leds_cam) > 0:
                 world = cam_frame.to_tanker(np.asarray(leds_cam))
-            else:  # on the rim, clockwise from the top as seen from the receiver
+            else:  # on the rim at roll 0 (the id convention of app.geometry.led_ids)
                 world = np.array(
                     [
                         d + DROGUE_RADIUS_M * (R @ np.array([math.sin(a), -math.cos(a), 0.0]))
-                        for a in np.arange(LED_COUNT) * 2 * np.pi / LED_COUNT
+                        for a in np.radians(
+                            DEFAULT_PHASE_DEG + np.arange(LED_COUNT) * 360.0 / LED_COUNT
+                        )
                     ]
                 )
             for i, h in enumerate(self.leds):
