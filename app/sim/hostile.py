@@ -109,6 +109,11 @@ def _reflections(offset_deg: float, occluded: tuple[int, ...]) -> Callable[[int]
     return make
 
 
+def _fixed(settings: RenderSettings) -> Callable[[int], RenderSettings]:
+    """The same settings for every seed."""
+    return lambda _seed: settings
+
+
 def hostile_cases() -> list[HostileCase]:
     """The hostile set of issue 8 (see the module docstring of each renderer extra)."""
     cases: list[HostileCase] = []
@@ -116,7 +121,7 @@ def hostile_cases() -> list[HostileCase]:
         cases.append(
             HostileCase(
                 f"{g} LED-like 3-D glints",
-                lambda s, g=g: RenderSettings(glints=g),
+                _fixed(RenderSettings(glints=g)),
                 min_lock_rate=0.9 if g <= 30 else 0.0,
             )
         )
@@ -124,7 +129,7 @@ def hostile_cases() -> list[HostileCase]:
         cases.append(
             HostileCase(
                 f"{g} glints, no LEDs",
-                lambda s, g=g: RenderSettings(glints=g, occluded=(1, 2, 3, 4, 5)),
+                _fixed(RenderSettings(glints=g, occluded=(1, 2, 3, 4, 5))),
                 leds_present=False,
             )
         )

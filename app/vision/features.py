@@ -143,7 +143,7 @@ def extract_blobs(
         support[(lab != 0) & ~comp] = 0
         window = gray_roi[y0:y1, x0:x1]
         if integer_bg:  # P_i = max(gray − background, 0) on the support, exact in uint8
-            weights = cv2.subtract(window, bg_u8)
+            weights = cv2.subtract(window, bg_u8)  # type: ignore[call-overload]
             weights[support == 0] = 0
             mom = cv2.moments(weights)
             mass, m10, m01 = mom["m00"], mom["m10"], mom["m01"]
