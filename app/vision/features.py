@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import cv2
@@ -127,24 +128,25 @@ def extract_blobs(
     kernels: dict[int, np.ndarray] = {}
     integer_bg = float(background).is_integer() and 0 <= background <= 255
     bg_u8 = float(background) if integer_bg else 0.0
+    stat_rows = stats.tolist()
     for i in candidates:
-        x, y, w, h, area = (int(v) for v in stats[i])
-        pad = max(2, int(round(0.5 * np.sqrt(area))))
+        x, y, w, h, area = stat_rows[i]
+        pad = max(2, int(round(0.5 * math.sqrt(area))))
         # window in ROI coordinates
         x0, y0 = max(0, x - ox - pad), max(0, y - oy - pad)
         x1, y1 = min(ex - ox, x - ox + w + pad), min(ey - oy, y - oy + h + pad)
         lab = labels[y0:y1, x0:x1]
-        comp = lab == i
+        comp = (lab == i).view(np.uint8)
         kernel = kernels.get(pad)
         if kernel is None:
             kernel = kernels[pad] = np.ones((2 * pad + 1, 2 * pad + 1), np.uint8)
-        # Dilated support, but never a neighbouring component's pixels.
-        support = cv2.dilate(comp.view(np.uint8), kernel)
-        support[(lab != 0) & ~comp] = 0
+        # Dilated support (0/1), but never a neighbouring component's pixels.
+        support = cv2.dilate(comp, kernel)
+        if np.count_nonzero(lab) != area:
+            support[(lab != 0) & (comp == 0)] = 0
         window = gray_roi[y0:y1, x0:x1]
         if integer_bg:  # P_i = max(gray − background, 0) on the support, exact in uint8
-            weights = cv2.subtract(window, bg_u8)  # type: ignore[call-overload]
-            weights[support == 0] = 0
+            weights = cv2.multiply(cv2.subtract(window, bg_u8), support)  # type: ignore[call-overload]
             mom = cv2.moments(weights)
             mass, m10, m01 = mom["m00"], mom["m10"], mom["m01"]
         else:
@@ -159,7 +161,7 @@ def extract_blobs(
         else:
             cu = m10 / mass + x0 + ox
             cv = m01 / mass + y0 + oy
-        peak = float(window[comp].max())
+        peak = float(cv2.minMaxLoc(window, comp)[1])
         blobs.append(
             Blob(centroid_px=(cu, cv), area_px=area, bbox=(x, y, w, h), peak=peak, mass=mass)
         )

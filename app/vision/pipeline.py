@@ -264,9 +264,12 @@ class NavigationPipeline:
         if cfg.matcher == "paper":
             matches = match_min_distance(ddist, epi)
         else:
-            il, ir = np.meshgrid(np.arange(nl), np.arange(nr), indexing="ij")
-            X_all = triangulate_linear(cal.P_left, cal.P_right, xl[il.ravel()], xr[ir.ravel()])
-            depth = X_all[:, 2].reshape(nl, nr)
+            # depth only for the pairs inside the epipolar gate (the others are never matched)
+            il, ir = np.nonzero(epi <= cfg.epipolar_tol_px)
+            depth = np.full((nl, nr), np.inf)
+            if len(il):
+                X_g = triangulate_linear(cal.P_left, cal.P_right, xl[il], xr[ir])
+                depth[il, ir] = X_g[:, 2]
             matches = match_epipolar(ddist, epi, depth, cfg.epipolar_tol_px, cfg.depth_range_mm)
         t1 = time.perf_counter()
         self._stage_ms["match"] = (t1 - t0) * 1e3
