@@ -6,7 +6,10 @@ from pydantic import BaseModel, Field
 
 
 class LedResult(BaseModel):
-    id: int = Field(description="Ring label, 1..N clockwise from the top as seen by the cameras")
+    id: int = Field(
+        description="LED id 1..N (app.geometry.led_ids): clockwise from the top as seen by the "
+        "cameras; the physical id at acquisition while |roll| < 180°/N, then kept by continuity"
+    )
     left_px: tuple[float, float]
     right_px: tuple[float, float]
     xyz_mm: tuple[float, float, float]
