@@ -227,3 +227,23 @@ def test_pipeline_on_opencv_rendered_frames_with_led_like_points(calib):
             assert d.min() < 0.5
             assert np.linalg.norm(np.array(led.left_px) - lpx[int(np.argmin(d))]) < 0.1
     assert locks >= 7
+
+
+def test_id_continuity_only_where_the_track_left_the_ring(calib):
+    """Roll 30° then 50°: continued ids (physical) when the ring stays put; acquisition ids
+    (roll taken as −22°, so shifted by one) when the next lock is far from the track."""
+    x0 = stereo_center_x_mm(calib, 1000.0)
+    n = tilted_normal(10.0, 45.0)
+
+    def frame(c, roll_deg, seed):
+        return render_pair(calib, c, n, RenderSettings(), seed=seed, roll_rad=np.radians(roll_deg))
+
+    for jump_mm, continued in ((10.0, True), (250.0, False)):
+        pipe = NavigationPipeline(calib)
+        a = frame(np.array([x0 - 120.0, 0.0, 1000.0]), 30.0, 1)
+        assert _ids_match_truth(pipe.process(a.left, a.right), a)
+        b = frame(np.array([x0 - 120.0 + jump_mm, 0.0, 1000.0]), 50.0, 2)
+        res = pipe.process(b.left, b.right)
+        assert res.lock
+        assert _ids_match_truth(res, b) == continued
+        assert pipe.trace.roll_deg == pytest.approx(50.0 if continued else -22.0, abs=1.0)

@@ -298,6 +298,8 @@ class DockingSimulation:
         if seed is not None:
             self.config = cfg = replace(cfg, seed=int(seed))
         m = self.models
+        if self._pipeline is not None:
+            self._pipeline.reset()  # a new run: no track (LED ids, 3-LED prior) from the last
         rng = np.random.default_rng([cfg.seed, 1])
         self._rng_sensor = np.random.default_rng([cfg.seed, 2])
         self._frame_seed = np.random.default_rng([cfg.seed, 3])

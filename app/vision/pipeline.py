@@ -314,11 +314,18 @@ class NavigationPipeline:
             return PoseResult(lock=False, reason=ring.reason)
         self.trace.ring = ring
         spacing = 360.0 / cfg.led_count
+        # ids continue the track's roll only if the ring is where the track left it (within
+        # two radii); otherwise the acquisition convention (app.geometry.led_ids)
+        near = (
+            track is not None
+            and float(np.linalg.norm(ring.circle.center - track.center_mm))
+            <= 2.0 * cfg.ring_radius_mm
+        )
         roll = roll_from_offset(
             ring.offset_deg,
             cfg.led_count,
             cfg.led_phase_deg,
-            None if track is None else track.roll_deg,
+            track.roll_deg if (near and track is not None) else None,
         )
         slot_angles = ring.offset_deg + spacing * np.array(ring.slots, dtype=np.float64)
         ids = led_ids_for_angles(slot_angles, roll, cfg.led_count, cfg.led_phase_deg)
