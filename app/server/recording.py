@@ -1,33 +1,135 @@
 """Record a run: JSONL telemetry (one tick record a line) plus a ``.viser`` scene file.
 
-The scene file comes from viser's scene serializer (``server.get_scene_serializer()``,
-``insert_sleep(dt)`` after each scene update, ``serialize()`` on stop). Both are bounded: a
-recording stops itself after ``max_s`` seconds or once it holds ``max_mb`` MB.
-Replay offline: open viser's client with ``?playbackPath=<url of the .viser file>`` (the
-service serves the client at ``/viser-client/``) or read the JSONL.
+Layout of one recording ``<id>`` (``rec-YYYYmmdd-HHMMSS-xxxxxx``) in the recordings directory:
+
+``<id>.json``
+    Metadata (:class:`RecordingMeta`), always replaced atomically (temp file + ``os.replace``).
+    Written at start with ``status="recording"`` and the limits; rewritten at stop with
+    ``status="complete"`` (``stop_reason`` says why: ``stopped``, ``reached 5 s``, ...), or at
+    recovery with ``status="interrupted"``.
+``<id>.jsonl``
+    Telemetry, one :class:`TickRecord` a line. Each line is flushed to the OS as it is written
+    (a killed process loses at most the record being written); ``os.fsync`` runs every
+    ``FSYNC_PERIOD_S`` (an OS crash or power loss loses at most that much). While a recording is
+    active its process holds an ``flock`` on this file, so recovery never touches a recording that
+    is live in another process.
+``<id>.viser``
+    The scene, from viser's scene serializer (``server.get_scene_serializer()``,
+    ``insert_sleep(dt)`` after each scene update, ``serialize()`` on stop). The serializer keeps
+    everything in memory, so this file only exists after a clean stop; a crash loses it (the
+    recovered metadata says so: ``scene_file: null``, ``scene_note``). Replay offline: viser's
+    client with ``?playbackPath=<url of the .viser file>`` (served at ``/viser-client/``).
+
+Recovery: a :class:`Recorder` created over a directory recovers the recordings a crash left
+behind (metadata still ``recording`` and no live owner, or a JSONL without metadata): it drops a
+torn last line, counts the records, and writes ``status="interrupted"`` metadata, so they are
+listed and downloadable. Bounds: a recording stops after ``max_s`` (a watchdog thread, ticks or
+not) or once it holds ``max_mb`` MB.
 """
 
 from __future__ import annotations
 
 import json
 import logging
+import os
 import re
 import threading
 import time
 import uuid
+import weakref
 from pathlib import Path
-from typing import Any, Protocol
+from typing import IO, Any, Literal, Protocol
 
 from app.server.schemas import RecordingInfo, TickRecord
 
+try:  # POSIX advisory locks: which recordings are live in some process
+    import fcntl
+except ImportError:  # pragma: no cover - Windows
+    fcntl = None  # type: ignore[assignment]
+
 log = logging.getLogger(__name__)
 ID_RE = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
+FSYNC_PERIOD_S = 0.5
+SCENE_LOST_NOTE = "lost in a crash; telemetry complete"
+INTERRUPTED_REASON = "interrupted: the server ended without stopping the recording (crash/kill)"
+
+RecordingStatus = Literal["recording", "complete", "interrupted"]
+
+
+class RecordingMeta(RecordingInfo):
+    """The metadata file and the API's answer (``RecordingInfo`` plus the crash-safety fields)."""
+
+    status: RecordingStatus = "complete"  # files written before these fields were clean stops
+    max_s: float | None = None
+    max_mb: float | None = None
+    last_record_wall: float | None = None  # ``wall_time`` of the last record on disk
+    scene_note: str | None = None  # why there is no scene file, when there is none
+    recovered_wall: float | None = None  # when an interrupted recording was recovered
+    recovery_note: str | None = None
 
 
 class SceneSerializer(Protocol):
     def insert_sleep(self, duration: float) -> None: ...
 
     def serialize(self) -> bytes: ...
+
+
+def _try_lock(fh: IO[bytes]) -> bool:
+    """Non-blocking exclusive ``flock``; released when the file is closed or the process dies."""
+    if fcntl is None:  # pragma: no cover
+        return True
+    try:
+        fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        return False
+    return True
+
+
+def _fsync_dir(directory: Path) -> None:
+    try:
+        fd = os.open(directory, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+def _write_atomic(path: Path, data: bytes) -> None:
+    tmp = path.with_name(f".{path.name}.tmp")
+    with open(tmp, "wb") as f:
+        f.write(data)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+    _fsync_dir(path.parent)
+
+
+def _wall_time(line: bytes | None) -> float | None:
+    if line is None:
+        return None
+    try:
+        value = json.loads(line).get("wall_time")
+    except (ValueError, AttributeError):
+        return None
+    return float(value) if isinstance(value, int | float) else None
+
+
+def _watchdog(ref: weakref.ReferenceType[Recorder], rec_id: str, wake: threading.Event) -> None:
+    """Per-recording thread: time/size bounds and periodic fsync. Holds the recorder weakly."""
+    while True:
+        rec = ref()
+        if rec is None:
+            return
+        wait = rec._watch(rec_id)
+        del rec
+        if wait is None:
+            return
+        wake.wait(wait)
+        wake.clear()
 
 
 class Recorder:
@@ -40,71 +142,144 @@ class Recorder:
         max_s: float = 300.0,
         max_mb: float = 200.0,
         scene_serializer_factory: Any = None,
+        recover: bool = True,
     ) -> None:
         self.directory = Path(directory)
         self.max_s = max_s
+        self.max_mb = max_mb
         self.max_bytes = int(max_mb * 1e6)
         self.scene_serializer_factory = scene_serializer_factory
         self._lock = threading.Lock()
-        self._info: RecordingInfo | None = None
-        self._finishing: RecordingInfo | None = None  # being serialized by stop()
-        self._fh: Any = None
+        self._info: RecordingMeta | None = None
+        self._finishing: RecordingMeta | None = None  # being serialized by stop()
+        self._fh: IO[bytes] | None = None
         self._serializer: SceneSerializer | None = None
         self._t0 = 0.0
         self._scene_bytes_est = 0
+        self._limit_reason: str | None = None
+        self._wake: threading.Event | None = None
+        self._last_sync = 0.0
+        self._dirty = False
+        self.recovered: list[RecordingMeta] = self.recover() if recover else []
 
     @property
-    def active(self) -> RecordingInfo | None:
+    def active(self) -> RecordingMeta | None:
         return self._info
 
     def _meta_path(self, rec_id: str) -> Path:
         return self.directory / f"{rec_id}.json"
 
-    def start(self) -> RecordingInfo:
+    def _write_meta(self, info: RecordingMeta) -> None:
+        _write_atomic(self._meta_path(info.id), info.model_dump_json(indent=2).encode())
+
+    # ---- recording -------------------------------------------------------------------
+    def start(self) -> RecordingMeta:
         with self._lock:
             if self._info is not None:
                 raise RuntimeError(f"recording {self._info.id} is already active")
             self.directory.mkdir(parents=True, exist_ok=True)
             rec_id = time.strftime("rec-%Y%m%d-%H%M%S-") + uuid.uuid4().hex[:6]
             tele = self.directory / f"{rec_id}.jsonl"
-            self._fh = tele.open("w", encoding="utf-8")
-            self._serializer = None
+            fh = tele.open("xb")
+            _try_lock(fh)
+            serializer = None
             scene_file = None
             if self.scene_serializer_factory is not None:
                 try:
-                    self._serializer = self.scene_serializer_factory()
+                    serializer = self.scene_serializer_factory()
                     scene_file = f"{rec_id}.viser"
                 except Exception:
                     log.exception("could not start the scene serializer")
-            self._t0 = time.monotonic()
-            self._scene_bytes_est = 0
-            self._info = RecordingInfo(
+            info = RecordingMeta(
                 id=rec_id,
                 started_wall=time.time(),
                 active=True,
                 telemetry_file=tele.name,
                 scene_file=scene_file,
+                status="recording",
+                max_s=self.max_s,
+                max_mb=self.max_mb,
             )
-            return self._info.model_copy()
+            try:
+                self._write_meta(info)
+            except Exception:
+                fh.close()
+                tele.unlink(missing_ok=True)
+                raise
+            self._fh = fh
+            self._serializer = serializer
+            self._info = info
+            self._t0 = self._last_sync = time.monotonic()
+            self._scene_bytes_est = 0
+            self._limit_reason = None
+            self._dirty = False
+            self._wake = wake = threading.Event()
+            out = info.model_copy()
+        threading.Thread(
+            target=_watchdog,
+            args=(weakref.ref(self), rec_id, wake),
+            name=f"recording-watchdog-{rec_id}",
+            daemon=True,
+        ).start()
+        return out
 
     def on_tick(self, record: TickRecord, raw: Any = None) -> None:
-        """Tick-loop subscriber: append the record; stop when a bound is reached."""
-        reason = None
+        """Tick-loop subscriber: append and flush the record; request a stop at a bound."""
+        with self._lock:
+            info, fh = self._info, self._fh
+            if info is None or fh is None or self._limit_reason is not None:
+                return
+            if time.monotonic() - self._t0 >= self.max_s:
+                self._request_stop(f"reached {self.max_s:g} s")
+                return
+            line = record.model_dump_json().encode() + b"\n"
+            try:
+                fh.write(line)
+                fh.flush()  # in the OS's hands: survives the process being killed
+            except (OSError, ValueError) as exc:
+                log.error("recording %s: write failed: %s", info.id, exc)
+                self._request_stop(f"write failed: {exc}")
+                return
+            self._dirty = True
+            info.ticks += 1
+            info.telemetry_bytes += len(line)
+            info.last_record_wall = record.wall_time
+            if info.telemetry_bytes + self._scene_bytes_est > self.max_bytes:
+                self._request_stop(f"reached {self.max_bytes / 1e6:g} MB")
+
+    def _request_stop(self, reason: str) -> None:
+        """(lock held) The watchdog thread stops it: serializing must not block the tick thread."""
+        self._limit_reason = reason
+        if self._wake is not None:
+            self._wake.set()
+
+    def _watch(self, rec_id: str) -> float | None:
+        """One watchdog step: stop at a bound, fsync when due; seconds to the next step or None."""
         with self._lock:
             info = self._info
-            if info is None or self._fh is None:
-                return
-            line = record.model_dump_json() + "\n"
-            self._fh.write(line)
-            info.ticks += 1
-            info.telemetry_bytes += len(line.encode())
-            if time.monotonic() - self._t0 > self.max_s:
+            if info is None or info.id != rec_id:
+                return None
+            now = time.monotonic()
+            remaining = self.max_s - (now - self._t0)
+            reason = self._limit_reason
+            if reason is None and remaining <= 0:
                 reason = f"reached {self.max_s:g} s"
-            elif info.telemetry_bytes + self._scene_bytes_est > self.max_bytes:
+            if reason is None and info.telemetry_bytes + self._scene_bytes_est > self.max_bytes:
                 reason = f"reached {self.max_bytes / 1e6:g} MB"
+            fh = self._fh
+            sync = fh if self._dirty and now - self._last_sync >= FSYNC_PERIOD_S else None
+            if sync is not None:
+                self._last_sync = now
+                self._dirty = False
         if reason is not None:
-            # Serializing can take a while: do not block the tick thread.
-            threading.Thread(target=self.stop, kwargs={"reason": reason}, daemon=True).start()
+            self._stop(rec_id, reason)
+            return None
+        if sync is not None:
+            try:
+                os.fsync(sync.fileno())
+            except (OSError, ValueError):  # closed by a concurrent stop: it fsyncs itself
+                pass
+        return max(0.0, min(FSYNC_PERIOD_S, remaining))
 
     def on_scene_update(self, dt_s: float) -> None:
         """Called by the scene publisher after each scene update (``insert_sleep``)."""
@@ -117,35 +292,145 @@ class Recorder:
             if buffers is not None:
                 self._scene_bytes_est = sum(b.nbytes for b in buffers)
 
-    def stop(self, reason: str = "stopped") -> RecordingInfo | None:
+    def stop(self, reason: str = "stopped") -> RecordingMeta | None:
+        return self._stop(None, reason)
+
+    def _stop(self, rec_id: str | None, reason: str) -> RecordingMeta | None:
         with self._lock:
             info = self._info
-            if info is None:
+            if info is None or (rec_id is not None and info.id != rec_id):
                 return None
             self._info = None
             self._finishing = info
             fh, self._fh = self._fh, None
             ser, self._serializer = self._serializer, None
-        if fh is not None:
-            fh.close()
-        if ser is not None and info.scene_file is not None:
-            try:
-                data = ser.serialize()
-                (self.directory / info.scene_file).write_bytes(data)
-                info.scene_bytes = len(data)
-            except Exception:
-                log.exception("scene serialization failed")
-                info.scene_file = None
-        done = info.model_copy(
-            update={"active": False, "stopped_wall": time.time(), "stop_reason": reason}
-        )
-        self._meta_path(info.id).write_text(done.model_dump_json(indent=2))
-        with self._lock:
-            self._finishing = None
+            wake, self._wake = self._wake, None
+            self._limit_reason = None
+        if wake is not None:
+            wake.set()
+        try:
+            if fh is not None:
+                try:
+                    fh.flush()
+                    os.fsync(fh.fileno())
+                except (OSError, ValueError):
+                    log.exception("recording %s: final flush failed", info.id)
+            update: dict[str, Any] = {
+                "active": False,
+                "stopped_wall": time.time(),
+                "stop_reason": reason,
+                "status": "complete",
+            }
+            if ser is not None and info.scene_file is not None:
+                try:
+                    data = ser.serialize()
+                    _write_atomic(self.directory / info.scene_file, data)
+                    update["scene_bytes"] = len(data)
+                except Exception as exc:
+                    log.exception("scene serialization failed")
+                    update["scene_file"] = None
+                    update["scene_note"] = f"scene serialization failed: {exc}"
+            done = info.model_copy(update=update)
+            self._write_meta(done)
+        finally:
+            if fh is not None:
+                fh.close()  # releases the lock only once the metadata says "complete"
+            with self._lock:
+                self._finishing = None
         return done
 
-    def list(self) -> list[RecordingInfo]:
-        out: list[RecordingInfo] = []
+    def close(self) -> None:
+        self.stop(reason="server shutdown")
+
+    # ---- recovery --------------------------------------------------------------------
+    def recover(self) -> list[RecordingMeta]:
+        """Mark the recordings a crash left behind as ``interrupted``; returns them."""
+        if not self.directory.is_dir():
+            return []
+        out: list[RecordingMeta] = []
+        for tele in sorted(self.directory.glob("rec-*.jsonl")):
+            rec_id = tele.stem
+            if not ID_RE.match(rec_id) or (self._info is not None and self._info.id == rec_id):
+                continue
+            meta_path = self._meta_path(rec_id)
+            prior: RecordingMeta | None = None
+            if meta_path.is_file():
+                try:
+                    prior = RecordingMeta.model_validate_json(meta_path.read_bytes())
+                except Exception:
+                    log.warning("unreadable recording metadata %s: rebuilding it", meta_path)
+                if prior is not None and prior.status != "recording":
+                    continue
+            try:
+                rec = self._recover_one(tele, prior)
+            except Exception:
+                log.exception("could not recover recording %s", rec_id)
+                continue
+            if rec is not None:
+                log.warning("recovered interrupted recording %s: %d records", rec.id, rec.ticks)
+                out.append(rec)
+        return out
+
+    def _recover_one(self, tele: Path, prior: RecordingMeta | None) -> RecordingMeta | None:
+        rec_id = tele.stem
+        with tele.open("r+b") as fh:
+            if not _try_lock(fh):
+                return None  # live in another process
+            count, good, first, last = 0, 0, None, None
+            for line in fh:
+                if not line.endswith(b"\n"):
+                    break  # torn last record
+                try:
+                    json.loads(line)
+                except ValueError:
+                    break  # garbage tail (e.g. a power loss before the fsync)
+                count += 1
+                good += len(line)
+                if first is None:
+                    first = line
+                last = line
+            size = fh.seek(0, os.SEEK_END)
+            notes: list[str] = []
+            if size > good:
+                fh.truncate(good)
+                fh.flush()
+                os.fsync(fh.fileno())
+                notes.append(f"dropped an incomplete last record ({size - good} bytes)")
+            if prior is None:
+                notes.append("metadata was missing: rebuilt from the telemetry")
+            mtime = tele.stat().st_mtime
+            last_wall = _wall_time(last)
+            scene_name = f"{rec_id}.viser"
+            for tmp in (f".{rec_id}.viser.tmp", f".{rec_id}.json.tmp"):
+                (self.directory / tmp).unlink(missing_ok=True)
+            scene_path = self.directory / scene_name
+            scene_ok = scene_path.is_file()  # written atomically: complete if present
+            started = prior.started_wall if prior is not None else _wall_time(first)
+            meta = RecordingMeta(
+                id=rec_id,
+                started_wall=started if started is not None else mtime,
+                stopped_wall=last_wall if last_wall is not None else mtime,
+                ticks=count,
+                active=False,
+                telemetry_file=tele.name,
+                scene_file=scene_name if scene_ok else None,
+                telemetry_bytes=good,
+                scene_bytes=scene_path.stat().st_size if scene_ok else 0,
+                stop_reason=INTERRUPTED_REASON,
+                status="interrupted",
+                max_s=prior.max_s if prior is not None else None,
+                max_mb=prior.max_mb if prior is not None else None,
+                last_record_wall=last_wall,
+                scene_note=None if scene_ok else SCENE_LOST_NOTE,
+                recovered_wall=time.time(),
+                recovery_note="; ".join(notes) or None,
+            )
+            self._write_meta(meta)  # while still holding the lock
+        return meta
+
+    # ---- reading ---------------------------------------------------------------------
+    def list(self) -> list[RecordingMeta]:
+        out: list[RecordingMeta] = []
         for live in (self._info, self._finishing):
             if live is not None:
                 out.append(live.model_copy())
@@ -153,14 +438,14 @@ class Recorder:
         if self.directory.is_dir():
             for meta in sorted(self.directory.glob("rec-*.json"), reverse=True):
                 try:
-                    rec = RecordingInfo.model_validate_json(meta.read_text())
+                    rec = RecordingMeta.model_validate_json(meta.read_bytes())
                     if rec.id not in ids:
                         out.append(rec)
                 except Exception:
                     log.warning("unreadable recording metadata %s", meta)
         return out
 
-    def get(self, rec_id: str) -> RecordingInfo | None:
+    def get(self, rec_id: str) -> RecordingMeta | None:
         if not ID_RE.match(rec_id):
             return None
         for live in (self._info, self._finishing):
@@ -169,20 +454,30 @@ class Recorder:
         meta = self._meta_path(rec_id)
         if not meta.is_file():
             return None
-        return RecordingInfo.model_validate_json(meta.read_text())
-
-    def file_path(self, rec_id: str, kind: str) -> Path | None:
-        info = self.get(rec_id)
-        if info is None or info.active:
+        try:
+            return RecordingMeta.model_validate_json(meta.read_bytes())
+        except Exception:
+            log.warning("unreadable recording metadata %s", meta)
             return None
+
+    def locate(self, rec_id: str, kind: Literal["telemetry", "scene"]) -> tuple[Path | None, str]:
+        """The file of a finished recording, or ``None`` and why not (for a 404's detail)."""
+        info = self.get(rec_id)
+        if info is None:
+            return None, f"no recording {rec_id!r}"
+        if info.active:
+            return None, f"recording {rec_id!r} is still active"
         name = info.telemetry_file if kind == "telemetry" else info.scene_file
         if name is None:
-            return None
+            why = info.scene_note or "recorded without the 3-D scene"
+            return None, f"recording {rec_id!r} has no scene file: {why}"
         path = self.directory / name
-        return path if path.is_file() else None
+        if not path.is_file():
+            return None, f"the {kind} file of recording {rec_id!r} is missing"
+        return path, ""
 
-    def close(self) -> None:
-        self.stop(reason="server shutdown")
+    def file_path(self, rec_id: str, kind: str) -> Path | None:
+        return self.locate(rec_id, "telemetry" if kind == "telemetry" else "scene")[0]
 
 
 def read_jsonl(path: Path) -> list[dict[str, Any]]:

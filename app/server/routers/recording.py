@@ -1,4 +1,9 @@
-"""Recording a run: JSONL telemetry + ``.viser`` scene; listing and download."""
+"""Recording a run: JSONL telemetry + ``.viser`` scene; listing and download.
+
+Recordings a crash interrupted are recovered when the service starts (``status:
+"interrupted"``): listed, telemetry downloadable; their scene file is lost (``scene_file: null``,
+``scene_note`` says why) and its download answers 404 with that reason.
+"""
 
 from __future__ import annotations
 
@@ -6,18 +11,19 @@ from fastapi import APIRouter, Depends, HTTPException, status
 from fastapi.responses import FileResponse
 
 from app.server.dependencies import StateDep, require_token
-from app.server.schemas import Message, RecordingInfo
+from app.server.recording import RecordingMeta
+from app.server.schemas import Message
 
 router = APIRouter(tags=["recording"])
 
 
 @router.post(
     "/recording/start",
-    response_model=RecordingInfo,
+    response_model=RecordingMeta,
     dependencies=[Depends(require_token)],
     responses={409: {"model": Message}},
 )
-def recording_start(state: StateDep) -> RecordingInfo:
+def recording_start(state: StateDep) -> RecordingMeta:
     try:
         return state.recorder.start()
     except RuntimeError as exc:
@@ -26,26 +32,26 @@ def recording_start(state: StateDep) -> RecordingInfo:
 
 @router.post(
     "/recording/stop",
-    response_model=RecordingInfo,
+    response_model=RecordingMeta,
     dependencies=[Depends(require_token)],
     responses={409: {"model": Message}},
 )
-def recording_stop(state: StateDep) -> RecordingInfo:
+def recording_stop(state: StateDep) -> RecordingMeta:
     info = state.recorder.stop()
     if info is None:
         raise HTTPException(status.HTTP_409_CONFLICT, "no active recording")
     return info
 
 
-@router.get("/recordings", response_model=list[RecordingInfo])
-def recordings(state: StateDep) -> list[RecordingInfo]:
+@router.get("/recordings", response_model=list[RecordingMeta])
+def recordings(state: StateDep) -> list[RecordingMeta]:
     return state.recorder.list()
 
 
 @router.get(
-    "/recordings/{rec_id}", response_model=RecordingInfo, responses={404: {"model": Message}}
+    "/recordings/{rec_id}", response_model=RecordingMeta, responses={404: {"model": Message}}
 )
-def recording(rec_id: str, state: StateDep) -> RecordingInfo:
+def recording(rec_id: str, state: StateDep) -> RecordingMeta:
     info = state.recorder.get(rec_id)
     if info is None:
         raise HTTPException(status.HTTP_404_NOT_FOUND, f"no recording {rec_id!r}")
@@ -54,16 +60,16 @@ def recording(rec_id: str, state: StateDep) -> RecordingInfo:
 
 @router.get("/recordings/{rec_id}/telemetry.jsonl", responses={404: {"model": Message}})
 def recording_telemetry(rec_id: str, state: StateDep) -> FileResponse:
-    path = state.recorder.file_path(rec_id, "telemetry")
+    path, why = state.recorder.locate(rec_id, "telemetry")
     if path is None:
-        raise HTTPException(status.HTTP_404_NOT_FOUND, f"no finished recording {rec_id!r}")
+        raise HTTPException(status.HTTP_404_NOT_FOUND, why)
     return FileResponse(path, media_type="application/x-ndjson", filename=path.name)
 
 
 @router.get("/recordings/{rec_id}/scene.viser", responses={404: {"model": Message}})
 def recording_scene(rec_id: str, state: StateDep) -> FileResponse:
     """The ``.viser`` file; replay it at ``/viser-client/?playbackPath=<this URL>``."""
-    path = state.recorder.file_path(rec_id, "scene")
+    path, why = state.recorder.locate(rec_id, "scene")
     if path is None:
-        raise HTTPException(status.HTTP_404_NOT_FOUND, f"no scene file for {rec_id!r}")
+        raise HTTPException(status.HTTP_404_NOT_FOUND, why)
     return FileResponse(path, media_type="application/octet-stream", filename=path.name)
