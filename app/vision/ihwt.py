@@ -72,9 +72,12 @@ def describe_points(ii: NDArray[Any], centers_px: FloatArray, windows_px: FloatA
     # 3×3 corner values: horizontal Haar = right half − left half, vertical = bottom − top.
     xm, xc, xp = (np.clip(xs + d, 0, w) for d in (-half, 0, half))
     ym, yc, yp = (np.clip(ys + d, 0, h) for d in (-half, 0, half))
-    mm, mc, mp = ii[ym, xm], ii[ym, xc], ii[ym, xp]
-    cm, cp = ii[yc, xm], ii[yc, xp]
-    pm, pc, pp = ii[yp, xm], ii[yp, xc], ii[yp, xp]
+    flat = ii.reshape(-1)  # gathers through flat indices (row offset + column)
+    stride = ii.shape[1]
+    rm, rc, rp = ym * stride, yc * stride, yp * stride
+    mm, mc, mp = flat[rm + xm], flat[rm + xc], flat[rm + xp]
+    cm, cp = flat[rc + xm], flat[rc + xp]
+    pm, pc, pp = flat[rp + xm], flat[rp + xc], flat[rp + xp]
     dx = (mc + pp - mp - pc) - (mm + pc - mc - pm)
     dy = (cm + pp - cp - pm) - (mm + cp - mp - cm)
     s = SAMPLES_PER_SUBSQUARE
