@@ -3,6 +3,10 @@
 The ``lifespan`` loads the calibration, starts the viser scene server (pinned port) and the
 tick loop (its own thread), and stops them on shutdown. Routes live under ``/api/v1``; the
 operators' page is served at ``/``; OpenAPI at ``/docs``.
+
+Hardening (``app.server.security``): every request passes a pure-ASGI guard (Host, Origin,
+token, body size, upload concurrency) before its body is read; 422 bodies are always valid
+JSON (``app.server.errors``).
 """
 
 from __future__ import annotations
@@ -15,22 +19,29 @@ from contextlib import asynccontextmanager
 from pathlib import Path
 from typing import Any
 
+# sets OPENCV_IO_MAX_IMAGE_PIXELS; first, before anything imports cv2
+from app.server import image_guard  # isort: skip
+
 from fastapi import FastAPI
+from fastapi.exceptions import RequestValidationError
 from fastapi.openapi.docs import get_swagger_ui_html
 from fastapi.responses import FileResponse, HTMLResponse, JSONResponse
 from fastapi.staticfiles import StaticFiles
 
 from app.geometry.calibration import StereoCalibration
+from app.server import security
 from app.server.dependencies import AppState, CalibrationStore, UploadProcessor
+from app.server.errors import validation_exception_handler
 from app.server.recording import Recorder
 from app.server.routers import calibration, recording, sim, state, stereo, telemetry
 from app.server.schemas import SimConfig
-from app.server.settings import Settings
+from app.server.settings import WILDCARD_BIND, Settings
 from app.server.telemetry import TelemetryHub
 from app.server.tick_loop import Clock, SourceFactory, TickLoop, default_source_factory
 
 log = logging.getLogger(__name__)
 API_PREFIX = "/api/v1"
+_warned_opencv: list[bool] = []  # warn once per process
 
 
 def _viser_client_dir() -> Path | None:
@@ -62,6 +73,20 @@ def create_app(
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         calib = StereoCalibration.load(settings.calibration)
+        if settings.trusted_hosts is None and settings.host.strip("[]") in WILDCARD_BIND:
+            log.warning(
+                "bound to %s but AAR_TRUSTED_HOSTS is not set: only requests with Host %s are "
+                "answered (others get 400); set AAR_TRUSTED_HOSTS to this machine's names",
+                settings.host,
+                ", ".join(settings.effective_trusted_hosts),
+            )
+        if not image_guard.OPENCV_LIMIT_ACTIVE and not _warned_opencv:
+            _warned_opencv.append(True)
+            log.warning(
+                "cv2 was imported before app.server.main: OpenCV's own pixel limit (%s) "
+                "is not in force; uploads are still checked on their headers",
+                image_guard.OPENCV_ENV,
+            )
         loop = TickLoop(
             SimConfig(tick_hz=settings.tick_hz),
             calib,
@@ -146,6 +171,8 @@ def create_app(
 
     app.state.aar = None
     app.state.settings = settings
+    app.add_exception_handler(RequestValidationError, validation_exception_handler)
+    security.install(app, settings, API_PREFIX)
     for module in (state, sim, stereo, calibration, recording, telemetry):
         app.include_router(module.router, prefix=API_PREFIX)
     try:

@@ -7,8 +7,14 @@ image, repeated; pair k = k-th left file + k-th right file, in upload order), ``
 ``report_png_base64`` on request). The calibration is *not* activated here: send it to
 ``PUT /api/v1/calibration`` to switch to it.
 
-Errors: 400 for files that are not decodable images; 422 for a set that cannot be calibrated
-(left/right counts differ, image sizes differ, board not found, fewer than 6 usable views).
+Errors: 401 without the bearer token (when ``AAR_TOKEN`` is set); 400 for files that are not
+decodable images (the header is read first: PNG/JPEG/BMP/TIFF only); 413 for a file over
+32 MB, an image over ``AAR_MAX_IMAGE_PIXELS`` / ``AAR_MAX_CALIBRATION_PIXELS`` or a set over
+``AAR_MAX_CHECKERBOARD_MPX`` (all refused on the headers, before decoding); 422 for a set that
+cannot be calibrated (left/right counts differ, image sizes differ, board not found, fewer than
+6 usable views). Decoding and calibration run in a worker thread. In the service, the request
+guard (``app.server.security``) also bounds the body (``AAR_MAX_CHECKERBOARD_MB``) and runs
+at most ``AAR_MAX_CONCURRENT_CALIBRATIONS`` at once (else 429).
 """
 
 from __future__ import annotations
@@ -19,7 +25,7 @@ from typing import Annotated, Any, Literal
 
 import cv2
 import numpy as np
-from fastapi import APIRouter, File, Form, HTTPException, UploadFile
+from fastapi import APIRouter, Depends, File, Form, HTTPException, Request, UploadFile
 
 from app.geometry.calibration import CalibrationError
 from app.geometry.checkerboard import (
@@ -30,17 +36,72 @@ from app.geometry.checkerboard import (
     parse_board,
     report_png_bytes,
 )
+from app.server.dependencies import request_settings, require_token
+from app.server.image_guard import ImageHeader, ImageHeaderError, peek_header
 
 router = APIRouter(tags=["calibration"])
 
 MAX_PAIRS = 100
 MAX_FILE_BYTES = 32 * 1024 * 1024
+BOARD_CORNERS = (2, 64)  # inner corners per row / per column
+
+
+def _not_an_image(label: str) -> HTTPException:
+    return HTTPException(
+        status_code=400, detail=f"{label} is not a decodable image (PNG, JPEG, ...)"
+    )
+
+
+def _screen(data: bytes, label: str, max_pixels: int) -> ImageHeader:
+    """The header (no decoding): 400 if empty or not PNG/JPEG/BMP/TIFF, 413 if too large."""
+    if not data:
+        raise HTTPException(status_code=400, detail=f"{label} is empty")
+    try:
+        header = peek_header(data)
+    except ImageHeaderError:
+        raise _not_an_image(label) from None
+    if header.pixels > max_pixels:
+        raise HTTPException(
+            status_code=413,
+            detail=f"{label} is {header.width}x{header.height} px "
+            f"({header.pixels / 1e6:.4g} Mpx), over the limit of {max_pixels / 1e6:.4g} Mpx "
+            "(AAR_MAX_IMAGE_PIXELS / AAR_MAX_CALIBRATION_PIXELS); refused before decoding",
+        )
+    return header
+
+
+def _check_set(
+    names: list[str],
+    lefts: list[ImageHeader],
+    rights: list[ImageHeader],
+    max_total_mpx: float,
+) -> None:
+    """Same size everywhere (the message of ``check_image_sizes``) and a bounded total."""
+    ref = (lefts[0].width, lefts[0].height)
+    for name, lh, rh in zip(names, lefts, rights, strict=True):
+        for side, h in (("left", lh), ("right", rh)):
+            if (h.width, h.height) != ref:
+                raise HTTPException(
+                    status_code=422,
+                    detail=f"image sizes differ: {side} image of pair {name} is "
+                    f"{h.width}x{h.height} px, the first left image is {ref[0]}x{ref[1]} px",
+                )
+    total = sum(h.pixels for h in lefts) + sum(h.pixels for h in rights)
+    if total > max_total_mpx * 1e6:
+        raise HTTPException(
+            status_code=413,
+            detail=f"the set has {total / 1e6:.4g} Mpx in all, over the limit of "
+            f"{max_total_mpx:g} Mpx (AAR_MAX_CHECKERBOARD_MPX)",
+        )
 
 
 def _decode(data: bytes, label: str) -> np.ndarray:
     if not data:
         raise HTTPException(status_code=400, detail=f"{label} is empty")
-    img = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_GRAYSCALE)
+    try:
+        img = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_GRAYSCALE)
+    except cv2.error:  # e.g. over OPENCV_IO_MAX_IMAGE_PIXELS
+        img = None
     if img is None:
         raise HTTPException(
             status_code=400, detail=f"{label} is not a decodable image (PNG, JPEG, ...)"
@@ -82,18 +143,34 @@ def _calibrate(
     return payload
 
 
-@router.post("/calibration/checkerboard")
+@router.post(
+    "/calibration/checkerboard",
+    dependencies=[Depends(require_token)],
+    responses={
+        400: {"description": "a file is not a decodable PNG/JPEG/BMP/TIFF image"},
+        401: {"description": "missing or wrong bearer token"},
+        413: {"description": "a file, an image or the set is too large"},
+        422: {"description": "the set cannot be calibrated"},
+        429: {"description": "AAR_MAX_CONCURRENT_CALIBRATIONS already running"},
+    },
+)
 async def calibrate_from_checkerboard(
+    request: Request,
     left: Annotated[list[UploadFile], File(description="left images, one per pair, in pair order")],
     right: Annotated[
         list[UploadFile], File(description="right images, one per pair, in pair order")
     ],
     board: Annotated[str, Form(description="inner corners per row x per column, e.g. 9x6")] = "9x6",
-    square_mm: Annotated[float, Form(gt=0, description="square side (mm)")] = 25.0,
+    square_mm: Annotated[
+        float, Form(gt=0, le=1000, allow_inf_nan=False, description="square side (mm)")
+    ] = 25.0,
     model: Annotated[
         Literal["paper", "full"], Form(description="paper: k1,k2; full: 5 terms")
     ] = "paper",
-    max_rms_px: Annotated[float, Form(gt=0, description="warn above this stereo RMS (px)")] = 0.5,
+    max_rms_px: Annotated[
+        float,
+        Form(gt=0, le=100, allow_inf_nan=False, description="warn above this stereo RMS (px)"),
+    ] = 0.5,
     include_png: Annotated[bool, Form(description="add the report PNG (base64)")] = False,
     estimate_skew: Annotated[
         bool, Form(description="also estimate the skew γ (OpenCV alone writes γ = 0)")
@@ -114,6 +191,14 @@ async def calibrate_from_checkerboard(
         board_spec = Board(cols, rows, float(square_mm))
     except CheckerboardError as exc:
         raise HTTPException(status_code=422, detail=str(exc)) from None
+    lo, hi = BOARD_CORNERS
+    if not (lo <= cols <= hi and lo <= rows <= hi):
+        raise HTTPException(
+            status_code=422,
+            detail=f"board {board!r}: inner corners per side must be in [{lo}, {hi}]",
+        )
+    settings = request_settings(request)
+    max_pixels = min(settings.max_image_pixels, settings.max_calibration_pixels)
     left_bytes: list[bytes] = []
     right_bytes: list[bytes] = []
     for files, dest in ((left, left_bytes), (right, right_bytes)):
@@ -130,6 +215,14 @@ async def calibrate_from_checkerboard(
         pair_name(lf.filename or f"left_{k:02d}", rf.filename or f"right_{k:02d}")
         for k, (lf, rf) in enumerate(zip(left, right, strict=True))
     ]
+    left_headers = [
+        _screen(b, lab, max_pixels) for b, lab in zip(left_bytes, left_labels, strict=True)
+    ]
+    right_headers = [
+        _screen(b, lab, max_pixels) for b, lab in zip(right_bytes, right_labels, strict=True)
+    ]
+    if left_headers:
+        _check_set(names, left_headers, right_headers, settings.max_checkerboard_mpx)
     try:
         return await asyncio.to_thread(
             _calibrate,

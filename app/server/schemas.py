@@ -4,12 +4,16 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import BaseModel, Field, field_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from app.vision.result import PoseResult
 
 Vec3 = tuple[float, float, float]
 Turbulence = Literal["none", "light", "moderate", "severe"]
+
+#: Request models: an unknown field (a typo such as ``"turbulance"``) or a non-finite number
+#: (``NaN``, ``Infinity``) is a 422 naming the field, never silently ignored or a 500.
+STRICT = ConfigDict(extra="forbid", allow_inf_nan=False)
 
 
 class Control(BaseModel):
@@ -60,6 +64,8 @@ class TickRecord(BaseModel):
 class SimConfig(BaseModel):
     """User-settable simulation parameters (validated ranges → 422)."""
 
+    model_config = STRICT
+
     turbulence: Turbulence = "light"
     seed: int = Field(0, ge=0, le=2**31 - 1)
     closure_speed_mps: float = Field(1.2, ge=0.1, le=5.0)
@@ -83,12 +89,14 @@ class SimConfig(BaseModel):
 class SimConfigUpdate(BaseModel):
     """Partial update of :class:`SimConfig` (omitted fields keep their value)."""
 
+    model_config = STRICT
+
     turbulence: Turbulence | None = None
     seed: int | None = None
     closure_speed_mps: float | None = None
     noise_sigma: float | None = None
     clutter: int | None = None
-    led_dropout: list[int] | None = None
+    led_dropout: list[int] | None = Field(None, max_length=5)
     tick_hz: float | None = None
     matcher: Literal["epipolar", "paper"] | None = None
     vision: bool | None = None

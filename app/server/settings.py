@@ -3,14 +3,25 @@
 ``AAR_HOST``, ``AAR_PORT``, ``AAR_VISER_PORT``, ``AAR_TICK_HZ``, ``AAR_TOKEN``,
 ``AAR_CALIBRATION``, ``AAR_MAX_UPLOAD_MB``, ``AAR_RECORDINGS_DIR`` ... (see the fields).
 The ``aar-dock serve`` flags override the environment.
+
+Hardening (see ``app/server/security.py``): ``AAR_TRUSTED_HOSTS`` and ``AAR_ALLOWED_ORIGINS``
+(comma-separated or JSON lists), request-size limits (``AAR_MAX_REQUEST_MB``,
+``AAR_MAX_JSON_KB``, ``AAR_MAX_CHECKERBOARD_MB``), image limits (``AAR_MAX_IMAGE_PIXELS``,
+``AAR_MAX_CALIBRATION_PIXELS``, ``AAR_MAX_CHECKERBOARD_MPX``) and concurrency
+(``AAR_MAX_CONCURRENT_UPLOADS``, ``AAR_MAX_CONCURRENT_CALIBRATIONS``, ``AAR_RETRY_AFTER_S``).
 """
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
+from typing import Annotated, Any
 
-from pydantic import Field
-from pydantic_settings import BaseSettings, SettingsConfigDict
+from pydantic import Field, field_validator
+from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
+
+LOCAL_HOSTS = ("localhost", "127.0.0.1", "::1")
+WILDCARD_BIND = ("0.0.0.0", "::", "")
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 DEFAULT_CALIBRATION = REPO_ROOT / "sample_data" / "calibration.json"
@@ -49,6 +60,88 @@ class Settings(BaseSettings):
     image_hz: float = Field(5.0, gt=0.0, le=30.0, description="camera image update rate (Hz)")
     static_dir: Path = Field(DEFAULT_STATIC, description="operators' page assets")
     log_level: str = Field("info")
+
+    # ---- hardening -------------------------------------------------------------------
+    trusted_hosts: Annotated[list[str] | None, NoDecode] = Field(
+        None,
+        description=(
+            "Host header values accepted (DNS-rebinding guard); default: localhost, 127.0.0.1, "
+            "::1 and the bind host. Entries: names, IPs, '*.example.org', or '*' (any; only "
+            "sensible behind a proxy that checks Host). Binding 0.0.0.0 needs this set."
+        ),
+    )
+    allowed_origins: Annotated[list[str], NoDecode] = Field(
+        default_factory=list,
+        description=(
+            "extra browser origins (scheme://host[:port]) allowed to send mutating requests and "
+            "open the telemetry WebSocket; same-origin is always allowed, '*' allows any"
+        ),
+    )
+    max_request_mb: float | None = Field(
+        None,
+        gt=0.0,
+        description="largest POST /stereo request body (MB); default 2 × max_upload_mb + 1",
+    )
+    max_json_kb: float = Field(
+        256.0, gt=0.0, description="largest body of every other request (kB)"
+    )
+    max_checkerboard_mb: float = Field(
+        256.0, gt=0.0, description="largest POST /calibration/checkerboard request body (MB)"
+    )
+    max_image_pixels: int = Field(
+        40_000_000,
+        ge=1,
+        description="largest uploaded image (width × height), checked on the header",
+    )
+    max_calibration_pixels: int = Field(
+        4096 * 4096,
+        ge=1,
+        description="largest calibration image_size (width × height) PUT /calibration accepts",
+    )
+    max_checkerboard_mpx: float = Field(
+        400.0, gt=0.0, description="total megapixels of one checkerboard set"
+    )
+    max_concurrent_uploads: int = Field(
+        2, ge=1, le=64, description="POST /stereo requests processed at once (else 429)"
+    )
+    max_concurrent_calibrations: int = Field(
+        1, ge=1, le=16, description="checkerboard calibrations run at once (else 429)"
+    )
+    retry_after_s: int = Field(2, ge=1, le=3600, description="Retry-After of a 429 (s)")
+
+    @field_validator("trusted_hosts", "allowed_origins", mode="before")
+    @classmethod
+    def _split_list(cls, v: Any) -> Any:
+        if isinstance(v, str):
+            text = v.strip()
+            if text.startswith("["):
+                return json.loads(text)
+            return [part.strip() for part in text.split(",") if part.strip()]
+        return v
+
+    @property
+    def effective_trusted_hosts(self) -> list[str]:
+        if self.trusted_hosts is not None:
+            return [h.strip().lower().rstrip(".") for h in self.trusted_hosts if h.strip()]
+        hosts = list(LOCAL_HOSTS)
+        bind = self.host.strip().lower().strip("[]")
+        if bind not in WILDCARD_BIND and bind not in hosts:
+            hosts.append(bind)
+        return hosts
+
+    @property
+    def stereo_request_limit_bytes(self) -> int:
+        if self.max_request_mb is not None:
+            return int(self.max_request_mb * 1e6)
+        return int((2 * self.max_upload_mb + 1) * 1e6)
+
+    @property
+    def json_limit_bytes(self) -> int:
+        return int(self.max_json_kb * 1e3)
+
+    @property
+    def checkerboard_limit_bytes(self) -> int:
+        return int(self.max_checkerboard_mb * 1e6)
 
     @property
     def viser_bind_host(self) -> str:

@@ -1,4 +1,9 @@
-"""``GET``/``PUT /calibration`` (validated with ``StereoCalibration.from_dict``) and rollback."""
+"""``GET``/``PUT /calibration`` and rollback.
+
+A new calibration is validated for form (``StereoCalibration.from_dict``), unknown fields and
+physical plausibility (``app.server.calibration_checks``) before anything uses it; a refused
+one is dropped (nothing keeps a reference to it).
+"""
 
 from __future__ import annotations
 
@@ -7,7 +12,8 @@ from typing import Annotated, Any
 from fastapi import APIRouter, Body, Depends, HTTPException, status
 from fastapi.responses import JSONResponse
 
-from app.geometry.calibration import CalibrationError, StereoCalibration
+from app.geometry.calibration import CalibrationError
+from app.server.calibration_checks import validated
 from app.server.dependencies import StateDep, require_token
 
 router = APIRouter(prefix="/calibration", tags=["calibration"])
@@ -22,12 +28,21 @@ def get_calibration(state: StateDep) -> dict[str, Any]:
 @router.put(
     "",
     dependencies=[Depends(require_token)],
-    responses={422: {"description": "invalid calibration; `field` names the offending entry"}},
+    responses={
+        422: {
+            "description": "invalid or implausible calibration; `field` names the offending entry"
+        }
+    },
 )
 def put_calibration(data: Annotated[dict[str, Any], Body()], state: StateDep) -> Any:
-    """Replace the calibration (the previous one is kept for ``POST /calibration/rollback``)."""
+    """Replace the calibration (the previous one is kept for ``POST /calibration/rollback``).
+
+    Refused (422, ``field`` named) unless plausible: fx, fy in [50, 1e5] px, principal point
+    inside the image, |skew| < 0.1·fx, |T| in [1, 10000] mm, distortion terms within ±10 and
+    monotonic over the image, image size ≤ ``AAR_MAX_CALIBRATION_PIXELS``; unknown fields too.
+    """
     try:
-        calib = StereoCalibration.from_dict(data)
+        calib = validated(data, state.settings.max_calibration_pixels)
     except CalibrationError as exc:
         return JSONResponse(
             status_code=422,

@@ -27,7 +27,8 @@ def get_latest(state: StateDep) -> TickRecord:
 def get_history(
     state: StateDep,
     seconds: Annotated[
-        float, Query(gt=0.0, description="how far back (s), at most AAR_HISTORY_S")
+        float,
+        Query(gt=0.0, allow_inf_nan=False, description="how far back (s), at most AAR_HISTORY_S"),
     ] = 10.0,
 ) -> list[TickRecord]:
     """Tick records of the last ``seconds`` from the bounded ring buffer (oldest first)."""

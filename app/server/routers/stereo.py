@@ -1,4 +1,11 @@
-"""``POST /stereo``: run the navigation pipeline on an uploaded stereo pair."""
+"""``POST /stereo``: run the navigation pipeline on an uploaded stereo pair.
+
+Before anything is decoded, both images' headers are read (``app.server.image_guard``): not a
+PNG/JPEG/BMP/TIFF → 400, more than ``AAR_MAX_IMAGE_PIXELS`` → 413, sizes that differ or do not
+match the calibration → 422. Decoding and the pipeline run in worker threads, never on the
+event loop. Token, request size and concurrency are checked earlier, on the headers
+(``app.server.security``).
+"""
 
 from __future__ import annotations
 
@@ -10,9 +17,10 @@ from typing import Annotated, Literal
 
 import cv2
 import numpy as np
-from fastapi import APIRouter, Depends, File, Form, HTTPException, Request, UploadFile, status
+from fastapi import APIRouter, Depends, File, Form, HTTPException, UploadFile, status
 
 from app.server.dependencies import StateDep, require_token
+from app.server.image_guard import ImageHeader, screen
 from app.server.schemas import Message, TickRecord
 from app.vision.result import PoseResult
 
@@ -73,19 +81,46 @@ def decode_image(data: bytes, name: str) -> np.ndarray:
     return np.ascontiguousarray(img)
 
 
+def _decode_pair(left: bytes, right: bytes) -> tuple[np.ndarray, np.ndarray]:
+    return decode_image(left, "left"), decode_image(right, "right")
+
+
+def _shape_header(img: np.ndarray) -> ImageHeader:
+    return ImageHeader("decoded", img.shape[1], img.shape[0], 1, 8)
+
+
+def _check_sizes(lh: ImageHeader, rh: ImageHeader, expected: tuple[int, int] | None) -> None:
+    if (lh.width, lh.height) != (rh.width, rh.height):
+        raise HTTPException(
+            422,
+            f"left and right sizes differ: {lh.width}x{lh.height} vs {rh.width}x{rh.height}",
+        )
+    if expected is not None and (lh.width, lh.height) != tuple(expected):
+        w, h = expected
+        raise HTTPException(
+            422,
+            f"image size {lh.width}x{lh.height} does not match the calibration ({w}x{h})",
+        )
+
+
 @router.post(
     "/stereo",
     response_model=PoseResult,
     responses={
         400: {"model": Message, "description": "undecodable image"},
         401: {"model": Message},
-        413: {"model": Message, "description": "upload larger than AAR_MAX_UPLOAD_MB"},
+        403: {"model": Message, "description": "cross-origin request"},
+        413: {
+            "model": Message,
+            "description": "upload larger than AAR_MAX_UPLOAD_MB, or more pixels than "
+            "AAR_MAX_IMAGE_PIXELS (refused on the header)",
+        },
         422: {"model": Message, "description": "sizes differ or do not match the calibration"},
+        429: {"model": Message, "description": "AAR_MAX_CONCURRENT_UPLOADS already running"},
     },
     dependencies=[Depends(require_token)],
 )
 async def post_stereo(
-    request: Request,
     left: Annotated[UploadFile, File(description="left image (PNG/JPEG/BMP/TIFF)")],
     right: Annotated[UploadFile, File(description="right image (PNG/JPEG/BMP/TIFF)")],
     state: StateDep,
@@ -95,28 +130,17 @@ async def post_stereo(
 
     The pair and its result are also published to the dashboard (telemetry + 3-D scene).
     """
-    limit = int(state.settings.max_upload_mb * 1e6)
-    declared = request.headers.get("content-length")
-    if declared is not None and declared.isdigit() and int(declared) > 2 * limit + 65536:
-        raise HTTPException(
-            413,
-            f"request exceeds {2 * limit / 1e6:g} MB (AAR_MAX_UPLOAD_MB per image)",
-        )
-    left_img = decode_image(await _read_limited(left, limit, "left"), "left")
-    right_img = decode_image(await _read_limited(right, limit, "right"), "right")
-    if left_img.shape != right_img.shape:
-        raise HTTPException(
-            422,
-            f"left and right sizes differ: {left_img.shape[1]}x{left_img.shape[0]} vs "
-            f"{right_img.shape[1]}x{right_img.shape[0]}",
-        )
-    w, h = state.uploads.calibration.image_size
-    if (left_img.shape[1], left_img.shape[0]) != (w, h):
-        raise HTTPException(
-            422,
-            f"image size {left_img.shape[1]}x{left_img.shape[0]} does not match the "
-            f"calibration ({w}x{h})",
-        )
+    settings = state.settings
+    limit = int(settings.max_upload_mb * 1e6)
+    left_bytes = await _read_limited(left, limit, "left")
+    right_bytes = await _read_limited(right, limit, "right")
+    lh = screen(left_bytes, "left", max_pixels=settings.max_image_pixels)
+    rh = screen(right_bytes, "right", max_pixels=settings.max_image_pixels)
+    expected = state.uploads.calibration.image_size
+    _check_sizes(lh, rh, expected)
+    left_img, right_img = await asyncio.to_thread(_decode_pair, left_bytes, right_bytes)
+    del left_bytes, right_bytes
+    _check_sizes(_shape_header(left_img), _shape_header(right_img), expected)  # as decoded
     pipeline = state.uploads.pipeline(matcher)
     try:
         result: PoseResult = await asyncio.to_thread(pipeline.process, left_img, right_img)
