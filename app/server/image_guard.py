@@ -221,9 +221,7 @@ def screen(data: bytes, name: str, *, max_pixels: int) -> ImageHeader:
     try:
         header = peek_header(data)
     except ImageHeaderError as exc:
-        raise HTTPException(
-            400, f"{name}: could not decode the image ({exc}; {SUPPORTED} expected)"
-        ) from None
+        raise HTTPException(400, f"{name}: could not decode the image ({exc})") from None
     if header.pixels > max_pixels:
         raise HTTPException(
             413,
