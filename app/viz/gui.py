@@ -1,15 +1,36 @@
-"""viser GUI panel: simulation controls, live uPlot charts, status, camera images."""
+"""viser GUI panel: simulation controls, live uPlot charts, status, camera images.
+
+The charts, status and camera images are shared by every viewer. The simulation controls are
+built per client (``client.gui``, inside the shared "Simulation" folder), so that each
+browser tab has its own *locked*/*unlocked* state: with ``AAR_TOKEN`` set a tab sees them
+disabled until it enters the operator token (see :mod:`app.viz.access`).
+
+Every change from a client is checked on the server, whatever the browser shows: the client
+must be allowed to control (:meth:`AccessPolicy.may_control`), the value must be of the
+widget's type and inside the widget's range (:data:`LIMITS`), and the resulting configuration
+must pass :class:`app.server.schemas.SimConfig` (the REST API's model). A refused change is
+logged, not applied, and the client's widgets are re-synced to the real configuration.
+"""
 
 from __future__ import annotations
 
+import asyncio
+import functools
 import logging
+import math
+import threading
 from collections import deque
+from collections.abc import Callable, Coroutine
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 import viser
 import viser.uplot as uplot
 
+from app.server.schemas import SimConfig
+from app.viz.access import MAX_TOKEN_CHARS, AccessPolicy
 from app.viz.overlay import draw_detections
 
 log = logging.getLogger(__name__)
@@ -17,6 +38,16 @@ WINDOW = 300  # samples kept in each chart (fixed window)
 TURBULENCE = ("none", "light", "moderate", "severe")
 XYZ_COLORS = ("#e04040", "#30a050", "#3070e0")
 CTRL_COLORS = ("#444444", "#e08020", "#2090d0", "#a040c0")
+# the widgets' ranges (tighter than SimConfig's: the GUI offers less than the REST API)
+LIMITS: dict[str, tuple[float, float]] = {
+    "closure_speed_mps": (0.2, 3.0),
+    "noise_sigma": (0.0, 20.0),
+    "clutter": (0, 20),
+}
+N_LEDS = 5
+BUTTONS = ("start", "stop", "reset")
+LOCKED_NOTE = "**Read-only.** Enter the operator token (`AAR_TOKEN`) and press Unlock."
+UNLOCKED_NOTE = "**Operator controls unlocked** for this browser tab."
 
 
 def _series(label: str, color: str, dash: bool = False) -> uplot.Series:
@@ -26,50 +57,104 @@ def _series(label: str, color: str, dash: bool = False) -> uplot.Series:
     return s  # type: ignore[return-value]
 
 
+def well_typed(kind: str, value: object) -> bool:
+    """Could the widget of this kind send ``value``? (type only: numbers finite, any range)"""
+    if kind in BUTTONS or kind == "unlock" or kind.startswith("led"):
+        return isinstance(value, bool)
+    if kind == "turbulence":
+        return isinstance(value, str)
+    if kind == "token":
+        return isinstance(value, str) and len(value) <= MAX_TOKEN_CHARS
+    if kind in LIMITS:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            return False
+        return math.isfinite(value) and (kind != "clutter" or float(value).is_integer())
+    return False
+
+
+def value_ok(kind: str, value: object) -> bool:
+    """Is ``value`` a value the widget of this kind offers? (type and the widget's range)"""
+    if not well_typed(kind, value):
+        return False
+    if kind == "turbulence":
+        return value in TURBULENCE
+    if kind in LIMITS:
+        lo, hi = LIMITS[kind]
+        return lo <= float(value) <= hi  # type: ignore[arg-type]
+    return True
+
+
+def _fit(name: str, value: float) -> float:
+    lo, hi = LIMITS[name]
+    return min(max(value, lo), hi)
+
+
+@dataclass
+class ClientPanel:
+    """One client's simulation controls (client-scoped viser handles)."""
+
+    client_id: int
+    turbulence: Any
+    closure: Any
+    noise: Any
+    clutter: Any
+    dropout: list[Any]
+    buttons: dict[str, Any]
+    note: Any = None
+    token: Any = None
+    unlock: Any = None
+    kinds: dict[str, str] = field(default_factory=dict)  # widget uuid -> kind
+
+    def inputs(self) -> dict[str, Any]:
+        out = {"turbulence": self.turbulence, "closure_speed_mps": self.closure}
+        out |= {"noise_sigma": self.noise, "clutter": self.clutter}
+        out |= {f"led{i + 1}": h for i, h in enumerate(self.dropout)}
+        return out
+
+    def set_locked(self, locked: bool) -> None:
+        for h in (*self.inputs().values(), *self.buttons.values()):
+            h.disabled = locked
+        if self.note is not None:
+            self.note.content = LOCKED_NOTE if locked else UNLOCKED_NOTE
+        for h in (self.token, self.unlock):
+            if h is not None:
+                h.visible = locked
+
+
+def _uuid(handle: Any) -> str | None:
+    impl = getattr(handle, "_impl", None)
+    uuid = getattr(impl, "uuid", None)
+    return uuid if isinstance(uuid, str) else None
+
+
 class DockingGui:
     """Builds the panel once; :meth:`update` feeds charts/status; callbacks drive ``actions``.
 
     ``actions`` is the service state (:class:`app.server.dependencies.AppState`): its ``loop``
-    (start/stop/reset) and ``apply_sim_config``.
+    (start/stop/reset), ``apply_sim_config`` and ``settings.token``. ``policy`` says who may
+    drive it (default: the token from ``actions.settings``, no Origin check).
     """
 
-    def __init__(self, server: viser.ViserServer, actions: Any) -> None:
+    def __init__(
+        self, server: viser.ViserServer, actions: Any, *, policy: AccessPolicy | None = None
+    ) -> None:
         self.server = server
         self.actions = actions
+        if policy is None:
+            policy = AccessPolicy(getattr(getattr(actions, "settings", None), "token", None))
+        self.policy = policy
         gui = server.gui
         gui.configure_theme(control_width="medium")
         self.status = gui.add_markdown("**starting…**")
         self._buf: dict[str, deque[float]] = {}
-        self._syncing = False
+        self._panels: dict[int, ClientPanel] = {}
+        self._panels_lock = threading.Lock()  # panel builds (one folder context at a time), sync
+        # GUI changes run here, one at a time, in message order (read-modify-apply of the config)
+        self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="aar-viz-gui")
+        self.rejected = 0  # refused GUI changes (tests, diagnostics)
+        self._rejected_lock = threading.Lock()
 
-        with gui.add_folder("Simulation"):
-            self.btn_start = gui.add_button("Start", icon=viser.Icon.PLAYER_PLAY)
-            self.btn_stop = gui.add_button("Stop", icon=viser.Icon.PLAYER_STOP)
-            self.btn_reset = gui.add_button("Reset", icon=viser.Icon.REFRESH)
-            cfg = actions.loop.config
-            self.turbulence = gui.add_dropdown(
-                "Turbulence", TURBULENCE, initial_value=cfg.turbulence
-            )
-            self.closure = gui.add_slider(
-                "Closure (m/s)", min=0.2, max=3.0, step=0.1, initial_value=cfg.closure_speed_mps
-            )
-            self.noise = gui.add_slider(
-                "Noise σ (DN)", min=0.0, max=20.0, step=0.5, initial_value=cfg.noise_sigma
-            )
-            self.clutter = gui.add_slider(
-                "Clutter lights", min=0, max=20, step=1, initial_value=cfg.clutter
-            )
-            self.dropout = [
-                gui.add_checkbox(f"LED {i} off", initial_value=i in cfg.led_dropout)
-                for i in range(1, 6)
-            ]
-
-        self.btn_start.on_click(lambda _: actions.loop.start_sim())
-        self.btn_stop.on_click(lambda _: actions.loop.stop_sim())
-        self.btn_reset.on_click(lambda _: self._reset())
-        for h in (self.turbulence, self.closure, self.noise, self.clutter, *self.dropout):
-            h.on_update(self._on_control)
-
+        self.sim_folder = gui.add_folder("Simulation")
         with gui.add_folder("Charts"):
             t0 = np.zeros(2)
             self.plot_rel = gui.add_uplot(
@@ -115,44 +200,279 @@ class DockingGui:
             blank = np.zeros((256, 320, 3), np.uint8)
             self.img_left = gui.add_image(blank, label="left", format="jpeg")
             self.img_right = gui.add_image(blank, label="right", format="jpeg")
+        self._loop: asyncio.AbstractEventLoop | None = None  # viser's event loop
+        server.on_client_connect(self._note_loop)
+        server.on_client_connect(self._on_connect)
+        server.on_client_disconnect(self._on_disconnect)
 
-    # ---- callbacks -------------------------------------------------------------------
-    def _reset(self) -> None:
-        self.actions.loop.reset()
-        self.clear()
+    async def _note_loop(self, client: Any) -> None:
+        self._loop = asyncio.get_running_loop()
 
-    def _on_control(self, event: Any) -> None:
-        if self._syncing or event.client is None:  # server-side sync, not a user change
+    def _on_loop(self, fn: Callable[[], None]) -> None:
+        """Run ``fn`` on viser's event loop and wait for it (at most 2 s).
+
+        Widget values are written there, where viser applies incoming client updates: a
+        re-sync written from another thread can interleave with an incoming update and leave
+        the client showing its refused value (viser drops the re-sync message when the echo
+        of the incoming update replaces it in the client's queue).
+        """
+        loop = self._loop
+        if loop is None or loop.is_closed():
+            fn()
             return
-        from app.server.schemas import SimConfig
-
-        update = {
-            "turbulence": self.turbulence.value,
-            "closure_speed_mps": float(self.closure.value),
-            "noise_sigma": float(self.noise.value),
-            "clutter": int(self.clutter.value),
-            "led_dropout": [i + 1 for i, h in enumerate(self.dropout) if h.value],
-        }
         try:
-            cfg = SimConfig.model_validate({**self.actions.loop.config.model_dump(), **update})
-        except Exception as exc:  # pragma: no cover - the widgets' ranges are valid
-            log.warning("GUI config rejected: %s", exc)
+            running = asyncio.get_running_loop()
+        except RuntimeError:
+            running = None
+        if running is loop:
+            fn()
             return
-        self.actions.apply_sim_config(cfg)
-        self.clear()
+
+        async def run() -> None:
+            fn()
+
+        try:
+            asyncio.run_coroutine_threadsafe(run(), loop).result(timeout=2.0)
+        except TimeoutError:
+            log.warning("viser: widget sync timed out (event loop busy or stopped)")
+
+    # ---- per-client controls ----------------------------------------------------------
+    def panel(self, client_id: int) -> ClientPanel | None:
+        return self._panels.get(client_id)
+
+    def _on_connect(self, client: Any) -> None:
+        client_id = int(client.client_id)
+        if self.policy.is_refused(client_id):
+            return
+        try:
+            with self._panels_lock:
+                panel = self._build_panel(client)
+                self._panels[client_id] = panel
+                self._sync_panel(panel, self.actions.loop.config)
+        except Exception:
+            log.exception("viser: building the controls of client %s failed", client_id)
+
+    def _on_disconnect(self, client: Any) -> None:
+        with self._panels_lock:
+            self._panels.pop(int(client.client_id), None)
+
+    def _build_panel(self, client: Any) -> ClientPanel:
+        gui = client.gui
+        cfg = self.actions.loop.config
+        locked = not self.policy.may_control(int(client.client_id))
+        note = token = unlock = None
+        with self.sim_folder:
+            if self.policy.token_required:
+                note = gui.add_markdown(LOCKED_NOTE)
+                token = gui.add_text("Operator token", initial_value="", hint="AAR_TOKEN")
+                unlock = gui.add_button("Unlock", icon=viser.Icon.LOCK_OPEN)
+            buttons = {
+                "start": gui.add_button("Start", icon=viser.Icon.PLAYER_PLAY, disabled=locked),
+                "stop": gui.add_button("Stop", icon=viser.Icon.PLAYER_STOP, disabled=locked),
+                "reset": gui.add_button("Reset", icon=viser.Icon.REFRESH, disabled=locked),
+            }
+            panel = ClientPanel(
+                client_id=int(client.client_id),
+                turbulence=gui.add_dropdown(
+                    "Turbulence", TURBULENCE, initial_value=cfg.turbulence, disabled=locked
+                ),
+                closure=gui.add_slider(
+                    "Closure (m/s)",
+                    min=0.2,
+                    max=3.0,
+                    step=0.1,
+                    initial_value=_fit("closure_speed_mps", cfg.closure_speed_mps),
+                    disabled=locked,
+                ),
+                noise=gui.add_slider(
+                    "Noise σ (DN)",
+                    min=0.0,
+                    max=20.0,
+                    step=0.5,
+                    initial_value=_fit("noise_sigma", cfg.noise_sigma),
+                    disabled=locked,
+                ),
+                clutter=gui.add_slider(
+                    "Clutter lights",
+                    min=0,
+                    max=20,
+                    step=1,
+                    initial_value=int(_fit("clutter", cfg.clutter)),
+                    disabled=locked,
+                ),
+                dropout=[
+                    gui.add_checkbox(
+                        f"LED {i} off", initial_value=i in cfg.led_dropout, disabled=locked
+                    )
+                    for i in range(1, N_LEDS + 1)
+                ],
+                buttons=buttons,
+                note=note,
+                token=token,
+                unlock=unlock,
+            )
+        if not locked and note is not None:
+            panel.set_locked(False)
+        widgets = {**panel.inputs(), **buttons, "token": token, "unlock": unlock}
+        for kind, handle in widgets.items():
+            uuid = _uuid(handle) if handle is not None else None
+            if uuid is not None:
+                panel.kinds[uuid] = kind
+        for kind, handle in panel.inputs().items():
+            handle.on_update(self._guarded(panel, kind))
+        for kind, handle in buttons.items():
+            handle.on_click(self._guarded(panel, kind))
+        if unlock is not None:
+            unlock.on_click(self._guarded(panel, "unlock"))
+        return panel
+
+    def _guarded(self, panel: ClientPanel, kind: str) -> Callable[[Any], Coroutine[Any, Any, None]]:
+        """The viser callback of one widget.
+
+        An ``async`` callback, so that viser runs it on its event loop right after it has taken
+        the message: the value is read there, in message order, before a later message or a
+        re-sync can change the widget; the work is queued, in that order, on one worker thread
+        (never on the event loop: applying a config rebuilds the simulation).
+        """
+
+        async def callback(event: Any) -> None:
+            client_id = getattr(event, "client_id", None)
+            if client_id is None:  # a server-side assignment (sync), not a user change
+                return
+            value = getattr(getattr(event, "target", None), "value", None)
+            try:
+                self._worker.submit(self.handle_change, panel, kind, client_id, value)
+            except RuntimeError:  # shut down
+                log.debug("viser: %s from client %s after close", kind, client_id)
+
+        return callback
+
+    def handle_change(self, panel: ClientPanel, kind: str, client_id: int, value: object) -> None:
+        """Act on one widget event of ``client_id``, or refuse it; never raises."""
+        try:
+            if client_id != panel.client_id:
+                raise PermissionError(f"event of client {client_id} on another's panel")
+            if kind == "unlock":
+                self._unlock(panel)
+            elif not self.policy.may_control(client_id):
+                raise PermissionError("client is not an authenticated operator")
+            elif kind in BUTTONS:
+                self._press(kind)
+            else:
+                self._change(kind, value)
+        except Exception as exc:
+            self._count_rejection()
+            level = logging.WARNING
+            if not isinstance(exc, (PermissionError, ValueError)):  # ValidationError too
+                level = logging.ERROR
+            log.log(level, "viser: %s from client %s refused: %s", kind, client_id, exc)
+            self._resync(panel)
+
+    def _count_rejection(self) -> None:
+        with self._rejected_lock:
+            self.rejected += 1
+
+    def close(self) -> None:
+        self._worker.shutdown(wait=False, cancel_futures=True)
+
+    def _unlock(self, panel: ClientPanel) -> None:
+        if panel.token is None:
+            return
+        given = panel.token.value
+        panel.token.value = ""
+        if not self.policy.check_token(given):
+            if panel.note is not None:
+                panel.note.content = LOCKED_NOTE + "  \n**wrong token**"
+            raise PermissionError("wrong operator token")
+        self.policy.grant(panel.client_id)
+        panel.set_locked(False)
+        log.info("viser: client %s unlocked the operator controls", panel.client_id)
+
+    def _press(self, kind: str) -> None:
+        loop = self.actions.loop
+        if kind == "start":
+            loop.start_sim()
+        elif kind == "stop":
+            loop.stop_sim()
+        else:
+            loop.reset()
+            viz = getattr(self.actions, "viz", None)
+            if viz is not None:
+                viz.on_reset()
+            self.clear()
+
+    def candidate(self, kind: str, value: object) -> SimConfig:
+        """The configuration a change of one widget asks for (ValueError/ValidationError)."""
+        if not value_ok(kind, value):
+            raise ValueError(f"{value!r} is not a value of the {kind} widget")
+        data = self.actions.loop.config.model_dump()
+        if kind.startswith("led"):
+            led = int(kind[3:])
+            leds = set(data["led_dropout"]) - {led}
+            data["led_dropout"] = sorted(leds | ({led} if value else set()))
+        else:
+            data[kind] = value
+        return SimConfig.model_validate(data)
+
+    def _change(self, kind: str, value: object) -> None:
+        cfg = self.candidate(kind, value)
+        if cfg != self.actions.loop.config:
+            self.actions.apply_sim_config(cfg)  # syncs every panel (on_config)
+            self.clear()
+
+    def filter_update(self, client_id: int, message: Any) -> bool:
+        """Message gate for client-scoped GUI updates, before viser touches the widget.
+
+        Only ``value`` may change (not ``disabled``, ``max``...), and only to a value of the
+        widget's type: a string for a slider, NaN or ∞ would raise inside viser. Range and
+        access are checked by the callback (:meth:`handle_change`) once viser has taken the
+        value into that client's own widget, so that a refusal re-syncs the sender's widget
+        (viser's slider keeps its number box editable when the slider is disabled).
+        """
+        panel = self._panels.get(client_id)
+        kind = panel.kinds.get(getattr(message, "uuid", None) or "") if panel else None
+        if panel is None or kind is None:  # not one of ours (viser ignores unknown uuids)
+            return self.policy.may_control(client_id)
+        updates = getattr(message, "updates", None)
+        ok = (
+            isinstance(updates, dict)
+            and set(updates) == {"value"}
+            and well_typed(kind, updates["value"])
+        )
+        if not ok:
+            self._count_rejection()
+            log.warning("viser: dropped a %s update from client %s", kind, client_id)
+        return ok
+
+    def _resync(self, panel: ClientPanel) -> None:
+        try:
+            self._on_loop(functools.partial(self._sync_live, panel, None))
+        except Exception:
+            log.exception("viser: re-syncing the controls of client %s failed", panel.client_id)
+
+    def _sync_live(self, panel: ClientPanel, fallback: Any) -> None:
+        """Sync to the configuration in force when this runs (a queued sync is never stale)."""
+        loop = getattr(self.actions, "loop", None)
+        cfg = getattr(loop, "config", None)
+        self._sync_panel(panel, cfg if cfg is not None else fallback)
+
+    def _sync_panel(self, panel: ClientPanel, cfg: Any) -> None:
+        panel.turbulence.value = cfg.turbulence
+        panel.closure.value = float(cfg.closure_speed_mps)
+        panel.noise.value = float(cfg.noise_sigma)
+        panel.clutter.value = int(cfg.clutter)
+        for i, h in enumerate(panel.dropout):
+            h.value = (i + 1) in cfg.led_dropout
 
     def sync_config(self, cfg: Any) -> None:
-        """Reflect a config changed elsewhere (REST) in the widgets."""
-        self._syncing = True
-        try:
-            self.turbulence.value = cfg.turbulence
-            self.closure.value = cfg.closure_speed_mps
-            self.noise.value = cfg.noise_sigma
-            self.clutter.value = cfg.clutter
-            for i, h in enumerate(self.dropout):
-                h.value = (i + 1) in cfg.led_dropout
-        finally:
-            self._syncing = False
+        """Reflect a config changed elsewhere (REST, another client) in every client's widgets."""
+        with self._panels_lock:
+            panels = list(self._panels.values())
+        for panel in panels:
+            try:
+                self._on_loop(functools.partial(self._sync_live, panel, cfg))
+            except Exception:
+                log.exception("viser: syncing the controls of client %s failed", panel.client_id)
 
     # ---- data ------------------------------------------------------------------------
     def clear(self) -> None:

@@ -16,6 +16,7 @@ from typing import Any
 
 import viser
 
+from app.viz.access import AccessPolicy, install_gate
 from app.viz.gui import DockingGui
 from app.viz.scene import DockingScene, ReceiverGeometry
 
@@ -73,6 +74,7 @@ class VizService:
         self.server: viser.ViserServer | None = None
         self.scene: DockingScene | None = None
         self.gui: DockingGui | None = None
+        self.policy: AccessPolicy | None = None
         self._latest: tuple[Any, Any, Any] | None = None
         self._prev_sim: Any = None
         self._upload: tuple[Any, Any, float] | None = None
@@ -88,6 +90,11 @@ class VizService:
     # ---- lifecycle --------------------------------------------------------------------
     def start(self) -> int:
         self.server = start_viser(self.host, self.port)
+        # the 3-D port is no back door: Origin check, and with AAR_TOKEN set no client drives
+        # the simulation before it has entered the token (app.viz.access)
+        settings = getattr(self.actions, "settings", None)
+        self.policy = AccessPolicy.from_settings(settings, viser_port=self.server.get_port())
+        install_gate(self.server, self.policy, self._filter_gui_update)
         self.server.gui.set_panel_label("aar-dock: probe-and-drogue docking")
         # a view from the side and above, between the receiver and the drogue (tanker frame, z down)
         cam = self.server.initial_camera
@@ -98,16 +105,23 @@ class VizService:
         except ImportError:  # pragma: no cover - the simulation is part of the package
             geometry = None
         self.scene = DockingScene(self.server, self.calibration, geometry)
-        self.gui = DockingGui(self.server, self.actions)
+        self.gui = DockingGui(self.server, self.actions, policy=self.policy)
         self._thread = threading.Thread(target=self._run, name="aar-viz", daemon=True)
         self._thread.start()
         return self.server.get_port()
+
+    def _filter_gui_update(self, client_id: int, message: Any) -> bool:
+        if self.gui is not None:
+            return self.gui.filter_update(client_id, message)
+        return self.policy is not None and self.policy.may_control(client_id)
 
     def stop(self) -> None:
         self._stop.set()
         self._event.set()
         if self._thread is not None:
             self._thread.join(timeout=5.0)
+        if self.gui is not None:
+            self.gui.close()
         if self.server is not None:
             self.server.stop()
 
