@@ -402,7 +402,7 @@ def test_huge_image_refused_on_its_header_fast(
 
 
 def test_image_guard_size_format_and_off_loop_decoding(
-    client: TestClient, monkeypatch: pytest.MonkeyPatch
+    client: TestClient, monkeypatch: pytest.MonkeyPatch, tmp_path: Path
 ) -> None:
     from app.server.routers import stereo
 
@@ -426,7 +426,8 @@ def test_image_guard_size_format_and_off_loop_decoding(
         files={"left": ("l.gif", b"GIF89a" + b"\0" * 64), "right": ("r.png", ok)},
     )
     assert r.status_code == 400 and "PNG, JPEG, BMP or TIFF" in r.json()["detail"]
-    # decoding happens in a worker thread (no event loop running there)
+    # with AAR_UPLOADS_IN_PROCESS, decoding happens in a worker thread (no event loop running
+    # there); by default in a worker process (tests/test_server_processes.py)
     threads: list[bool] = []
     original = stereo.decode_image
 
@@ -439,11 +440,12 @@ def test_image_guard_size_format_and_off_loop_decoding(
         return original(data, name)
 
     monkeypatch.setattr(stereo, "decode_image", spy)
-    r = client.post(
-        "/api/v1/stereo",
-        headers=AUTH,
-        files={"left": ("l.png", ok), "right": ("r.png", (PAIR / "right.png").read_bytes())},
-    )
+    with TestClient(_app(tmp_path, uploads_in_process=True)) as threaded:
+        r = threaded.post(
+            "/api/v1/stereo",
+            headers=AUTH,
+            files={"left": ("l.png", ok), "right": ("r.png", (PAIR / "right.png").read_bytes())},
+        )
     assert r.status_code == 200, r.text
     assert threads == [True, True]
 

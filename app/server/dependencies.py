@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import secrets
 import threading
+import time
 from dataclasses import dataclass, field
 from typing import Annotated, Any
 
@@ -51,6 +52,17 @@ class UploadProcessor:
         self._calibration = calibration
         self._lock = threading.Lock()
         self.count = 0
+        self._last_images: float | None = None
+
+    def images_due(self, period_s: float) -> bool:
+        """Whether an upload's images go to the dashboard: at most one upload per
+        ``period_s`` (``1 / AAR_IMAGE_HZ``); the others are published without them."""
+        now = time.monotonic()
+        with self._lock:
+            if self._last_images is not None and now - self._last_images < period_s:
+                return False
+            self._last_images = now
+            return True
 
     def set_calibration(self, calibration: StereoCalibration) -> None:
         with self._lock:
@@ -60,11 +72,12 @@ class UploadProcessor:
     def calibration(self) -> StereoCalibration:
         return self._calibration
 
-    def pipeline(self, matcher: str) -> Any:
+    def pipeline(self, matcher: str, calibration: StereoCalibration | None = None) -> Any:
         from app.vision.pipeline import NavigationPipeline, PipelineConfig
 
-        with self._lock:
-            calibration = self._calibration
+        if calibration is None:
+            with self._lock:
+                calibration = self._calibration
         return NavigationPipeline(calibration, PipelineConfig(matcher=matcher))  # type: ignore[arg-type]
 
 
@@ -78,6 +91,8 @@ class AppState:
     recorder: Recorder
     viz: Any = None  # app.viz.service.VizService when viser runs
     viser_port: int | None = None
+    upload_pool: Any = None  # app.server.upload_pool.UploadPool; None: uploads in threads
+    sim_worker: Any = None  # app.server.sim_process.SimWorker; None: simulation in a thread
     extras: dict[str, Any] = field(default_factory=dict)
 
     def apply_sim_config(self, config: SimConfig) -> None:

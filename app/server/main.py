@@ -22,7 +22,7 @@ from typing import Any
 # sets OPENCV_IO_MAX_IMAGE_PIXELS; first, before anything imports cv2
 from app.server import image_guard  # isort: skip
 
-from fastapi import FastAPI
+from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.openapi.docs import get_swagger_ui_html
 from fastapi.responses import FileResponse, HTMLResponse, JSONResponse
@@ -37,7 +37,13 @@ from app.server.routers import calibration, recording, sim, state, stereo, telem
 from app.server.schemas import SimConfig
 from app.server.settings import WILDCARD_BIND, Settings
 from app.server.telemetry import TelemetryHub
-from app.server.tick_loop import Clock, SourceFactory, TickLoop, default_source_factory
+from app.server.tick_loop import (
+    Clock,
+    SourceFactory,
+    SourceUnavailable,
+    TickLoop,
+    default_source_factory,
+)
 
 log = logging.getLogger(__name__)
 API_PREFIX = "/api/v1"
@@ -87,10 +93,27 @@ def create_app(
                 "is not in force; uploads are still checked on their headers",
                 image_guard.OPENCV_ENV,
             )
+        factory: SourceFactory
+        process_factory: Any = None
+        if source_factory is not None:  # injected (tests): as given, in this process
+            factory = source_factory
+        elif settings.sim_in_process:
+            factory = default_source_factory
+        else:  # the simulation in a worker process, off this process's GIL
+            from app.server.sim_process import process_source_factory
+
+            factory = process_factory = process_source_factory(
+                image_hz=settings.image_hz, step_timeout_s=settings.sim_step_timeout_s
+            )
+        upload_pool: Any = None
+        if not settings.uploads_in_process:
+            from app.server.upload_pool import UploadPool
+
+            upload_pool = UploadPool(settings.max_concurrent_uploads)
         loop = TickLoop(
             SimConfig(tick_hz=settings.tick_hz),
             calib,
-            source_factory=source_factory or default_source_factory,
+            source_factory=factory,
             clock=clock,
             history_s=settings.history_s,
             auto_restart_s=settings.sim_auto_restart_s,
@@ -109,7 +132,42 @@ def create_app(
             calibrations=CalibrationStore(calib),
             uploads=UploadProcessor(calib),
             recorder=recorder,
+            upload_pool=upload_pool,
+            sim_worker=None if process_factory is None else process_factory.worker,
         )
+
+        def release_workers() -> None:
+            if process_factory is not None:
+                process_factory.close()
+            if upload_pool is not None:
+                upload_pool.shutdown()
+
+        try:
+            _start_services(st, settings, warm=source_factory is None)
+        except BaseException:
+            if st.viz is not None:
+                st.viz.stop()
+            release_workers()
+            raise
+        app.state.aar = st
+        log.info(
+            "aar-dock service: tick loop at %.1f Hz (simulation %s), viser on port %s",
+            settings.tick_hz,
+            "in a worker process" if process_factory is not None else "in this process",
+            st.viser_port,
+        )
+        try:
+            yield
+        finally:
+            app.state.aar = None
+            recorder.close()
+            loop.stop()
+            if st.viz is not None:
+                st.viz.stop()
+            release_workers()
+
+    def _start_services(st: AppState, settings: Settings, *, warm: bool) -> None:
+        loop, hub, recorder, calib = st.loop, st.hub, st.recorder, st.calibrations.current
         if settings.viser_enabled:
             from app.viz.service import VizService
 
@@ -129,22 +187,12 @@ def create_app(
         loop.subscribe(hub.publish)
         loop.subscribe(recorder.on_tick)
         if settings.sim_autostart:
-            loop.start_sim()
+            loop.start_sim()  # with a worker process: spawned and the simulation built here
         loop.start()
-        app.state.aar = st
-        log.info(
-            "aar-dock service: tick loop at %.1f Hz, viser on port %s",
-            settings.tick_hz,
-            st.viser_port,
-        )
-        try:
-            yield
-        finally:
-            app.state.aar = None
-            recorder.close()
-            loop.stop()
-            if st.viz is not None:
-                st.viz.stop()
+        if warm and st.upload_pool is not None:
+            # the app as deployed: the upload workers start now, not with the first upload
+            # (apps with an injected source, i.e. tests, start them on demand)
+            st.upload_pool.warm()
 
     swagger_dir = _swagger_static_dir()
     app = FastAPI(
@@ -172,6 +220,16 @@ def create_app(
     app.state.aar = None
     app.state.settings = settings
     app.add_exception_handler(RequestValidationError, validation_exception_handler)
+
+    async def source_unavailable(request: Request, exc: Exception) -> JSONResponse:
+        # the simulation worker could not build (did not start, crashed): nothing changed
+        return JSONResponse(
+            status_code=503,
+            content={"detail": f"simulation unavailable: {exc}"},
+            headers={"Retry-After": str(settings.retry_after_s)},
+        )
+
+    app.add_exception_handler(SourceUnavailable, source_unavailable)
     security.install(app, settings, API_PREFIX)
     for module in (state, sim, stereo, calibration, recording, telemetry):
         app.include_router(module.router, prefix=API_PREFIX)

@@ -12,7 +12,14 @@ def _line(name: str, value: float, labels: dict[str, str] | None = None) -> str:
     return f"{name} {value:.6g}"
 
 
-def render_metrics(loop: TickLoop, *, ws_clients: int = 0, uploads: int = 0) -> str:
+def render_metrics(
+    loop: TickLoop,
+    *,
+    ws_clients: int = 0,
+    uploads: int = 0,
+    sim_worker_restarts: int | None = None,
+    upload_pool_restarts: int | None = None,
+) -> str:
     """Text format 0.0.4 (``text/plain; version=0.0.4``)."""
     out: list[str] = []
 
@@ -70,4 +77,18 @@ def render_metrics(loop: TickLoop, *, ws_clients: int = 0, uploads: int = 0) -> 
         "Stereo pairs processed via POST /stereo",
         [_line("aar_uploads_total", uploads)],
     )
+    if sim_worker_restarts is not None:
+        metric(
+            "aar_sim_worker_restarts_total",
+            "counter",
+            "Simulation worker processes lost (crash, exit, timeout) and replaced",
+            [_line("aar_sim_worker_restarts_total", sim_worker_restarts)],
+        )
+    if upload_pool_restarts is not None:
+        metric(
+            "aar_upload_pool_restarts_total",
+            "counter",
+            "Upload worker pools replaced after a worker died",
+            [_line("aar_upload_pool_restarts_total", upload_pool_restarts)],
+        )
     return "\n".join(out) + "\n"

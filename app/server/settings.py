@@ -9,6 +9,10 @@ Hardening (see ``app/server/security.py``): ``AAR_TRUSTED_HOSTS`` and ``AAR_ALLO
 ``AAR_MAX_JSON_KB``, ``AAR_MAX_CHECKERBOARD_MB``), image limits (``AAR_MAX_IMAGE_PIXELS``,
 ``AAR_MAX_CALIBRATION_PIXELS``, ``AAR_MAX_CHECKERBOARD_MPX``) and concurrency
 (``AAR_MAX_CONCURRENT_UPLOADS``, ``AAR_MAX_CONCURRENT_CALIBRATIONS``, ``AAR_RETRY_AFTER_S``).
+
+Where the CPU work runs: ``AAR_SIM_IN_PROCESS`` (default false: the simulation steps in a
+worker process, ``app.server.sim_process``), ``AAR_SIM_STEP_TIMEOUT_S``,
+``AAR_UPLOADS_IN_PROCESS`` (default false: uploads in a process pool, ``app.server.upload_pool``).
 """
 
 from __future__ import annotations
@@ -59,6 +63,23 @@ class Settings(BaseSettings):
     scene_hz: float = Field(15.0, gt=0.0, le=60.0, description="3D scene update rate (Hz)")
     image_hz: float = Field(5.0, gt=0.0, le=30.0, description="camera image update rate (Hz)")
     static_dir: Path = Field(DEFAULT_STATIC, description="operators' page assets")
+    sim_in_process: bool = Field(
+        False,
+        description="step the simulation in a thread of the web server's process (the old "
+        "mode) instead of a worker process (the default: off the web server's GIL)",
+    )
+    sim_step_timeout_s: float = Field(
+        5.0,
+        gt=0.0,
+        le=600.0,
+        description="a simulation worker that does not answer a step "
+        "within this is killed and replaced",
+    )
+    uploads_in_process: bool = Field(
+        False,
+        description="decode and process POST /stereo uploads in threads of the web server's "
+        "process instead of a pool of worker processes",
+    )
     log_level: str = Field("info")
 
     # ---- hardening -------------------------------------------------------------------

@@ -75,11 +75,21 @@ class StepSource(Protocol):
 SourceFactory = Callable[[SimConfig, Any], StepSource]
 
 
-def default_source_factory(config: SimConfig, calibration: Any) -> StepSource:
-    """Build the docking simulation (vision in the loop) for ``config``."""
-    from app.sim.docking import DockingConfig, DockingSimulation
+class SourceRestarted(RuntimeError):
+    """Raised by ``step()`` of a source whose backend was lost and has been rebuilt from its
+    config (e.g. a crashed simulation worker process): this step failed (an error is counted)
+    and the next one starts a new run (``TickLoop.run`` is incremented)."""
 
-    dcfg = DockingConfig(
+
+class SourceUnavailable(RuntimeError):
+    """A source could not be built because its backend is unavailable (not a refused config)."""
+
+
+def docking_config(config: SimConfig) -> Any:
+    """The :class:`app.sim.docking.DockingConfig` for a service :class:`SimConfig`."""
+    from app.sim.docking import DockingConfig
+
+    return DockingConfig(
         turbulence=config.turbulence,
         seed=config.seed,
         closure_speed_mps=config.closure_speed_mps,
@@ -90,7 +100,13 @@ def default_source_factory(config: SimConfig, calibration: Any) -> StepSource:
         clutter=config.clutter,
         led_dropout=tuple(config.led_dropout),
     )
-    return DockingSimulation(dcfg, calibration=calibration)
+
+
+def default_source_factory(config: SimConfig, calibration: Any) -> StepSource:
+    """Build the docking simulation (vision in the loop) for ``config``, in this process."""
+    from app.sim.docking import DockingSimulation
+
+    return DockingSimulation(docking_config(config), calibration=calibration)
 
 
 def _vec(value: Any) -> tuple[float, float, float] | None:
@@ -108,6 +124,10 @@ def tick_to_record(tick: Any, *, seq: int, clock_s: float, run: int, step_ms: fl
     timings: dict[str, float] = {"step": step_ms}
     if pose is not None:
         for name, value in pose.timing_ms.model_dump().items():
+            timings[name] = float(value)
+    extra = getattr(tick, "extra_timings_ms", None)  # e.g. "sim": the worker process's step
+    if extra:
+        for name, value in extra.items():
             timings[name] = float(value)
     ctrl = getattr(tick, "control", None)
     control = None
@@ -336,7 +356,12 @@ class TickLoop:
                 self.errors += 1
                 self._consecutive_errors += 1
                 self.last_error = f"{type(exc).__name__}: {exc}"
-                log.exception("simulation step failed")
+                if isinstance(exc, SourceRestarted):  # rebuilt from its config: a new run
+                    log.error("simulation step failed: %s", self.last_error)
+                    self.run += 1
+                    self._done_at = None
+                else:
+                    log.exception("simulation step failed")
                 if self._consecutive_errors >= MAX_CONSECUTIVE_ERRORS:
                     log.error("simulation stopped after %d failed steps", MAX_CONSECUTIVE_ERRORS)
                     self.running = False

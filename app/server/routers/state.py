@@ -66,7 +66,11 @@ def healthz(state: StateDep) -> Health:
 def metrics(state: StateDep) -> PlainTextResponse:
     """Prometheus text format: tick rate, dropped ticks, stage latencies."""
     text = render_metrics(
-        state.loop, ws_clients=state.hub.client_count, uploads=state.uploads.count
+        state.loop,
+        ws_clients=state.hub.client_count,
+        uploads=state.uploads.count,
+        sim_worker_restarts=None if state.sim_worker is None else state.sim_worker.restarts,
+        upload_pool_restarts=None if state.upload_pool is None else state.upload_pool.restarts,
     )
     return PlainTextResponse(text, media_type="text/plain; version=0.0.4; charset=utf-8")
 

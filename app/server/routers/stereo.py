@@ -2,26 +2,39 @@
 
 Before anything is decoded, both images' headers are read (``app.server.image_guard``): not a
 PNG/JPEG/BMP/TIFF → 400, more than ``AAR_MAX_IMAGE_PIXELS`` → 413, sizes that differ or do not
-match the calibration → 422. Decoding and the pipeline run in worker threads, never on the
-event loop. Token, request size and concurrency are checked earlier, on the headers
-(``app.server.security``).
+match the calibration → 422. Decoding and the pipeline then run in a worker process
+(``app.server.upload_pool``: off the web server's GIL), or, with ``AAR_UPLOADS_IN_PROCESS``, in
+worker threads; never on the event loop. Token, request size and concurrency are checked
+earlier, on the headers (``app.server.security``).
+
+The dashboard shows an upload's images: in process mode they are decoded again here, lazily
+(when the 3-D scene reads them) and for at most ``AAR_IMAGE_HZ`` uploads a second; the others
+are published without images (the scene keeps the last ones).
 """
 
 from __future__ import annotations
 
 import asyncio
 import logging
+import threading
 import time
 from dataclasses import dataclass
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal
 
-import cv2
 import numpy as np
 from fastapi import APIRouter, Depends, File, Form, HTTPException, UploadFile, status
 
-from app.server.dependencies import StateDep, require_token
+from app.server.dependencies import AppState, StateDep, require_token
 from app.server.image_guard import ImageHeader, screen
 from app.server.schemas import Message, TickRecord
+from app.server.sim_process import calibration_to_wire
+from app.server.upload_pool import (
+    UploadError,
+    UploadWorkerCrashed,
+    check_pair_sizes,
+    decode_upload_image,
+    process_upload,
+)
 from app.vision.result import PoseResult
 
 log = logging.getLogger(__name__)
@@ -34,6 +47,37 @@ class UploadFrames:
 
     left_image: np.ndarray
     right_image: np.ndarray
+
+
+class LazyUploadFrames:
+    """An upload's images, decoded on first access (the 3-D scene, at its image rate)."""
+
+    def __init__(self, left: bytes, right: bytes) -> None:
+        self._bytes: tuple[bytes, bytes] | None = (left, right)
+        self._images: tuple[np.ndarray | None, np.ndarray | None] | None = None
+        self._lock = threading.Lock()
+
+    def _pair(self) -> tuple[np.ndarray | None, np.ndarray | None]:
+        with self._lock:
+            if self._images is None:
+                assert self._bytes is not None
+                try:
+                    self._images = (
+                        decode_upload_image(self._bytes[0], "left"),
+                        decode_upload_image(self._bytes[1], "right"),
+                    )
+                except UploadError:  # pragma: no cover - the worker decoded them already
+                    self._images = (None, None)
+                self._bytes = None
+            return self._images
+
+    @property
+    def left_image(self) -> np.ndarray | None:
+        return self._pair()[0]
+
+    @property
+    def right_image(self) -> np.ndarray | None:
+        return self._pair()[1]
 
 
 async def _read_limited(upload: UploadFile, limit: int, name: str) -> bytes:
@@ -55,30 +99,10 @@ async def _read_limited(upload: UploadFile, limit: int, name: str) -> bytes:
 
 def decode_image(data: bytes, name: str) -> np.ndarray:
     """Bytes (PNG/JPEG/BMP/TIFF) → uint8 grey image; ``HTTPException(400)`` if not an image."""
-    if not data:
-        raise HTTPException(status.HTTP_400_BAD_REQUEST, f"{name}: empty file")
     try:
-        img = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
-    except cv2.error:
-        img = None
-    if img is None or img.size == 0:
-        raise HTTPException(
-            status.HTTP_400_BAD_REQUEST,
-            f"{name}: could not decode the image (corrupt, or not PNG/JPEG/BMP/TIFF)",
-        )
-    if img.dtype == np.uint16:
-        img = (img >> 8).astype(np.uint8)
-    elif img.dtype != np.uint8:
-        raise HTTPException(
-            status.HTTP_400_BAD_REQUEST, f"{name}: unsupported pixel type {img.dtype} (8 or 16 bit)"
-        )
-    if img.ndim == 3:
-        code = {4: cv2.COLOR_BGRA2GRAY, 3: cv2.COLOR_BGR2GRAY}.get(img.shape[2])
-        if code is None:
-            img = img[:, :, 0]
-        else:
-            img = cv2.cvtColor(img, code)
-    return np.ascontiguousarray(img)
+        return decode_upload_image(data, name)
+    except UploadError as exc:
+        raise HTTPException(exc.status, exc.detail) from None
 
 
 def _decode_pair(left: bytes, right: bytes) -> tuple[np.ndarray, np.ndarray]:
@@ -90,17 +114,59 @@ def _shape_header(img: np.ndarray) -> ImageHeader:
 
 
 def _check_sizes(lh: ImageHeader, rh: ImageHeader, expected: tuple[int, int] | None) -> None:
-    if (lh.width, lh.height) != (rh.width, rh.height):
-        raise HTTPException(
-            422,
-            f"left and right sizes differ: {lh.width}x{lh.height} vs {rh.width}x{rh.height}",
+    try:
+        check_pair_sizes((lh.width, lh.height), (rh.width, rh.height), expected)
+    except UploadError as exc:
+        raise HTTPException(exc.status, exc.detail) from None
+
+
+async def _in_threads(
+    state: AppState, left_bytes: bytes, right_bytes: bytes, matcher: str, calibration: Any
+) -> tuple[PoseResult, Any]:
+    """``AAR_UPLOADS_IN_PROCESS``: decode and pipeline in worker threads of this process."""
+    expected = calibration.image_size
+    left_img, right_img = await asyncio.to_thread(_decode_pair, left_bytes, right_bytes)
+    _check_sizes(_shape_header(left_img), _shape_header(right_img), expected)  # as decoded
+    pipeline = state.uploads.pipeline(matcher, calibration)
+    try:
+        result: PoseResult = await asyncio.to_thread(pipeline.process, left_img, right_img)
+    except Exception as exc:  # the contract is a 4xx with a detail, never a 500
+        log.exception("pipeline failed on an upload")
+        raise HTTPException(422, f"pipeline failed: {type(exc).__name__}: {exc}") from None
+    return result, UploadFrames(left_img, right_img)
+
+
+async def _in_worker_process(
+    state: AppState, left_bytes: bytes, right_bytes: bytes, matcher: str, calibration: Any
+) -> tuple[PoseResult, Any]:
+    """Decode and pipeline in an :class:`UploadPool` worker process."""
+    pool = state.upload_pool
+    assert pool is not None
+    try:
+        out = await pool.run(
+            process_upload,
+            left_bytes,
+            right_bytes,
+            calibration_to_wire(calibration),
+            matcher,
+            calibration.image_size,
         )
-    if expected is not None and (lh.width, lh.height) != tuple(expected):
-        w, h = expected
+    except UploadWorkerCrashed as exc:
+        log.error("upload worker crashed: %s", exc)
         raise HTTPException(
-            422,
-            f"image size {lh.width}x{lh.height} does not match the calibration ({w}x{h})",
-        )
+            status.HTTP_503_SERVICE_UNAVAILABLE,
+            "the upload worker crashed; retry",
+            headers={"Retry-After": str(state.settings.retry_after_s)},
+        ) from None
+    if out["status"] != 200:
+        if "traceback" in out:
+            log.error("pipeline failed on an upload (worker process):\n%s", out["traceback"])
+        raise HTTPException(out["status"], out["detail"])
+    result = PoseResult.model_validate(out["result"])
+    raw = None
+    if state.uploads.images_due(1.0 / state.settings.image_hz):
+        raw = LazyUploadFrames(left_bytes, right_bytes)
+    return result, raw
 
 
 @router.post(
@@ -117,6 +183,7 @@ def _check_sizes(lh: ImageHeader, rh: ImageHeader, expected: tuple[int, int] | N
         },
         422: {"model": Message, "description": "sizes differ or do not match the calibration"},
         429: {"model": Message, "description": "AAR_MAX_CONCURRENT_UPLOADS already running"},
+        503: {"model": Message, "description": "the upload worker process crashed (retry)"},
     },
     dependencies=[Depends(require_token)],
 )
@@ -136,17 +203,11 @@ async def post_stereo(
     right_bytes = await _read_limited(right, limit, "right")
     lh = screen(left_bytes, "left", max_pixels=settings.max_image_pixels)
     rh = screen(right_bytes, "right", max_pixels=settings.max_image_pixels)
-    expected = state.uploads.calibration.image_size
-    _check_sizes(lh, rh, expected)
-    left_img, right_img = await asyncio.to_thread(_decode_pair, left_bytes, right_bytes)
+    calibration = state.uploads.calibration  # one calibration for the whole request
+    _check_sizes(lh, rh, calibration.image_size)
+    run = _in_threads if state.upload_pool is None else _in_worker_process
+    result, raw = await run(state, left_bytes, right_bytes, matcher, calibration)
     del left_bytes, right_bytes
-    _check_sizes(_shape_header(left_img), _shape_header(right_img), expected)  # as decoded
-    pipeline = state.uploads.pipeline(matcher)
-    try:
-        result: PoseResult = await asyncio.to_thread(pipeline.process, left_img, right_img)
-    except Exception as exc:  # the contract is a 4xx with a detail, never a 500
-        log.exception("pipeline failed on an upload")
-        raise HTTPException(422, f"pipeline failed: {type(exc).__name__}: {exc}") from None
     state.uploads.count += 1
     loop = state.loop
     record = TickRecord(
@@ -161,5 +222,5 @@ async def post_stereo(
         lock_reason=result.reason,
         timings_ms={k: float(v) for k, v in result.timing_ms.model_dump().items()},
     )
-    loop.publish(record, UploadFrames(left_img, right_img))
+    loop.publish(record, raw)
     return result

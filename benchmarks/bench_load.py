@@ -1,0 +1,301 @@
+"""Tick rate of the live service under load: telemetry clients and uploaders, both modes.
+
+Starts ``aar-dock serve`` (vision on, 30 Hz, viser on, free ports) in a child process, as
+deployed, and measures the tick rate over a window (``/healthz`` ticks and dropped deadlines;
+step-time p99 from ``/history``) in four cases:
+
+* ``idle``: no clients;
+* ``ws50``: 50 telemetry WebSocket clients (receiving, not parsing);
+* ``up16``: 16 uploaders posting ``sample_data/pair_1000mm/{left,right}.png`` in a loop, as
+  fast as answered (429 when ``AAR_MAX_CONCURRENT_UPLOADS`` are running: counted, no back-off);
+* ``both``: the two together.
+
+for the two modes:
+
+* ``process``: the default (the simulation in a worker process, uploads in a process pool);
+* ``thread``: ``AAR_SIM_IN_PROCESS=true AAR_UPLOADS_IN_PROCESS=true`` (the simulation in a
+  thread of the web server, uploads in its worker threads: the old mode, the baseline).
+
+The clients run in this process (asyncio: ``websockets``, ``httpx``). Each mode runs with
+AAR_MAX_CONCURRENT_UPLOADS = 2 (the default: at most 2 uploads processed at once, the others
+429) and 16 (every uploader admitted). Prints a Markdown table.
+
+    .venv/bin/python benchmarks/bench_load.py [--seconds 10] [--hz 30] [--modes process,thread]
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+import urllib.request
+from collections import Counter
+from pathlib import Path
+from typing import Any
+
+REPO = Path(__file__).resolve().parents[1]
+PAIR = REPO / "sample_data" / "pair_1000mm"
+CASES = ("idle", "ws50", "up16", "both")
+N_WS = 50
+N_UP = 16
+MODE_ENV = {
+    "process": {"AAR_SIM_IN_PROCESS": "false", "AAR_UPLOADS_IN_PROCESS": "false"},
+    "thread": {"AAR_SIM_IN_PROCESS": "true", "AAR_UPLOADS_IN_PROCESS": "true"},
+}
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def _get(port: int, path: str) -> bytes:
+    with urllib.request.urlopen(f"http://127.0.0.1:{port}/api/v1/{path}", timeout=10) as r:
+        data: bytes = r.read()
+        return data
+
+
+def health(port: int) -> dict[str, Any]:
+    out: dict[str, Any] = json.loads(_get(port, "healthz"))
+    return out
+
+
+def window_p99(port: int, seconds: float) -> dict[str, float]:
+    """p99 of the sim ticks' ``step`` (the tick thread's wait for a step) and ``sim`` (the
+    worker process's own step time) timings over the last ``seconds`` (``/history``)."""
+    import numpy as np
+
+    records = json.loads(_get(port, f"history?seconds={seconds:.3f}"))
+    out: dict[str, float] = {}
+    for stage in ("step", "sim"):
+        vals = [
+            r["timings_ms"][stage]
+            for r in records
+            if r["source"] == "sim" and stage in r["timings_ms"]
+        ]
+        out[stage] = float(np.percentile(vals, 99)) if vals else float("nan")
+    return out
+
+
+def aar_dock() -> list[str]:
+    exe = Path(sys.executable).parent / "aar-dock"
+    if exe.exists():
+        return [str(exe)]
+    found = shutil.which("aar-dock")
+    return [found] if found else [sys.executable, "-m", "app"]
+
+
+class Server:
+    """``aar-dock serve`` in a child process."""
+
+    def __init__(self, mode: str, hz: float, rec_dir: Path, max_uploads: int) -> None:
+        self.mode = mode
+        self.max_uploads = max_uploads
+        self.port = free_port()
+        viser_port = free_port()
+        env = dict(os.environ)
+        env.update(MODE_ENV[mode])
+        env.update(
+            {
+                "AAR_TICK_HZ": str(hz),
+                "AAR_SIM_AUTO_RESTART_S": "0",  # a finished run restarts at once
+                "AAR_RECORDINGS_DIR": str(rec_dir),
+                "AAR_LOG_LEVEL": "warning",
+            }
+        )
+        env["AAR_MAX_CONCURRENT_UPLOADS"] = str(max_uploads)
+        env.pop("AAR_TOKEN", None)
+        cmd = [*aar_dock(), "serve", "--port", str(self.port), "--viser-port", str(viser_port)]
+        self.log = tempfile.TemporaryFile()
+        self.proc = subprocess.Popen(cmd, env=env, stdout=self.log, stderr=subprocess.STDOUT)
+
+    def wait_ticking(self, timeout_s: float = 90.0) -> None:
+        deadline = time.time() + timeout_s
+        while True:
+            try:
+                if health(self.port)["ticks"] > 0:
+                    return
+            except OSError:
+                pass
+            if self.proc.poll() is not None or time.time() > deadline:
+                self.log.seek(0)
+                tail = self.log.read().decode(errors="replace")[-2000:]
+                raise RuntimeError(f"server ({self.mode}) did not start:\n{tail}")
+            time.sleep(0.2)
+
+    def stop(self) -> str:
+        self.proc.send_signal(signal.SIGTERM)  # graceful: the lifespan stops the workers
+        try:
+            self.proc.wait(20)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait(5)
+        self.log.seek(0)
+        return self.log.read().decode(errors="replace")
+
+
+async def ws_client(url: str, stop: asyncio.Event, counts: list[int], i: int) -> None:
+    import websockets
+
+    async with websockets.connect(url, max_size=None) as ws:
+        while not stop.is_set():
+            try:
+                await asyncio.wait_for(ws.recv(), timeout=1.0)
+            except TimeoutError:
+                continue
+            counts[i] += 1
+
+
+async def uploader(url: str, stop: asyncio.Event, statuses: Counter[int], files: Any) -> None:
+    import httpx
+
+    async with httpx.AsyncClient(timeout=30.0) as client:
+        while not stop.is_set():
+            try:
+                r = await client.post(url, files=files)
+                statuses[r.status_code] += 1
+            except httpx.HTTPError:
+                statuses[-1] += 1  # connection closed early (a refused body), counted apart
+
+
+async def run_case(server: Server, case: str, seconds: float, ramp_s: float) -> dict[str, Any]:
+    port = server.port
+    stop = asyncio.Event()
+    ws_counts = [0] * N_WS
+    statuses: Counter[int] = Counter()
+    files = {
+        "left": ("left.png", (PAIR / "left.png").read_bytes(), "image/png"),
+        "right": ("right.png", (PAIR / "right.png").read_bytes(), "image/png"),
+    }
+    tasks: list[asyncio.Task[None]] = []
+    if case in ("ws50", "both"):
+        url = f"ws://127.0.0.1:{port}/api/v1/telemetry"
+        tasks += [asyncio.create_task(ws_client(url, stop, ws_counts, i)) for i in range(N_WS)]
+    if case in ("up16", "both"):
+        url = f"http://127.0.0.1:{port}/api/v1/stereo"
+        tasks += [asyncio.create_task(uploader(url, stop, statuses, files)) for _ in range(N_UP)]
+    await asyncio.sleep(ramp_s)
+    h0 = await asyncio.to_thread(health, port)
+    t0 = time.monotonic()
+    ws0, st0 = sum(ws_counts), Counter(statuses)
+    await asyncio.sleep(seconds)
+    h1 = await asyncio.to_thread(health, port)
+    elapsed = time.monotonic() - t0
+    ws1, st1 = sum(ws_counts), Counter(statuses)
+    p99 = await asyncio.to_thread(window_p99, port, elapsed)
+    stop.set()
+    await asyncio.gather(*tasks, return_exceptions=True)
+    answered = st1 - st0
+    return {
+        "slots": server.max_uploads,
+        "case": case,
+        "mode": server.mode,
+        "tick_hz": (h1["ticks"] - h0["ticks"]) / elapsed,
+        "dropped": h1["dropped_ticks"] - h0["dropped_ticks"],
+        "errors": h1["errors"] - h0["errors"],
+        "step_p99": p99["step"],
+        "sim_p99": p99["sim"],
+        "ok_per_s": answered.get(200, 0) / elapsed,
+        "busy_per_s": answered.get(429, 0) / elapsed,
+        "closed_per_s": answered.get(-1, 0) / elapsed,
+        "other": {k: v for k, v in answered.items() if k not in (200, 429, -1)},
+        "ws_per_client_hz": (ws1 - ws0) / elapsed / N_WS if case in ("ws50", "both") else None,
+    }
+
+
+def measure_mode(
+    mode: str, hz: float, seconds: float, ramp_s: float, max_uploads: int, cases: list[str]
+) -> list[dict[str, Any]]:
+    with tempfile.TemporaryDirectory(prefix="aar-bench-load-") as rec:
+        server = Server(mode, hz, Path(rec), max_uploads)
+        rows: list[dict[str, Any]] = []
+        try:
+            server.wait_ticking()
+            time.sleep(4.0)  # warm-up (workers started, first runs built)
+            for case in cases:
+                row = asyncio.run(run_case(server, case, seconds, ramp_s))
+                rows.append(row)
+                print(
+                    f"  slots {max_uploads:<3} {mode:<8}{case:<6} {row['tick_hz']:6.2f} Hz"
+                    f"  dropped {row['dropped']:4d}  errors {row['errors']}"
+                    f"  step p99 {row['step_p99']:6.1f} ms  sim p99 {row['sim_p99']:6.1f} ms"
+                    f"  uploads/s: {row['ok_per_s']:.1f} ok, {row['busy_per_s']:.1f} 429,"
+                    f" {row['closed_per_s']:.1f} closed {row['other'] or ''}",
+                    flush=True,
+                )
+                time.sleep(1.0)
+        finally:
+            log = server.stop()
+        errors = [ln for ln in log.splitlines() if "Traceback" in ln or "ERROR" in ln]
+        if errors:
+            print(f"  ({mode}: {len(errors)} error lines in the server log)", flush=True)
+            print(log[-3000:], flush=True)
+    return rows
+
+
+def table(rows: list[dict[str, Any]], hz: float) -> str:
+    head = (
+        "| upload slots | case | mode | tick rate (Hz) | ratio to nominal | dropped ticks "
+        "| step p99 (ms) | sim p99 (ms) | uploads/s 200 | uploads/s 429 (+ closed) "
+        "| telemetry msgs/s per client |"
+    )
+    lines = [head, "|" + "---|" * 11]
+    order = {c: i for i, c in enumerate(CASES)}
+    for r in sorted(rows, key=lambda r: (r["slots"], order[r["case"]], r["mode"])):
+        ws = "–" if r["ws_per_client_hz"] is None else f"{r['ws_per_client_hz']:.1f}"
+        sim = "–" if r["sim_p99"] != r["sim_p99"] else f"{r['sim_p99']:.1f}"
+        ups = "– | –"
+        if r["case"] in ("up16", "both"):
+            ups = f"{r['ok_per_s']:.1f} | {r['busy_per_s']:.1f} (+ {r['closed_per_s']:.0f})"
+        lines.append(
+            f"| {r['slots']} | {r['case']} | {r['mode']} | {r['tick_hz']:.2f} "
+            f"| {r['tick_hz'] / hz:.2f} | {r['dropped']} | {r['step_p99']:.1f} | {sim} "
+            f"| {ups} | {ws} |"
+        )
+    return "\n".join(lines)
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
+    ap.add_argument("--seconds", type=float, default=10.0, help="measurement window per case")
+    ap.add_argument("--ramp", type=float, default=2.0, help="load before the window starts (s)")
+    ap.add_argument("--hz", type=float, default=30.0)
+    ap.add_argument("--modes", default="process,thread")
+    ap.add_argument("--cases", default=",".join(CASES))
+    ap.add_argument(
+        "--max-uploads",
+        default="2,16",
+        help="AAR_MAX_CONCURRENT_UPLOADS values (2: the default; 16: every uploader admitted)",
+    )
+    args = ap.parse_args()
+    cases = [c.strip() for c in args.cases.split(",")]
+    rows: list[dict[str, Any]] = []
+    print(f"cpus: {os.cpu_count()}, nominal {args.hz:g} Hz, {args.seconds:g} s per case")
+    for slots in (int(x) for x in args.max_uploads.split(",")):
+        for mode in args.modes.split(","):
+            rows += measure_mode(mode.strip(), args.hz, args.seconds, args.ramp, slots, cases)
+    print()
+    print(table(rows, args.hz))
+    print(
+        "\nstep: the tick thread's wait for a step (p99 over the window, /history); sim: the "
+        "worker process's own step time (process mode only). 429 (+ closed): uploads refused "
+        "with 429, plus those whose connection the server closed after its early 429 while "
+        "the client was still sending the body."
+    )
+    others = [(r["slots"], r["case"], r["mode"], r["other"]) for r in rows if r["other"]]
+    if others:
+        print("other upload answers:", others)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
