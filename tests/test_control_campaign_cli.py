@@ -59,9 +59,18 @@ def test_simulate_cli_json_shape(capsys):
         "time_to_capture_s",
         "aborts",
         "max_control_saturation",
+        "sim_time_s",
+        "wall_time_s",
+        "real_time_factor",
     }
     assert out["captured"] is True and isinstance(out["miss_distance_m"], float)
     assert isinstance(out["aborts"], int)
+    # the run's simulated time covers the capture plus station keeping, in wall time > 0
+    assert out["sim_time_s"] >= out["time_to_capture_s"] + 0.2 - 1e-6
+    assert out["wall_time_s"] > 0
+    assert out["real_time_factor"] == pytest.approx(
+        out["sim_time_s"] / out["wall_time_s"], rel=1e-2
+    )
 
 
 def test_simulate_cli_plots(tmp_path, capsys):

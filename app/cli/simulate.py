@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import time
 from pathlib import Path
 from typing import Any
 
@@ -112,22 +113,32 @@ def run(args: argparse.Namespace) -> int:
         return 2
     sim = DockingSimulation(cfg)
     log = TickLog()
+    t0 = time.perf_counter()
     while not sim.done:
         log.add(sim.step())
+    wall_s = time.perf_counter() - t0
+    sim_s = sim.k * sim.dt
     out = sim.outcome()
+    speed = {
+        "sim_time_s": round(sim_s, 6),
+        "wall_time_s": round(wall_s, 6),
+        "real_time_factor": round(sim_s / wall_s, 3) if wall_s > 0 else None,
+    }
     if args.plot:
         paths = plot_run(log, Path(args.plot))
         if not args.json:
             for p in paths:
                 print(f"wrote {p}", file=sys.stderr)
     if args.json:
-        print(json.dumps(out.to_dict()))
+        print(json.dumps({**out.to_dict(), **speed}))
         return 0
     d = out.to_dict()
     miss = d["miss_distance_m"]
     print(
         f"captured={d['captured']} miss={'n/a' if miss is None else f'{100 * miss:.1f} cm'} "
         f"closure={d['closure_speed_mps']} m/s time_to_capture={d['time_to_capture_s']} s "
-        f"aborts={d['aborts']} max_saturation={d['max_control_saturation']:.2f}"
+        f"aborts={d['aborts']} max_saturation={d['max_control_saturation']:.2f} "
+        f"sim={speed['sim_time_s']:.1f} s wall={speed['wall_time_s']:.1f} s "
+        f"({speed['real_time_factor']}× real time)"
     )
     return 0
