@@ -1,0 +1,570 @@
+"""Windowed stereo tracking of the LED ring after a full-frame lock.
+
+``StereoTracker(calibration).update(left, right) -> PoseResult`` (the pipeline's contract):
+
+* **Acquisition** (no lock yet, lock lost, or any tracked check failed): the whole frame goes
+  through a :class:`~app.vision.pipeline.NavigationPipeline` that the tracker owns.
+* **Tracking** (after a lock): each LED's pixel position is predicted in both images
+  (constant velocity on the LED pixels; an LED missing from the last lock is predicted by
+  re-projecting its slot on the last fitted circle), and only a small window around each
+  prediction is processed. The windows of one image are copied side by side into a *mosaic*
+  (one zero column between windows), so that graying (BGR input), the eq. 10 threshold, the
+  median filter, labelling and the eq. 11 centroids (:func:`~app.vision.features.extract_blobs`)
+  run once per image on a few thousand pixels instead of the full frame. Each window is large
+  enough to hold its blob's centroid support and IHWT descriptor window, so the centroids and
+  descriptors equal the full-frame ones bit for bit.
+* The threshold is the pipeline's "auto" rule with the background level and σ of the last
+  acquisition and the peak over the windows (the full frame's peak whenever the brightest
+  pixel is an LED; an int threshold is used as is; "otsu" keeps the last acquisition's).
+* **Integrity every tracked frame**: every window of a tracked LED holds exactly one LED-like
+  blob (two → acquisition), the pair passes the epipolar gate, triangulates in the depth range
+  with a small reprojection error and passes the appearance test; the points fit the ring
+  (radius, RMS, one point per evenly spaced slot, view angle), agree with the last lock
+  (:class:`~app.geometry.ring.RingPrior` gates), pass the a-contrario NFA test in the prior's
+  neighbourhood, and the ids given by the slots (roll continuity, as the pipeline) equal the
+  windows' ids; ≥ ``min_leds`` LEDs. Any failure → full-frame acquisition on the same frame.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, replace
+from typing import Literal
+
+import cv2
+import numpy as np
+
+from app.geometry.calibration import StereoCalibration
+from app.geometry.circle_fit import Circle3D, FitError, fit_circle_3d, plane_basis
+from app.geometry.led_ids import led_ids_for_angles, roll_from_offset
+from app.geometry.projection import project_stereo, undistort_pixels
+from app.geometry.ring import (
+    RingParams,
+    RingPrior,
+    _Hypothesis,
+    log10_nfa,
+    oriented,
+    slot_angles_deg,
+    slot_offset_deg,
+    slot_residuals,
+)
+from app.geometry.triangulation import refine_reprojection, triangulate_linear
+from app.vision.appearance import appearance_reasons, blob_color_bgr, equivalent_radius_px
+from app.vision.features import TooManyBlobs, extract_blobs
+from app.vision.ihwt import SAMPLES_PER_SUBSQUARE, describe_points, integral_image_i32
+from app.vision.ihwt import window_side_px as ihwt_window_side_px
+from app.vision.pipeline import NavigationPipeline, PipelineConfig, _Track
+from app.vision.preprocess import (
+    ImageError,
+    background_level,
+    binarize,
+    choose_threshold,
+    median_filter,
+    to_gray,
+    validate_image,
+)
+from app.vision.result import DrogueResult, LedResult, PoseResult, StageTimings
+from app.vision.types import Blob
+
+__all__ = ["ImageError", "StereoTracker", "TrackerStats"]
+
+UNKNOWN_MOTION_PX = 16.0  # window growth (px) while an LED's velocity is not known yet
+Mode = Literal["acquired", "tracked", "lost"]
+
+
+class _Fallback(Exception):
+    """A tracked check failed: the frame goes to full-frame acquisition."""
+
+
+@dataclass
+class _Led:
+    """One tracked LED: last centroids (px), the previous ones (velocity), blob radius."""
+
+    left: np.ndarray
+    right: np.ndarray
+    prev_left: np.ndarray | None
+    prev_right: np.ndarray | None
+    radius_px: float
+
+
+@dataclass
+class _State:
+    leds: dict[int, _Led]
+    background: tuple[tuple[float, float], tuple[float, float]]  # (bg, σ) left, right
+    thresholds: tuple[int, int]  # of the last acquisition ("otsu" mode)
+    center_mm: np.ndarray
+    normal: np.ndarray
+    roll_deg: float
+
+
+@dataclass
+class TrackerStats:
+    """Counts since construction (or ``reset``)."""
+
+    acquired: int = 0
+    tracked: int = 0
+    fallbacks: int = 0
+    lost: int = 0
+
+
+@dataclass
+class _Window:
+    led_id: int
+    x0: int
+    y0: int
+    side: int
+    mx: int  # column of the window in the mosaic
+    expected: bool  # the LED was in the last lock (else a search for a missing LED)
+
+
+class StereoTracker:
+    """Full-frame acquisition, then windowed tracking with integrity re-verified every frame.
+
+    ``last_mode`` is ``"acquired"``, ``"tracked"`` or ``"lost"`` for the last ``update``;
+    ``last_fallback`` says why tracking handed the last frame to acquisition (or ``None``).
+    A locked result's ``reason`` carries the same information ("tracked" / "acquired: …").
+    """
+
+    def __init__(
+        self,
+        calibration: StereoCalibration,
+        config: PipelineConfig | None = None,
+        exact_peak: bool = True,
+    ) -> None:
+        # exact_peak: gray input, "auto" threshold: take the peak of eq. 10's rule over the
+        # whole frame (a max reduction) so that a glint brighter than the LEDs sets the same
+        # threshold as in the full-frame pipeline; False: the windows' peak only
+        self.exact_peak = exact_peak
+        self.pipeline = NavigationPipeline(calibration, config)
+        self.calibration = calibration
+        self.config = self.pipeline.config
+        self._state: _State | None = None
+        self.last_mode: Mode = "lost"
+        self.last_fallback: str | None = None
+        self.stats = TrackerStats()
+        self._params: RingParams = self.pipeline._ring_params()
+
+    def reset(self) -> None:
+        """Forget the lock and the pipeline's track (a new, unrelated sequence)."""
+        self._state = None
+        self.pipeline.reset()
+        self.stats = TrackerStats()
+
+    @property
+    def locked(self) -> bool:
+        return self._state is not None
+
+    # ------------------------------------------------------------------ entry
+    def update(self, left: np.ndarray, right: np.ndarray) -> PoseResult:
+        """Track (or acquire) on one stereo pair; same inputs and result as ``process``."""
+        t0 = time.perf_counter()
+        left = validate_image(left, "left")
+        right = validate_image(right, "right")
+        w, h = self.calibration.image_size
+        for name, img in (("left", left), ("right", right)):
+            if img.shape[1] != w or img.shape[0] != h:
+                raise ImageError(
+                    f"{name}: image is {img.shape[1]}×{img.shape[0]} px but the calibration "
+                    f"is for {w}×{h} px"
+                )
+        self.last_fallback = None
+        if self._state is not None:
+            try:
+                result = self._track_frame(left, right)
+            except _Fallback as exc:
+                self.last_fallback = str(exc)
+                self.stats.fallbacks += 1
+            else:
+                self.last_mode = "tracked"
+                self.stats.tracked += 1
+                total = (time.perf_counter() - t0) * 1e3
+                result.timing_ms = StageTimings(total=total)
+                return result
+        return self._acquire(left, right)
+
+    # ------------------------------------------------------------------ acquisition
+    def _acquire(self, left: np.ndarray, right: np.ndarray) -> PoseResult:
+        result = self.pipeline.process(left, right)
+        if not result.lock:
+            self._state = None
+            self.last_mode = "lost"
+            self.stats.lost += 1
+            return result
+        trace = self.pipeline.trace
+        track = self.pipeline._track
+        assert trace.left is not None and trace.right is not None and track is not None
+        radius_l = {b.centroid_px: equivalent_radius_px(b.area_px) for b in trace.left.blobs}
+        radius_r = {b.centroid_px: equivalent_radius_px(b.area_px) for b in trace.right.blobs}
+        old = {} if self._state is None else self._state.leds
+        leds = {}
+        for led in result.leds:
+            r = max(radius_l.get(led.left_px, 2.0), radius_r.get(led.right_px, 2.0))
+            o = old.get(led.id)  # the velocity continues through an acquisition
+            leds[led.id] = _Led(
+                np.array(led.left_px),
+                np.array(led.right_px),
+                None if o is None else o.left,
+                None if o is None else o.right,
+                r,
+            )
+        self._state = _State(
+            leds=leds,
+            background=(
+                background_level(to_gray(left)),
+                background_level(to_gray(right)),
+            ),
+            thresholds=trace.thresholds,
+            center_mm=track.center_mm.copy(),
+            normal=track.normal.copy(),
+            roll_deg=track.roll_deg,
+        )
+        self.last_mode = "acquired"
+        self.stats.acquired += 1
+        why = f" (tracking fell back: {self.last_fallback})" if self.last_fallback else ""
+        result.reason = f"acquired: full frame{why}"
+        return result
+
+    # ------------------------------------------------------------------ tracking
+    def _window_half(self, radius_px: float, speed_px: float) -> int:
+        cfg = self.config
+        area = math.pi * radius_px * radius_px
+        win = ihwt_window_side_px(area, self.pipeline.window_factor, cfg.min_window_px)
+        desc_half = 0.5 * win + win / (4 * SAMPLES_PER_SUBSQUARE) + 3.0
+        support = radius_px + 2.0 + max(2.0, 0.5 * math.sqrt(area)) + 2.0
+        return int(math.ceil(max(3.0 * radius_px, 12.0, desc_half, support) + speed_px + 2.0))
+
+    def _predict(self, st: _State) -> list[tuple[int, np.ndarray, np.ndarray, float, bool]]:
+        """(id, left px, right px, half-size, expected) for every LED slot to look at."""
+        out = []
+        speeds = []
+        vel_l, vel_r = [], []
+        for led_id, led in st.leds.items():
+            vl = np.zeros(2) if led.prev_left is None else led.left - led.prev_left
+            vr = np.zeros(2) if led.prev_right is None else led.right - led.prev_right
+            vel_l.append(vl)
+            vel_r.append(vr)
+            # |velocity| widens the window; unknown velocity (first frame): UNKNOWN_MOTION_PX
+            speed = float(max(np.hypot(*vl), np.hypot(*vr)))
+            if led.prev_left is None or led.prev_right is None:
+                speed = UNKNOWN_MOTION_PX
+            speeds.append(speed)
+            half = self._window_half(led.radius_px, speed)
+            out.append((led_id, led.left + vl, led.right + vr, float(half), True))
+        n = self.config.led_count
+        missing = [i for i in range(1, n + 1) if i not in st.leds]
+        if missing:
+            # slot positions of the missing LEDs on the last circle, moved like the others
+            mean_l = np.mean(vel_l, axis=0)
+            mean_r = np.mean(vel_r, axis=0)
+            e_up, e_right = plane_basis(st.normal)
+            spacing = 360.0 / n
+            ang = np.radians(
+                self.config.led_phase_deg + st.roll_deg + spacing * (np.array(missing) - 1)
+            )
+            pts = st.center_mm + self.config.ring_radius_mm * (
+                np.outer(np.cos(ang), e_up) + np.outer(np.sin(ang), e_right)
+            )
+            pl, pr = project_stereo(self.calibration, pts)
+            r = max(led.radius_px for led in st.leds.values())
+            half = self._window_half(r, max(speeds) + 4.0)
+            for k, led_id in enumerate(missing):
+                out.append((led_id, pl[k] + mean_l, pr[k] + mean_r, float(half), False))
+        return out
+
+    def _side(
+        self,
+        image: np.ndarray,
+        centres: list[np.ndarray],
+        halves: list[float],
+        ids: list[int],
+        expected: list[bool],
+        background: tuple[float, float],
+        last_threshold: int,
+    ) -> tuple[list[_Window], np.ndarray, list[Blob], np.ndarray, int]:
+        """Crop the windows of one image into a mosaic and extract the blobs there."""
+        h_img, w_img = image.shape[:2]
+        side = 2 * int(max(halves)) + 1
+        windows: list[_Window] = []
+        for led_id, c, exp in zip(ids, centres, expected, strict=True):
+            cx, cy = int(round(float(c[0]))), int(round(float(c[1])))
+            x0, y0 = cx - side // 2, cy - side // 2
+            if x0 < 1 or y0 < 1 or x0 + side > w_img - 1 or y0 + side > h_img - 1:
+                if exp:
+                    raise _Fallback(f"the window of LED {led_id} leaves the image")
+                continue  # a missing LED predicted out of view stays missing
+            windows.append(_Window(led_id, x0, y0, side, 1 + len(windows) * (side + 1), exp))
+        k = len(windows)
+        shape = (side, k * (side + 1) + 1) + image.shape[2:]
+        mosaic = np.zeros(shape, dtype=np.uint8)
+        for win in windows:
+            mosaic[:, win.mx : win.mx + side] = image[
+                win.y0 : win.y0 + side, win.x0 : win.x0 + side
+            ]
+        gray = to_gray(mosaic)
+        mode = self.config.threshold
+        if mode == "otsu":
+            threshold = last_threshold
+        elif mode == "auto":
+            peak = float(cv2.minMaxLoc(gray)[1])
+            if self.exact_peak and image.ndim == 2:
+                # the full frame's peak (a glint may outshine the LEDs): one read-only max
+                # reduction, ~15 µs; no gray conversion, threshold, median or labelling
+                peak = max(peak, float(cv2.minMaxLoc(image)[1]))
+            bg, sigma = background
+            threshold = int(min(255, max(1, round(bg + max(0.25 * (peak - bg), 6.0 * sigma)))))
+        else:
+            threshold = choose_threshold(gray, mode, background)
+        mask = median_filter(binarize(gray, threshold), self.config.median_ksize)
+        try:
+            blobs, _ = extract_blobs(gray, mask, background[0], self.config.gate)
+        except TooManyBlobs as exc:
+            raise _Fallback(str(exc)) from None
+        if image.ndim == 3 and self.config.appearance.enabled:
+            blobs = [replace(b, color_bgr=blob_color_bgr(mosaic, b, threshold)) for b in blobs]
+        return windows, gray, blobs, mask, threshold
+
+    def _assign(self, windows: list[_Window], blobs: list[Blob], side_name: str) -> dict[int, Blob]:
+        """The one blob of each window (ids → blob, mosaic coordinates)."""
+        per: dict[int, list[Blob]] = {w.led_id: [] for w in windows}
+        for b in blobs:
+            x, y, bw, bh = b.bbox
+            j = (x - 1) // (windows[0].side + 1) if windows else -1
+            if not 0 <= j < len(windows):
+                continue
+            win = windows[j]
+            # blobs cut by the window's edge belong to a neighbour (or moved out): ignored
+            if x <= win.mx or y <= 0 or x + bw >= win.mx + win.side or y + bh >= win.side:
+                continue
+            per[win.led_id].append(b)
+        out: dict[int, Blob] = {}
+        for win in windows:
+            found = per[win.led_id]
+            if len(found) > 1:
+                raise _Fallback(
+                    f"{len(found)} LED-like blobs in the {side_name} window of LED {win.led_id}"
+                )
+            if not found:
+                if win.expected:
+                    raise _Fallback(f"LED {win.led_id} not found in its {side_name} window")
+                continue
+            b = found[0]
+            # the centroid support and the descriptor window must lie inside the window
+            need = self._window_half(equivalent_radius_px(b.area_px), 0.0) - 2
+            u, v = b.centroid_px
+            if (
+                u - need < win.mx
+                or u + need > win.mx + win.side - 1
+                or v - need < 0
+                or v + need > win.side - 1
+            ):
+                raise _Fallback(
+                    f"LED {win.led_id} is at the edge of its {side_name} window"
+                    f" {u - win.mx:.1f},{v:.1f} need {need} side {win.side}"
+                )
+            out[win.led_id] = b
+        return out
+
+    def _track_frame(self, left: np.ndarray, right: np.ndarray) -> PoseResult:
+        st = self._state
+        assert st is not None
+        cfg, cal = self.config, self.calibration
+        pred = self._predict(st)
+        ids = [p[0] for p in pred]
+        halves = [p[3] for p in pred]
+        expected = [p[4] for p in pred]
+        win_l, gray_l, blobs_l, _, thr_l = self._side(
+            left, [p[1] for p in pred], halves, ids, expected, st.background[0], st.thresholds[0]
+        )
+        win_r, gray_r, blobs_r, _, thr_r = self._side(
+            right, [p[2] for p in pred], halves, ids, expected, st.background[1], st.thresholds[1]
+        )
+        got_l = self._assign(win_l, blobs_l, "left")
+        got_r = self._assign(win_r, blobs_r, "right")
+        led_ids = sorted(i for i in got_l if i in got_r)
+        for i in set(got_l) ^ set(got_r):
+            if i in st.leds:
+                raise _Fallback(f"LED {i} seen in one image only")
+            raise _Fallback(f"missing LED {i} reappeared in one image only")
+        if len(led_ids) < cfg.min_leds:
+            raise _Fallback(f"only {len(led_ids)} LEDs tracked; need {cfg.min_leds}")
+        # mosaic → image coordinates
+        off_l = {w.led_id: (w.x0 - w.mx, w.y0) for w in win_l}
+        off_r = {w.led_id: (w.x0 - w.mx, w.y0) for w in win_r}
+        bl = [_shift(got_l[i], off_l[i]) for i in led_ids]
+        br = [_shift(got_r[i], off_r[i]) for i in led_ids]
+        # descriptors on the mosaics (each window holds its descriptor window entirely)
+        ii_l = integral_image_i32(gray_l)
+        ii_r = integral_image_i32(gray_r)
+        wf, mw = self.pipeline.window_factor, cfg.min_window_px
+        d_l = describe_points(
+            ii_l,
+            np.array([got_l[i].centroid_px for i in led_ids]),
+            np.array([ihwt_window_side_px(got_l[i].area_px, wf, mw) for i in led_ids]),
+        )
+        d_r = describe_points(
+            ii_r,
+            np.array([got_r[i].centroid_px for i in led_ids]),
+            np.array([ihwt_window_side_px(got_r[i].area_px, wf, mw) for i in led_ids]),
+        )
+        desc_dist = np.sqrt(np.sum((d_l - d_r) ** 2, axis=1))
+        # --- epipolar gate and triangulation (as the pipeline)
+        pl = np.array([b.centroid_px for b in bl])
+        pr = np.array([b.centroid_px for b in br])
+        xl = undistort_pixels(cal.left, pl)
+        xr = undistort_pixels(cal.right, pr)
+        hl = np.column_stack([xl, np.ones(len(xl))])
+        hr = np.column_stack([xr, np.ones(len(xr))])
+        F = self.pipeline._F
+        lines_r, lines_l = hl @ F.T, hr @ F
+        alg = np.sum(hr * lines_r, axis=1)
+        epi = (
+            0.5
+            * np.abs(alg)
+            * (
+                1.0 / np.hypot(lines_r[:, 0], lines_r[:, 1])
+                + 1.0 / np.hypot(lines_l[:, 0], lines_l[:, 1])
+            )
+        )
+        if np.any(epi > cfg.epipolar_tol_px):
+            raise _Fallback("a tracked LED pair left the epipolar gate")
+        X0 = triangulate_linear(cal.P_left, cal.P_right, xl, xr)
+        X, reproj = refine_reprojection(cal.P_left, cal.P_right, xl, xr, X0)
+        z0, z1 = cfg.depth_range_mm
+        if not (
+            np.all(np.isfinite(X))
+            and np.all(reproj <= cfg.max_reprojection_px)
+            and np.all((X0[:, 2] >= z0) & (X0[:, 2] <= z1))
+            and np.all(X[:, 2] > 0)
+        ):
+            raise _Fallback("a tracked LED does not triangulate consistently")
+        # --- appearance
+        if cfg.appearance.enabled:
+            z_r = (cal.R @ X.T).T[:, 2] + float(cal.T[2])
+            for k, i in enumerate(led_ids):
+                reasons = appearance_reasons(
+                    bl[k],
+                    br[k],
+                    float(X[k, 2]),
+                    float(z_r[k]),
+                    cal.left.fx,
+                    cal.right.fx,
+                    cfg.led_diameter_mm,
+                    (st.background[0][0], st.background[1][0]),
+                    cfg.appearance,
+                )
+                if reasons:
+                    raise _Fallback(f"LED {i} fails the appearance test: {reasons[0]}")
+        # --- ring, integrity, ids
+        circle, roll, slot_ids = self._ring_checks(X, st)
+        if slot_ids != led_ids:
+            raise _Fallback(f"slot ids {slot_ids} differ from the tracked ids {led_ids}")
+        # the pipeline's track continues through tracked frames (ids after a fallback)
+        self.pipeline._track = _Track(circle.center.copy(), circle.normal.copy(), roll)
+        # --- state for the next frame
+        leds: dict[int, _Led] = {}
+        for k, i in enumerate(led_ids):
+            old = st.leds.get(i)
+            r = max(equivalent_radius_px(bl[k].area_px), equivalent_radius_px(br[k].area_px))
+            leds[i] = _Led(
+                pl[k].copy(),
+                pr[k].copy(),
+                None if old is None else old.left,
+                None if old is None else old.right,
+                r,
+            )
+        st.leds = leds
+        st.center_mm, st.normal, st.roll_deg = circle.center.copy(), circle.normal.copy(), roll
+        self.pipeline.trace.thresholds = (thr_l, thr_r)
+        results = [
+            LedResult(
+                id=i,
+                left_px=(float(pl[k, 0]), float(pl[k, 1])),
+                right_px=(float(pr[k, 0]), float(pr[k, 1])),
+                xyz_mm=(float(X[k, 0]), float(X[k, 1]), float(X[k, 2])),
+                descriptor_distance=float(desc_dist[k]),
+                epipolar_px=float(epi[k]),
+                reprojection_px=float(reproj[k]),
+            )
+            for k, i in enumerate(led_ids)
+        ]
+        c = circle
+        return PoseResult(
+            lock=True,
+            reason="tracked",
+            leds=results,
+            drogue=DrogueResult(
+                center_mm=(float(c.center[0]), float(c.center[1]), float(c.center[2])),
+                normal=(float(c.normal[0]), float(c.normal[1]), float(c.normal[2])),
+                radius_mm=float(c.radius),
+                rms_mm=float(c.rms),
+            ),
+        )
+
+    def _ring_checks(self, X: np.ndarray, st: _State) -> tuple[Circle3D, float, list[int]]:
+        """The ring tests of :func:`app.geometry.ring.find_ring` on the tracked points, with
+        the last lock as the prior; returns (circle, roll deg, ids in point order)."""
+        cfg, params = self.config, self._params
+        n = cfg.led_count
+        try:
+            circle = oriented(fit_circle_3d(X))
+        except FitError as exc:
+            raise _Fallback(f"ring fit failed: {exc}") from None
+        z = float(circle.center[2])
+        itol, atol = float(params.inlier_tol(z)), float(params.angle_tol_deg_at(z))
+        if abs(circle.radius - params.radius_mm) > float(params.radius_tol(z)):
+            raise _Fallback(f"ring radius {circle.radius:.1f} mm out of tolerance")
+        if circle.rms > itol:
+            raise _Fallback(f"ring RMS {circle.rms:.2f} mm > {itol:.2f} mm")
+        rel = X - circle.center
+        off = rel @ circle.normal
+        dist = np.sqrt(
+            (np.linalg.norm(rel - off[:, None] * circle.normal, axis=1) - circle.radius) ** 2
+            + off**2
+        )
+        if np.any(dist > itol):
+            raise _Fallback("a tracked LED is off the ring")
+        angles = slot_angles_deg(X, circle)
+        offset = slot_offset_deg(angles, n)
+        slots, resid = slot_residuals(angles, offset, n)
+        if len(set(slots.tolist())) != len(slots) or np.any(np.abs(resid) > atol):
+            raise _Fallback("the tracked LEDs are not on distinct, evenly spaced slots")
+        view = -circle.center / max(float(np.linalg.norm(circle.center)), 1e-9)
+        view_deg = math.degrees(math.acos(float(np.clip(circle.normal @ view, -1.0, 1.0))))
+        if view_deg > params.max_view_angle_deg:
+            raise _Fallback("the ring is seen edge-on")
+        prior = RingPrior(st.center_mm, st.normal)
+        dc = float(np.linalg.norm(circle.center - prior.center_mm))
+        dn = math.degrees(math.acos(float(np.clip(circle.normal @ prior.normal, -1.0, 1.0))))
+        if dc > prior.gate_mm or dn > prior.gate_deg:
+            raise _Fallback(f"the ring moved {dc:.0f} mm / {dn:.0f}° from the last lock")
+        order = np.argsort(np.arange(len(X)))
+        hyp = _Hypothesis(
+            members=order,
+            points=X,
+            slots=slots,
+            resid_deg=resid,
+            circle=circle,
+            offset_deg=offset,
+            cost=0.0,
+            angle_tol=atol,
+            inlier_tol=itol,
+            extra_on_ring=0,
+        )
+        local = float((2.0 * (params.radius_mm + prior.gate_mm)) ** 3)
+        nfa = log10_nfa(len(X), len(X), local, hyp, params)
+        if nfa > params.log10_nfa_max:
+            raise _Fallback(f"not distinctive (NFA 10^{nfa:.1f})")
+        near = float(np.linalg.norm(circle.center - st.center_mm)) <= 2.0 * cfg.ring_radius_mm
+        roll = roll_from_offset(offset, n, cfg.led_phase_deg, st.roll_deg if near else None)
+        slot_angles = offset + (360.0 / n) * slots.astype(np.float64)
+        ids = led_ids_for_angles(slot_angles, roll, n, cfg.led_phase_deg)
+        return circle, roll, [int(i) for i in ids]
+
+
+def _shift(blob: Blob, offset: tuple[int, int]) -> Blob:
+    """A mosaic blob in image coordinates."""
+    dx, dy = offset
+    x, y, w, h = blob.bbox
+    u, v = blob.centroid_px
+    return replace(blob, centroid_px=(u + dx, v + dy), bbox=(x + dx, y + dy, w, h))
