@@ -69,7 +69,7 @@ from app.vision.types import Blob
 
 __all__ = ["ImageError", "StereoTracker", "TrackerStats"]
 
-UNKNOWN_MOTION_PX = 16.0  # window growth (px) while an LED's velocity is not known yet
+UNKNOWN_MOTION_PX = 24.0  # window growth (px) while an LED's velocity is not known yet
 Mode = Literal["acquired", "tracked", "lost"]
 
 
@@ -108,6 +108,15 @@ class TrackerStats:
     lost: int = 0
 
 
+@dataclass(frozen=True)
+class _Prediction:
+    led_id: int
+    left: np.ndarray  # predicted centroid (px)
+    right: np.ndarray
+    half: float  # window half-size (px)
+    expected: bool  # in the last lock (else the search for a missing LED)
+
+
 @dataclass
 class _Window:
     led_id: int
@@ -115,6 +124,7 @@ class _Window:
     y0: int
     side: int
     mx: int  # column of the window in the mosaic
+    row: int  # row of the window in the mosaic (0: left image, side + 1: right image)
     expected: bool  # the LED was in the last lock (else a search for a missing LED)
 
 
@@ -131,7 +141,11 @@ class StereoTracker:
         calibration: StereoCalibration,
         config: PipelineConfig | None = None,
         exact_peak: bool = True,
+        describe: bool = True,
     ) -> None:
+        # describe: IHWT descriptors of the tracked blobs, for ``descriptor_distance`` (as
+        # the pipeline); False skips them (the field is then −1: not computed)
+        self.describe = describe
         # exact_peak: gray input, "auto" threshold: take the peak of eq. 10's rule over the
         # whole frame (a max reduction) so that a glint brighter than the LEDs sets the same
         # threshold as in the full-frame pipeline; False: the windows' peak only
@@ -200,7 +214,12 @@ class StereoTracker:
         leds = {}
         for led in result.leds:
             r = max(radius_l.get(led.left_px, 2.0), radius_r.get(led.right_px, 2.0))
-            o = old.get(led.id)  # the velocity continues through an acquisition
+            o = old.get(led.id)  # the velocity continues through an acquisition, not a jump
+            if o is not None and (
+                np.hypot(*(o.left - led.left_px)) > 2.0 * UNKNOWN_MOTION_PX
+                or np.hypot(*(o.right - led.right_px)) > 2.0 * UNKNOWN_MOTION_PX
+            ):
+                o = None
             leds[led.id] = _Led(
                 np.array(led.left_px),
                 np.array(led.right_px),
@@ -234,7 +253,7 @@ class StereoTracker:
         support = radius_px + 2.0 + max(2.0, 0.5 * math.sqrt(area)) + 2.0
         return int(math.ceil(max(3.0 * radius_px, 12.0, desc_half, support) + speed_px + 2.0))
 
-    def _predict(self, st: _State) -> list[tuple[int, np.ndarray, np.ndarray, float, bool]]:
+    def _predict(self, st: _State) -> list[_Prediction]:
         """(id, left px, right px, half-size, expected) for every LED slot to look at."""
         out = []
         speeds = []
@@ -250,7 +269,7 @@ class StereoTracker:
                 speed = UNKNOWN_MOTION_PX
             speeds.append(speed)
             half = self._window_half(led.radius_px, speed)
-            out.append((led_id, led.left + vl, led.right + vr, float(half), True))
+            out.append(_Prediction(led_id, led.left + vl, led.right + vr, float(half), True))
         n = self.config.led_count
         missing = [i for i in range(1, n + 1) if i not in st.leds]
         if missing:
@@ -269,72 +288,108 @@ class StereoTracker:
             r = max(led.radius_px for led in st.leds.values())
             half = self._window_half(r, max(speeds) + 4.0)
             for k, led_id in enumerate(missing):
-                out.append((led_id, pl[k] + mean_l, pr[k] + mean_r, float(half), False))
+                out.append(_Prediction(led_id, pl[k] + mean_l, pr[k] + mean_r, float(half), False))
         return out
 
-    def _side(
-        self,
-        image: np.ndarray,
-        centres: list[np.ndarray],
-        halves: list[float],
-        ids: list[int],
-        expected: list[bool],
-        background: tuple[float, float],
-        last_threshold: int,
-    ) -> tuple[list[_Window], np.ndarray, list[Blob], np.ndarray, int]:
-        """Crop the windows of one image into a mosaic and extract the blobs there."""
-        h_img, w_img = image.shape[:2]
-        side = 2 * int(max(halves)) + 1
-        windows: list[_Window] = []
+    def _windows(
+        self, centres: list[np.ndarray], ids: list[int], expected: list[bool], side: int, row: int
+    ) -> list[_Window]:
+        """Windows of one image (clipped windows of tracked LEDs → acquisition)."""
+        w_img, h_img = self.calibration.image_size
+        out: list[_Window] = []
         for led_id, c, exp in zip(ids, centres, expected, strict=True):
-            cx, cy = int(round(float(c[0]))), int(round(float(c[1])))
-            x0, y0 = cx - side // 2, cy - side // 2
+            x0 = int(round(float(c[0]))) - side // 2
+            y0 = int(round(float(c[1]))) - side // 2
             if x0 < 1 or y0 < 1 or x0 + side > w_img - 1 or y0 + side > h_img - 1:
                 if exp:
                     raise _Fallback(f"the window of LED {led_id} leaves the image")
                 continue  # a missing LED predicted out of view stays missing
-            windows.append(_Window(led_id, x0, y0, side, 1 + len(windows) * (side + 1), exp))
-        k = len(windows)
-        shape = (side, k * (side + 1) + 1) + image.shape[2:]
-        mosaic = np.zeros(shape, dtype=np.uint8)
-        for win in windows:
-            mosaic[:, win.mx : win.mx + side] = image[
-                win.y0 : win.y0 + side, win.x0 : win.x0 + side
-            ]
-        gray = to_gray(mosaic)
+            out.append(_Window(led_id, x0, y0, side, 1 + len(out) * (side + 1), row, exp))
+        return out
+
+    def _threshold(
+        self, gray: np.ndarray, image: np.ndarray, background: tuple[float, float], last: int
+    ) -> int:
+        """Eq. 10's threshold for the windows of one image (see the module docstring)."""
         mode = self.config.threshold
         if mode == "otsu":
-            threshold = last_threshold
-        elif mode == "auto":
-            peak = float(cv2.minMaxLoc(gray)[1])
-            if self.exact_peak and image.ndim == 2:
-                # the full frame's peak (a glint may outshine the LEDs): one read-only max
-                # reduction, ~15 µs; no gray conversion, threshold, median or labelling
-                peak = max(peak, float(cv2.minMaxLoc(image)[1]))
-            bg, sigma = background
-            threshold = int(min(255, max(1, round(bg + max(0.25 * (peak - bg), 6.0 * sigma)))))
-        else:
-            threshold = choose_threshold(gray, mode, background)
-        mask = median_filter(binarize(gray, threshold), self.config.median_ksize)
+            return last
+        if mode != "auto":
+            return choose_threshold(gray, mode, background)
+        peak = float(cv2.minMaxLoc(gray)[1])
+        if self.exact_peak and image.ndim == 2:
+            # the full frame's peak (a glint may outshine the LEDs): one read-only max
+            # reduction (~15 µs); no gray conversion, threshold, median or labelling
+            peak = max(peak, float(cv2.minMaxLoc(image)[1]))
+        bg, sigma = background
+        return int(min(255, max(1, round(bg + max(0.25 * (peak - bg), 6.0 * sigma)))))
+
+    def _extract(
+        self, left: np.ndarray, right: np.ndarray, st: _State, pred: list[_Prediction]
+    ) -> tuple[list[_Window], list[_Window], np.ndarray, list[Blob], tuple[int, int]]:
+        """Crop every window of both images into one mosaic (left windows on the top row,
+        right windows below, one zero column/row between windows) and extract the blobs
+        there: one gray conversion, threshold, median and labelling for the whole frame pair.
+        """
+        cfg = self.config
+        side = 2 * int(max(p.half for p in pred)) + 1
+        ids = [p.led_id for p in pred]
+        expected = [p.expected for p in pred]
+        win_l = self._windows([p.left for p in pred], ids, expected, side, 0)
+        win_r = self._windows([p.right for p in pred], ids, expected, side, side + 1)
+        cols = max(len(win_l), len(win_r))
+        if left.ndim != right.ndim or (left.ndim == 3 and left.shape[2] != right.shape[2]):
+            raise _Fallback("left and right images have different channel counts")
+        mosaic = np.zeros((2 * side + 1, cols * (side + 1) + 1) + left.shape[2:], np.uint8)
+        for wins, image in ((win_l, left), (win_r, right)):
+            for w in wins:
+                mosaic[w.row : w.row + side, w.mx : w.mx + side] = image[
+                    w.y0 : w.y0 + side, w.x0 : w.x0 + side
+                ]
+        gray = to_gray(mosaic)
+        top, bottom = gray[:side], gray[side + 1 :]
+        thr_l = self._threshold(top, left, st.background[0], st.thresholds[0])
+        thr_r = self._threshold(bottom, right, st.background[1], st.thresholds[1])
+        binary = np.zeros(gray.shape, np.uint8)
+        binary[:side] = binarize(top, thr_l)
+        binary[side + 1 :] = binarize(bottom, thr_r)
+        mask = median_filter(binary, cfg.median_ksize)
+        bg_l, bg_r = st.background[0][0], st.background[1][0]
         try:
-            blobs, _ = extract_blobs(gray, mask, background[0], self.config.gate)
+            if bg_l == bg_r:
+                blobs, _ = extract_blobs(gray, mask, bg_l, cfg.gate)
+            else:  # each half with its own background level
+                blobs, _ = extract_blobs(gray[:side], mask[:side], bg_l, cfg.gate)
+                low, _ = extract_blobs(gray[side + 1 :], mask[side + 1 :], bg_r, cfg.gate)
+                blobs += [_shift(b, (0, side + 1)) for b in low]
         except TooManyBlobs as exc:
             raise _Fallback(str(exc)) from None
-        if image.ndim == 3 and self.config.appearance.enabled:
-            blobs = [replace(b, color_bgr=blob_color_bgr(mosaic, b, threshold)) for b in blobs]
-        return windows, gray, blobs, mask, threshold
+        if mosaic.ndim == 3 and cfg.appearance.enabled:
+            blobs = [
+                replace(
+                    b,
+                    color_bgr=blob_color_bgr(mosaic, b, thr_l if b.bbox[1] < side else thr_r),
+                )
+                for b in blobs
+            ]
+        return win_l, win_r, gray, blobs, (thr_l, thr_r)
 
     def _assign(self, windows: list[_Window], blobs: list[Blob], side_name: str) -> dict[int, Blob]:
         """The one blob of each window (ids → blob, mosaic coordinates)."""
+        if not windows:
+            return {}
+        side, row = windows[0].side, windows[0].row
         per: dict[int, list[Blob]] = {w.led_id: [] for w in windows}
         for b in blobs:
             x, y, bw, bh = b.bbox
-            j = (x - 1) // (windows[0].side + 1) if windows else -1
+            if not row <= y < row + side:
+                continue
+            j = (x - 1) // (side + 1)
             if not 0 <= j < len(windows):
                 continue
             win = windows[j]
             # blobs cut by the window's edge belong to a neighbour (or moved out): ignored
-            if x <= win.mx or y <= 0 or x + bw >= win.mx + win.side or y + bh >= win.side:
+            if x <= win.mx or y <= row or x + bw >= win.mx + side or y + bh >= row + side:
                 continue
             per[win.led_id].append(b)
         out: dict[int, Blob] = {}
@@ -354,14 +409,11 @@ class StereoTracker:
             u, v = b.centroid_px
             if (
                 u - need < win.mx
-                or u + need > win.mx + win.side - 1
-                or v - need < 0
-                or v + need > win.side - 1
+                or u + need > win.mx + side - 1
+                or v - need < row
+                or v + need > row + side - 1
             ):
-                raise _Fallback(
-                    f"LED {win.led_id} is at the edge of its {side_name} window"
-                    f" {u - win.mx:.1f},{v:.1f} need {need} side {win.side}"
-                )
+                raise _Fallback(f"LED {win.led_id} is at the edge of its {side_name} window")
             out[win.led_id] = b
         return out
 
@@ -370,17 +422,9 @@ class StereoTracker:
         assert st is not None
         cfg, cal = self.config, self.calibration
         pred = self._predict(st)
-        ids = [p[0] for p in pred]
-        halves = [p[3] for p in pred]
-        expected = [p[4] for p in pred]
-        win_l, gray_l, blobs_l, _, thr_l = self._side(
-            left, [p[1] for p in pred], halves, ids, expected, st.background[0], st.thresholds[0]
-        )
-        win_r, gray_r, blobs_r, _, thr_r = self._side(
-            right, [p[2] for p in pred], halves, ids, expected, st.background[1], st.thresholds[1]
-        )
-        got_l = self._assign(win_l, blobs_l, "left")
-        got_r = self._assign(win_r, blobs_r, "right")
+        win_l, win_r, gray, blobs, (thr_l, thr_r) = self._extract(left, right, st, pred)
+        got_l = self._assign(win_l, blobs, "left")
+        got_r = self._assign(win_r, blobs, "right")
         led_ids = sorted(i for i in got_l if i in got_r)
         for i in set(got_l) ^ set(got_r):
             if i in st.leds:
@@ -389,25 +433,23 @@ class StereoTracker:
         if len(led_ids) < cfg.min_leds:
             raise _Fallback(f"only {len(led_ids)} LEDs tracked; need {cfg.min_leds}")
         # mosaic → image coordinates
-        off_l = {w.led_id: (w.x0 - w.mx, w.y0) for w in win_l}
-        off_r = {w.led_id: (w.x0 - w.mx, w.y0) for w in win_r}
+        off_l = {w.led_id: (w.x0 - w.mx, w.y0 - w.row) for w in win_l}
+        off_r = {w.led_id: (w.x0 - w.mx, w.y0 - w.row) for w in win_r}
         bl = [_shift(got_l[i], off_l[i]) for i in led_ids]
         br = [_shift(got_r[i], off_r[i]) for i in led_ids]
-        # descriptors on the mosaics (each window holds its descriptor window entirely)
-        ii_l = integral_image_i32(gray_l)
-        ii_r = integral_image_i32(gray_r)
-        wf, mw = self.pipeline.window_factor, cfg.min_window_px
-        d_l = describe_points(
-            ii_l,
-            np.array([got_l[i].centroid_px for i in led_ids]),
-            np.array([ihwt_window_side_px(got_l[i].area_px, wf, mw) for i in led_ids]),
-        )
-        d_r = describe_points(
-            ii_r,
-            np.array([got_r[i].centroid_px for i in led_ids]),
-            np.array([ihwt_window_side_px(got_r[i].area_px, wf, mw) for i in led_ids]),
-        )
-        desc_dist = np.sqrt(np.sum((d_l - d_r) ** 2, axis=1))
+        n_led = len(led_ids)
+        if self.describe:
+            # IHWT descriptors on the mosaic (each window holds its descriptor window)
+            wf, mw = self.pipeline.window_factor, cfg.min_window_px
+            mblobs = [got_l[i] for i in led_ids] + [got_r[i] for i in led_ids]
+            desc = describe_points(
+                integral_image_i32(gray),
+                np.array([b.centroid_px for b in mblobs]),
+                np.array([ihwt_window_side_px(b.area_px, wf, mw) for b in mblobs]),
+            )
+            desc_dist = np.sqrt(np.sum((desc[:n_led] - desc[n_led:]) ** 2, axis=1))
+        else:
+            desc_dist = np.full(n_led, -1.0)
         # --- epipolar gate and triangulation (as the pipeline)
         pl = np.array([b.centroid_px for b in bl])
         pr = np.array([b.centroid_px for b in br])

@@ -1,0 +1,227 @@
+"""StereoTracker: windowed tracking equals the full-frame pipeline, and falls back safely."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+
+import cv2
+import numpy as np
+import pytest
+
+import app.vision.pipeline as pipeline_mod
+import app.vision.preprocess as preprocess_mod
+import app.vision.tracking as tracking_mod
+from app.sim.led_ring import stereo_center_x_mm, tilted_normal
+from app.sim.paths import load_default_calibration
+from app.sim.stereo_render import RenderedPair, RenderSettings, render_pair
+from app.vision.pipeline import NavigationPipeline
+from app.vision.preprocess import ImageError
+from app.vision.result import PoseResult
+from app.vision.tracking import StereoTracker
+
+TOL_MM = 0.05
+FULL = (1024, 1280)
+
+
+@pytest.fixture(scope="module")
+def calib():  # type: ignore[no-untyped-def]
+    return load_default_calibration()
+
+
+def _pose(calib, depth: float, i: int) -> tuple[np.ndarray, np.ndarray, float]:  # type: ignore[no-untyped-def]
+    """A moving (≈ 10 px/frame at 1 m), tilting and rolling (3.4°/frame) drogue."""
+    x = stereo_center_x_mm(calib, depth)
+    centre = np.array([x + 4.0 * i, -3.0 + 2.5 * i, depth + 8.0 * i])
+    return centre, tilted_normal(8.0 + 0.5 * i, 30.0), 0.06 * i
+
+
+def _frames(calib, depth: float, n: int, settings) -> Iterator[RenderedPair]:  # type: ignore[no-untyped-def]
+    for i in range(n):
+        centre, normal, roll = _pose(calib, depth, i)
+        s = settings(i) if callable(settings) else settings
+        yield render_pair(calib, centre, normal, s, seed=i, roll_rad=roll)
+
+
+def _max_diff_mm(a: PoseResult, b: PoseResult) -> float:
+    assert a.lock and b.lock and a.drogue is not None and b.drogue is not None
+    assert [led.id for led in a.leds] == [led.id for led in b.leds]
+    d = float(np.max(np.abs(np.subtract(a.drogue.center_mm, b.drogue.center_mm))))
+    for la, lb in zip(a.leds, b.leds, strict=True):
+        d = max(d, float(np.max(np.abs(np.subtract(la.xyz_mm, lb.xyz_mm)))))
+        assert la.left_px == pytest.approx(lb.left_px, abs=1e-6)
+        assert la.right_px == pytest.approx(lb.right_px, abs=1e-6)
+        assert la.descriptor_distance == pytest.approx(lb.descriptor_distance, abs=1e-9)
+    return d
+
+
+def _compare_sequence(calib, depth: float, n: int, settings) -> tuple[list[str], float]:  # type: ignore[no-untyped-def]
+    ref = NavigationPipeline(calib)
+    tracker = StereoTracker(calib)
+    modes: list[str] = []
+    worst = 0.0
+    for pair in _frames(calib, depth, n, settings):
+        a = ref.process(pair.left, pair.right)
+        b = tracker.update(pair.left, pair.right)
+        modes.append(tracker.last_mode)
+        assert a.lock == b.lock, (len(modes), a.reason, b.reason)
+        if a.lock:
+            worst = max(worst, _max_diff_mm(a, b))
+    return modes, worst
+
+
+@pytest.mark.parametrize("depth", [1000.0, 2500.0])
+@pytest.mark.parametrize("glints", [0, 30])
+def test_tracked_poses_equal_full_frame(calib, depth: float, glints: int) -> None:  # type: ignore[no-untyped-def]
+    modes, worst = _compare_sequence(calib, depth, 8, RenderSettings(glints=glints))
+    assert modes[0] == "acquired"
+    assert modes[1:] == ["tracked"] * 7
+    assert worst <= TOL_MM
+
+
+def test_occlusion_gap_relocks_on_first_good_frame(calib) -> None:  # type: ignore[no-untyped-def]
+    def settings(i: int) -> RenderSettings:
+        if 3 <= i < 6:
+            return RenderSettings(occluded=(1, 2, 3, 4, 5))
+        if 8 <= i < 10:
+            return RenderSettings(occluded=(2,))
+        return RenderSettings()
+
+    modes, worst = _compare_sequence(calib, 1000.0, 12, settings)
+    assert modes[:3] == ["acquired", "tracked", "tracked"]
+    assert modes[3:6] == ["lost"] * 3
+    assert modes[6] == "acquired"  # the first good frame relocks
+    assert modes[7] == "tracked"
+    # LED 2 hidden: a tracked LED vanishes → acquisition, then tracking with four LEDs
+    # (and a search window on LED 2's slot); it returns → tracked with five again
+    assert modes[8] == "acquired" and modes[9] == "tracked"
+    assert modes[10:] == ["tracked"] * 2
+    assert worst <= TOL_MM
+
+
+def test_bgr_sequence_equal(calib) -> None:  # type: ignore[no-untyped-def]
+    modes, worst = _compare_sequence(calib, 1500.0, 5, RenderSettings(color=True))
+    assert modes == ["acquired"] + ["tracked"] * 4
+    assert worst <= TOL_MM
+
+
+def test_tracked_frames_do_no_full_frame_work(calib, monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    shapes: list[tuple[str, tuple[int, ...]]] = []
+
+    def spy(name, fn):  # type: ignore[no-untyped-def]
+        def wrapped(img, *args, **kwargs):  # type: ignore[no-untyped-def]
+            shapes.append((name, tuple(img.shape[:2])))
+            return fn(img, *args, **kwargs)
+
+        return wrapped
+
+    gray = preprocess_mod.to_gray
+    for mod in (preprocess_mod, pipeline_mod, tracking_mod):
+        monkeypatch.setattr(mod, "to_gray", spy("to_gray", gray))
+    for name in ("medianBlur", "threshold", "connectedComponents", "cvtColor"):
+        monkeypatch.setattr(cv2, name, spy(name, getattr(cv2, name)))
+    tracker = StereoTracker(calib)
+    per_frame = []
+    for pair in _frames(calib, 1000.0, 4, RenderSettings(color=True)):
+        shapes.clear()
+        assert tracker.update(pair.left, pair.right).lock
+        per_frame.append((tracker.last_mode, list(shapes)))
+    assert per_frame[0][0] == "acquired"
+    assert any(s == FULL for _, s in per_frame[0][1])  # the spies see acquisition's work
+    for mode, calls in per_frame[1:]:
+        assert mode == "tracked"
+        assert {n for n, _ in calls} >= {"to_gray", "medianBlur", "connectedComponents"}
+        assert all(s != FULL for _, s in calls), calls
+        assert all(s[0] * s[1] < FULL[0] * FULL[1] / 5 for _, s in calls), calls
+
+
+def _stamp(img: np.ndarray, src: tuple[float, float], dst: tuple[float, float], r: int) -> None:
+    """Copy the (2r+1)² patch around ``src`` to ``dst`` (a second, identical LED)."""
+    su, sv = (int(round(c)) for c in src)
+    du, dv = (int(round(c)) for c in dst)
+    img[dv - r : dv + r + 1, du - r : du + r + 1] = img[sv - r : sv + r + 1, su - r : su + r + 1]
+
+
+def test_fake_led_in_a_window_falls_back(calib) -> None:  # type: ignore[no-untyped-def]
+    frames = list(_frames(calib, 1000.0, 4, RenderSettings()))
+    tracker = StereoTracker(calib)
+    ref = NavigationPipeline(calib)
+    for pair in frames[:3]:
+        ref.process(pair.left, pair.right)
+        tracker.update(pair.left, pair.right)
+    assert tracker.last_mode == "tracked"
+    pair = frames[3]
+    truth = ref.process(pair.left, pair.right)
+    led = truth.leds[0]
+    left, right = pair.left.copy(), pair.right.copy()
+    # an LED-like blob 18 px beside LED 1 in both images: inside its tracking windows
+    _stamp(left, led.left_px, (led.left_px[0] + 18, led.left_px[1]), 8)
+    _stamp(right, led.right_px, (led.right_px[0] + 18, led.right_px[1]), 8)
+    res = tracker.update(left, right)
+    assert tracker.last_mode in ("acquired", "lost")
+    assert tracker.last_fallback is not None and "blobs in the" in tracker.last_fallback
+    again = NavigationPipeline(calib)
+    again._track = None
+    full = again.process(left, right)
+    assert res.lock == full.lock  # whatever the full frame decides, never a tracked pose
+
+
+def test_jump_of_200_px_falls_back_and_relocks(calib) -> None:  # type: ignore[no-untyped-def]
+    tracker = StereoTracker(calib)
+    ref = NavigationPipeline(calib)
+    dx = 200.0 * 1000.0 / calib.left.fx  # 200 px at 1 m
+    for i in range(6):
+        centre, normal, roll = _pose(calib, 1000.0, i)
+        if i >= 3:
+            centre = centre + np.array([dx, 0.0, 0.0])
+        pair = render_pair(calib, centre, normal, RenderSettings(), seed=i, roll_rad=roll)
+        a = ref.process(pair.left, pair.right)
+        b = tracker.update(pair.left, pair.right)
+        assert b.lock
+        assert _max_diff_mm(a, b) <= TOL_MM
+        if i == 3:
+            assert tracker.last_mode == "acquired" and tracker.last_fallback is not None
+            assert b.reason is not None and b.reason.startswith("acquired")
+        elif i > 3:
+            assert tracker.last_mode == "tracked" and b.reason == "tracked"
+    assert tracker.stats.fallbacks == 1
+
+
+@pytest.mark.parametrize(
+    "bad",
+    [
+        np.zeros((1024, 1280), np.float32),
+        np.zeros((10, 10), np.uint8),
+        np.zeros((512, 640), np.uint8),
+        "not an image",
+        np.zeros((1024, 1280, 2), np.uint8),
+    ],
+)
+def test_bad_input_raises_the_pipelines_image_error(calib, bad) -> None:  # type: ignore[no-untyped-def]
+    good = np.zeros(FULL, np.uint8)
+    with pytest.raises(ImageError) as expected:
+        NavigationPipeline(calib).process(bad, good)
+    with pytest.raises(ImageError) as got:
+        StereoTracker(calib).update(bad, good)
+    assert str(got.value) == str(expected.value)
+
+
+def test_bad_input_while_tracking_keeps_the_lock(calib) -> None:  # type: ignore[no-untyped-def]
+    frames = list(_frames(calib, 1000.0, 3, RenderSettings()))
+    tracker = StereoTracker(calib)
+    tracker.update(frames[0].left, frames[0].right)
+    with pytest.raises(ImageError):
+        tracker.update(frames[1].left, np.zeros((4, 4), np.uint8))
+    assert tracker.locked
+    tracker.update(frames[1].left, frames[1].right)
+    assert tracker.last_mode == "tracked"
+
+
+def test_reset_forgets_the_lock(calib) -> None:  # type: ignore[no-untyped-def]
+    pair = next(_frames(calib, 1000.0, 1, RenderSettings()))
+    tracker = StereoTracker(calib)
+    tracker.update(pair.left, pair.right)
+    assert tracker.locked
+    tracker.reset()
+    assert not tracker.locked
+    tracker.update(pair.left, pair.right)
+    assert tracker.last_mode == "acquired"
