@@ -113,6 +113,7 @@ def main() -> None:
         track_t: list[float] = []
         tracked_t: list[float] = []
         base_t: list[float] = []
+        nodesc_t: list[float] = []
         worst = 0.0
         modes: dict[str, int] = {}
         for _ in range(args.repeats):
@@ -134,7 +135,14 @@ def main() -> None:
                     tracked_t.append(dt)
             worst = max(worst, max(max_diff(a, b) for a, b in zip(ref, got, strict=True)))
             base_t += run(lambda p, base=base: base.process(p.left, p.right), frames)
-        rows.append((glints, full_t, track_t, tracked_t, base_t, worst, modes))
+            # the tracker without IHWT descriptors (descriptor_distance −1; pose identical)
+            lean = StereoTracker(calib, describe=False)
+            for pair in frames:
+                t0 = time.perf_counter()
+                lean.update(pair.left, pair.right)
+                if lean.last_mode == "tracked":
+                    nodesc_t.append((time.perf_counter() - t0) * 1e3)
+        rows.append((glints, full_t, track_t, tracked_t, base_t, nodesc_t, worst, modes))
     med = np.median
 
     def p99(x: list[float]) -> float:
@@ -146,17 +154,19 @@ def main() -> None:
     )
     print(
         "| glints | full-frame pipeline med / p99 | tracker (all frames) med / p99 "
-        "| tracked frames med / p99 | OpenCV-only baseline med / p99 "
+        "| tracked frames med / p99 | tracked, no descriptors med / p99 "
+        "| OpenCV-only baseline med / p99 "
         "| full ÷ tracked (median) | baseline ÷ tracked (median) | tracked / acquired / lost "
         "| max abs tracked − full (mm) |"
     )
-    print("|---|---|---|---|---|---|---|---|---|")
-    for glints, full_t, track_t, tracked_t, base_t, worst, modes in rows:
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for glints, full_t, track_t, tracked_t, base_t, nodesc_t, worst, modes in rows:
         tm = med(tracked_t) if tracked_t else float("nan")
         print(
             f"| {glints} | {med(full_t):.2f} / {p99(full_t):.2f} "
             f"| {med(track_t):.3f} / {p99(track_t):.2f} "
             f"| {tm:.3f} / {p99(tracked_t) if tracked_t else float('nan'):.3f} "
+            f"| {med(nodesc_t):.3f} / {p99(nodesc_t):.3f} "
             f"| {med(base_t):.2f} / {p99(base_t):.2f} "
             f"| {med(full_t) / tm:.1f}× | {med(base_t) / tm:.1f}× "
             f"| {modes.get('tracked', 0)} / {modes.get('acquired', 0)} / {modes.get('lost', 0)} "

@@ -245,13 +245,21 @@ class StereoTracker:
         return result
 
     # ------------------------------------------------------------------ tracking
-    def _window_half(self, radius_px: float, speed_px: float) -> int:
-        cfg = self.config
+    def _support_half(self, radius_px: float) -> float:
+        """Half-size (px) around a centroid that must lie inside its window: the blob, its
+        eq. 11 centroid margin and (with descriptors) the IHWT descriptor window."""
         area = math.pi * radius_px * radius_px
-        win = ihwt_window_side_px(area, self.pipeline.window_factor, cfg.min_window_px)
-        desc_half = 0.5 * win + win / (4 * SAMPLES_PER_SUBSQUARE) + 3.0
         support = radius_px + 2.0 + max(2.0, 0.5 * math.sqrt(area)) + 2.0
-        return int(math.ceil(max(3.0 * radius_px, 12.0, desc_half, support) + speed_px + 2.0))
+        if self.describe:
+            cfg = self.config
+            win = ihwt_window_side_px(area, self.pipeline.window_factor, cfg.min_window_px)
+            support = max(support, 0.5 * win + win / (4 * SAMPLES_PER_SUBSQUARE) + 3.0)
+        return support
+
+    def _window_half(self, radius_px: float, speed_px: float) -> int:
+        """Window half-size: max(3·r, 12 px, the support) + |velocity| + 2 px."""
+        base = max(3.0 * radius_px, 12.0, self._support_half(radius_px))
+        return int(math.ceil(base + speed_px + 2.0))
 
     def _predict(self, st: _State) -> list[_Prediction]:
         """(id, left px, right px, half-size, expected) for every LED slot to look at."""
@@ -405,7 +413,7 @@ class StereoTracker:
                 continue
             b = found[0]
             # the centroid support and the descriptor window must lie inside the window
-            need = self._window_half(equivalent_radius_px(b.area_px), 0.0) - 2
+            need = self._support_half(equivalent_radius_px(b.area_px))
             u, v = b.centroid_px
             if (
                 u - need < win.mx
