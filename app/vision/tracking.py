@@ -7,15 +7,21 @@
 * **Tracking** (after a lock): each LED's pixel position is predicted in both images
   (constant velocity on the LED pixels; an LED missing from the last lock is predicted by
   re-projecting its slot on the last fitted circle), and only a small window around each
-  prediction is processed. The windows of one image are copied side by side into a *mosaic*
-  (one zero column between windows), so that graying (BGR input), the eq. 10 threshold, the
-  median filter, labelling and the eq. 11 centroids (:func:`~app.vision.features.extract_blobs`)
-  run once per image on a few thousand pixels instead of the full frame. Each window is large
-  enough to hold its blob's centroid support and IHWT descriptor window, so the centroids and
-  descriptors equal the full-frame ones bit for bit.
-* The threshold is the pipeline's "auto" rule with the background level and σ of the last
-  acquisition and the peak over the windows (the full frame's peak whenever the brightest
-  pixel is an LED; an int threshold is used as is; "otsu" keeps the last acquisition's).
+  prediction is processed. The windows of both images are copied into one *mosaic* (left
+  windows on the top row, right windows below, a zero column/row between windows), so that
+  graying (BGR input), the eq. 10 threshold (per image), the median filter, labelling and the
+  eq. 11 centroids (:func:`~app.vision.features.extract_blobs`) run once per frame pair on a
+  few per cent of the pixels. Window half-size: max(3·r, 12 px, the support) + |velocity|
+  + 2 px (24 px of motion allowance while an LED's velocity is unknown), where the support is
+  the blob, its centroid margin and, with ``describe``, its IHWT descriptor window; a blob
+  whose support is not inside its window sends the frame to acquisition, so the centroids
+  and descriptors equal the full-frame ones bit for bit.
+* The threshold is the pipeline's "auto" rule, bg + max(0.25·(peak − bg), 6σ), with the
+  background level and σ of the last acquisition and the peak of the windows and, for gray
+  input with ``exact_peak`` (default), of the whole frame (one read-only max reduction,
+  ~15 µs: a glint brighter than the LEDs sets the same threshold as in the full-frame
+  pipeline). BGR input uses the windows' peak only (equal whenever the brightest pixel is an
+  LED). An int threshold is used as is; "otsu" keeps the last acquisition's.
 * **Integrity every tracked frame**: every window of a tracked LED holds exactly one LED-like
   blob (two → acquisition), the pair passes the epipolar gate, triangulates in the depth range
   with a small reprojection error and passes the appearance test; the points fit the ring
@@ -54,7 +60,7 @@ from app.vision.appearance import appearance_reasons, blob_color_bgr, equivalent
 from app.vision.features import TooManyBlobs, extract_blobs
 from app.vision.ihwt import SAMPLES_PER_SUBSQUARE, describe_points, integral_image_i32
 from app.vision.ihwt import window_side_px as ihwt_window_side_px
-from app.vision.pipeline import NavigationPipeline, PipelineConfig, _Track
+from app.vision.pipeline import NavigationPipeline, PipelineConfig, PipelineTrace, _Track
 from app.vision.preprocess import (
     ImageError,
     background_level,
@@ -525,7 +531,9 @@ class StereoTracker:
             )
         st.leds = leds
         st.center_mm, st.normal, st.roll_deg = circle.center.copy(), circle.normal.copy(), roll
-        self.pipeline.trace.thresholds = (thr_l, thr_r)
+        # the pipeline's trace describes its last full frame; a tracked frame leaves only
+        # its thresholds there (no full-frame features were computed)
+        self.pipeline.trace = PipelineTrace(thresholds=(thr_l, thr_r), roll_deg=roll)
         results = [
             LedResult(
                 id=i,
