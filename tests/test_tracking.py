@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Iterator
 
 import cv2
@@ -150,6 +151,7 @@ def test_fake_led_in_a_window_falls_back(calib) -> None:  # type: ignore[no-unty
         tracker.update(pair.left, pair.right)
     assert tracker.last_mode == "tracked"
     pair = frames[3]
+    same_history = copy.deepcopy(ref)
     truth = ref.process(pair.left, pair.right)
     led = truth.leds[0]
     left, right = pair.left.copy(), pair.right.copy()
@@ -159,10 +161,10 @@ def test_fake_led_in_a_window_falls_back(calib) -> None:  # type: ignore[no-unty
     res = tracker.update(left, right)
     assert tracker.last_mode in ("acquired", "lost")
     assert tracker.last_fallback is not None and "blobs in the" in tracker.last_fallback
-    again = NavigationPipeline(calib)
-    again._track = None
-    full = again.process(left, right)
-    assert res.lock == full.lock  # whatever the full frame decides, never a tracked pose
+    full = same_history.process(left, right)  # the full frame decides, with the same track
+    assert res.lock == full.lock
+    if full.lock:
+        assert _max_diff_mm(full, res) <= TOL_MM
 
 
 def test_jump_of_200_px_falls_back_and_relocks(calib) -> None:  # type: ignore[no-untyped-def]
