@@ -31,7 +31,13 @@ from itertools import combinations
 import numpy as np
 
 from app.geometry.calibration import FloatArray
-from app.geometry.circle_fit import Circle3D, FitError, fit_circle_3d, plane_basis
+from app.geometry.circle_fit import (
+    Circle3D,
+    FitError,
+    distance_to_circle,
+    fit_circle_3d,
+    plane_basis,
+)
 
 MAX_SEEDS = 20_000  # refinement budget; seeds are ordered by fit quality (never reached in tests)
 
@@ -138,6 +144,25 @@ def _circumcircles(p: FloatArray, triples: np.ndarray) -> tuple[FloatArray, Floa
     return center, normal, radius
 
 
+def view_angle_deg(circle: Circle3D) -> float:
+    """Angle (deg) between the ring's normal and the line of sight to its centre (0 = head on,
+    90 = edge-on)."""
+    view = -circle.center / max(float(np.linalg.norm(circle.center)), 1e-9)
+    return math.degrees(math.acos(float(np.clip(circle.normal @ view, -1.0, 1.0))))
+
+
+def agrees_with_prior(circle: Circle3D, prior: RingPrior) -> bool:
+    """The circle is where the prior lock predicts it (centre and normal within the gates)."""
+    dc = float(np.linalg.norm(circle.center - np.asarray(prior.center_mm)))
+    cosang = float(np.clip(circle.normal @ np.asarray(prior.normal), -1.0, 1.0))
+    return dc <= prior.gate_mm and math.degrees(math.acos(cosang)) <= prior.gate_deg
+
+
+def prior_volume_mm3(params: RingParams, prior: RingPrior) -> float:
+    """The neighbourhood a prior lock confines a ring to (mm³): a cube of side 2(R + gate)."""
+    return float((2.0 * (params.radius_mm + prior.gate_mm)) ** 3)
+
+
 def slot_angles_deg(points: FloatArray, circle: Circle3D) -> FloatArray:
     """Angle of each point around the ring, clockwise from the top as seen by the cameras."""
     e_up, e_right = plane_basis(circle.normal)
@@ -159,13 +184,6 @@ def slot_residuals(
     k = np.rint((np.asarray(angles_deg) - offset_deg) / spacing)
     resid = np.asarray(angles_deg) - offset_deg - k * spacing
     return np.mod(k, count).astype(np.int64), resid
-
-
-def _circle_distances(p: FloatArray, circle: Circle3D) -> FloatArray:
-    rel = p - circle.center
-    off = rel @ circle.normal
-    radial = np.linalg.norm(rel - off[:, None] * circle.normal, axis=1) - circle.radius
-    return np.asarray(np.sqrt(radial**2 + off**2))
 
 
 def _compatible_pairs(p: FloatArray, params: RingParams) -> np.ndarray:
@@ -239,7 +257,7 @@ def _fit_hypothesis(p: FloatArray, members: np.ndarray, params: RingParams) -> _
         itol, atol = float(params.inlier_tol(z)), float(params.angle_tol_deg_at(z))
         angles_m = slot_angles_deg(p[current], circle)
         offset = slot_offset_deg(angles_m, N)
-        dist = _circle_distances(p, circle)
+        dist = distance_to_circle(p, circle)
         near = np.flatnonzero(dist <= itol)
         angles = slot_angles_deg(p[near], circle)
         slots, resid = slot_residuals(angles, offset, N)
@@ -267,10 +285,7 @@ def _fit_hypothesis(p: FloatArray, members: np.ndarray, params: RingParams) -> _
         return None
     if circle.rms > itol:
         return None
-    view = -circle.center / max(float(np.linalg.norm(circle.center)), 1e-9)
-    if math.degrees(math.acos(np.clip(float(circle.normal @ view), -1, 1))) > (
-        params.max_view_angle_deg
-    ):
+    if view_angle_deg(circle) > params.max_view_angle_deg:
         return None
     return _Hypothesis(
         members=members_sorted,
@@ -292,7 +307,14 @@ def _log10_comb(n: int, k: int) -> float:
     return (math.lgamma(n + 1) - math.lgamma(k + 1) - math.lgamma(n - k + 1)) / math.log(10)
 
 
-def log10_nfa(m: int, n: int, volume_mm3: float, h: _Hypothesis, params: RingParams) -> float:
+def log10_nfa(
+    n: int,
+    volume_mm3: float,
+    circle: Circle3D,
+    points: FloatArray,
+    resid_deg: FloatArray,
+    params: RingParams,
+) -> float:
     """A-contrario number of false alarms (log10) of an m-point ring among n candidates.
 
     Background model: n unrelated points uniform in ``volume_mm3``. An m-point fit is tested
@@ -304,17 +326,18 @@ def log10_nfa(m: int, n: int, volume_mm3: float, h: _Hypothesis, params: RingPar
     of radius ρ).
     """
     R, N = params.radius_mm, params.led_count
+    m = len(points)
     if m < 3 or n < m:
         return math.inf
-    z = float(h.circle.center[2])
+    z = float(circle.center[2])
     floor = max(0.3, 3.0 * float(params.sigma_z(z)))
-    dist = _circle_distances(h.points, h.circle)
+    dist = distance_to_circle(points, circle)
     rho = max(
         floor,
         float(np.max(dist)) if len(dist) else 0.0,
-        R * math.radians(float(np.max(np.abs(h.resid_deg)))),
+        R * math.radians(float(np.max(np.abs(resid_deg)))),
     )
-    delta = 2.0 * rho + max(floor, abs(h.circle.radius - R))
+    delta = 2.0 * rho + max(floor, abs(circle.radius - R))
     chord = 2.0 * R * math.sin(math.pi * (N // 2) / N)
     v = max(volume_mm3, 1.0)
     p2 = min(1.0, 4.0 * math.pi * chord**2 * 2.0 * delta / v)
@@ -358,7 +381,7 @@ def _radius_only_count(p: FloatArray, params: RingParams, triples: np.ndarray) -
     best = 0
     for t in np.flatnonzero(ok)[:2000]:
         circle = Circle3D(c[t], nrm[t], float(r[t]), 0.0, 0.0)
-        cnt = int(np.sum(_circle_distances(p, circle) <= params.inlier_tol(z[t])))
+        cnt = int(np.sum(distance_to_circle(p, circle) <= params.inlier_tol(z[t])))
         best = max(best, cnt)
     return best
 
@@ -416,19 +439,24 @@ def find_ring(
         )
     volume = _volume(p, params)
     for h in hyps:
-        h.log10_nfa = log10_nfa(len(h.members), n, volume, h, params)
-        if prior is not None and _agrees(h, prior):
+        h.log10_nfa = log10_nfa(n, volume, h.circle, h.points, h.resid_deg, params)
+        if prior is not None and agrees_with_prior(h.circle, prior):
             # a hypothesis predicted by a recent lock is tested only against its neighbourhood
             near = np.linalg.norm(p - prior.center_mm, axis=1) <= params.radius_mm + prior.gate_mm
-            local = float((2.0 * (params.radius_mm + prior.gate_mm)) ** 3)
-            h.log10_nfa = min(
-                h.log10_nfa, log10_nfa(len(h.members), int(near.sum()), local, h, params)
+            local = log10_nfa(
+                int(near.sum()),
+                prior_volume_mm3(params, prior),
+                h.circle,
+                h.points,
+                h.resid_deg,
+                params,
             )
+            h.log10_nfa = min(h.log10_nfa, local)
     hyps.sort(key=lambda h: (-len(h.members), h.cost))
     best = hyps[0]
     m = len(best.members)
     limit = params.log10_nfa_max
-    if m == 3 and not (prior is not None and _agrees(best, prior)):
+    if m == 3 and not (prior is not None and agrees_with_prior(best.circle, prior)):
         limit -= params.three_led_log10_margin
     if best.log10_nfa > limit:
         return RingRejection(
@@ -472,9 +500,3 @@ def find_ring(
         candidates=n,
         hypotheses=len(hyps),
     )
-
-
-def _agrees(h: _Hypothesis, prior: RingPrior) -> bool:
-    dc = float(np.linalg.norm(h.circle.center - np.asarray(prior.center_mm)))
-    cosang = float(np.clip(h.circle.normal @ np.asarray(prior.normal), -1.0, 1.0))
-    return dc <= prior.gate_mm and math.degrees(math.acos(cosang)) <= prior.gate_deg

@@ -16,6 +16,7 @@ from typing import Literal
 import numpy as np
 
 from app.geometry.calibration import StereoCalibration
+from app.geometry.circle_fit import Circle3D
 from app.geometry.led_ids import DEFAULT_PHASE_DEG, led_ids_for_angles, roll_from_offset
 from app.geometry.projection import undistort_pixels
 from app.geometry.ring import RingFit, RingParams, RingPrior, find_ring
@@ -46,6 +47,33 @@ OUR_WINDOW_FACTOR = 8.0
 PAPER_WINDOW_FACTOR = 80.0
 
 __all__ = ["ImageError", "NavigationPipeline", "PipelineConfig", "PipelineTrace"]
+
+
+def check_pair(
+    calibration: StereoCalibration, left: object, right: object
+) -> tuple[np.ndarray, np.ndarray]:
+    """Validated uint8 images of the calibration's size (else :class:`ImageError`)."""
+    left = validate_image(left, "left")
+    right = validate_image(right, "right")
+    w, h = calibration.image_size
+    for name, img in (("left", left), ("right", right)):
+        if img.shape[1] != w or img.shape[0] != h:
+            raise ImageError(
+                f"{name}: image is {img.shape[1]}×{img.shape[0]} px but the calibration "
+                f"is for {w}×{h} px"
+            )
+    return left, right
+
+
+def drogue_result(circle: Circle3D) -> DrogueResult:
+    """The result contract's drogue (centre mm, unit normal, radius mm, RMS mm)."""
+    c, n = circle.center, circle.normal
+    return DrogueResult(
+        center_mm=(float(c[0]), float(c[1]), float(c[2])),
+        normal=(float(n[0]), float(n[1]), float(n[2])),
+        radius_mm=float(circle.radius),
+        rms_mm=float(circle.rms),
+    )
 
 
 @dataclass(frozen=True)
@@ -177,15 +205,7 @@ class NavigationPipeline:
             ("preprocess", "extract", "describe", "match", "triangulate", "pose"), 0.0
         )
         self.trace = PipelineTrace()
-        left = validate_image(left, "left")
-        right = validate_image(right, "right")
-        w, h = self.calibration.image_size
-        for name, img in (("left", left), ("right", right)):
-            if img.shape[1] != w or img.shape[0] != h:
-                raise ImageError(
-                    f"{name}: image is {img.shape[1]}×{img.shape[0]} px but the calibration "
-                    f"is for {w}×{h} px"
-                )
+        left, right = check_pair(self.calibration, left, right)
         try:
             feats_l, thr_l, bg_l = self._features(left)
             feats_r, thr_r, bg_r = self._features(right)
@@ -348,15 +368,4 @@ class NavigationPipeline:
                     reprojection_px=float(reproj[int(idx[k])]),
                 )
             )
-        c = ring.circle
-        return PoseResult(
-            lock=True,
-            reason=None,
-            leds=leds,
-            drogue=DrogueResult(
-                center_mm=(float(c.center[0]), float(c.center[1]), float(c.center[2])),
-                normal=(float(c.normal[0]), float(c.normal[1]), float(c.normal[2])),
-                radius_mm=float(c.radius),
-                rms_mm=float(c.rms),
-            ),
-        )
+        return PoseResult(lock=True, reason=None, leds=leds, drogue=drogue_result(ring.circle))

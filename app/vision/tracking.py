@@ -42,25 +42,40 @@ import cv2
 import numpy as np
 
 from app.geometry.calibration import StereoCalibration
-from app.geometry.circle_fit import Circle3D, FitError, fit_circle_3d, plane_basis
+from app.geometry.circle_fit import (
+    Circle3D,
+    FitError,
+    distance_to_circle,
+    fit_circle_3d,
+    plane_basis,
+)
 from app.geometry.led_ids import led_ids_for_angles, roll_from_offset
 from app.geometry.projection import project_stereo, undistort_pixels
 from app.geometry.ring import (
     RingParams,
     RingPrior,
-    _Hypothesis,
+    agrees_with_prior,
     log10_nfa,
     oriented,
+    prior_volume_mm3,
     slot_angles_deg,
     slot_offset_deg,
     slot_residuals,
+    view_angle_deg,
 )
 from app.geometry.triangulation import refine_reprojection, triangulate_linear
 from app.vision.appearance import appearance_reasons, blob_color_bgr, equivalent_radius_px
 from app.vision.features import TooManyBlobs, extract_blobs
 from app.vision.ihwt import SAMPLES_PER_SUBSQUARE, describe_points, integral_image_i32
 from app.vision.ihwt import window_side_px as ihwt_window_side_px
-from app.vision.pipeline import NavigationPipeline, PipelineConfig, PipelineTrace, _Track
+from app.vision.pipeline import (
+    NavigationPipeline,
+    PipelineConfig,
+    PipelineTrace,
+    _Track,
+    check_pair,
+    drogue_result,
+)
 from app.vision.preprocess import (
     ImageError,
     background_level,
@@ -68,9 +83,8 @@ from app.vision.preprocess import (
     choose_threshold,
     median_filter,
     to_gray,
-    validate_image,
 )
-from app.vision.result import DrogueResult, LedResult, PoseResult, StageTimings
+from app.vision.result import LedResult, PoseResult, StageTimings
 from app.vision.types import Blob
 
 __all__ = ["ImageError", "StereoTracker", "TrackerStats"]
@@ -179,15 +193,7 @@ class StereoTracker:
     def update(self, left: np.ndarray, right: np.ndarray) -> PoseResult:
         """Track (or acquire) on one stereo pair; same inputs and result as ``process``."""
         t0 = time.perf_counter()
-        left = validate_image(left, "left")
-        right = validate_image(right, "right")
-        w, h = self.calibration.image_size
-        for name, img in (("left", left), ("right", right)):
-            if img.shape[1] != w or img.shape[0] != h:
-                raise ImageError(
-                    f"{name}: image is {img.shape[1]}×{img.shape[0]} px but the calibration "
-                    f"is for {w}×{h} px"
-                )
+        left, right = check_pair(self.calibration, left, right)
         self.last_fallback = None
         if self._state is not None:
             try:
@@ -546,18 +552,7 @@ class StereoTracker:
             )
             for k, i in enumerate(led_ids)
         ]
-        c = circle
-        return PoseResult(
-            lock=True,
-            reason="tracked",
-            leds=results,
-            drogue=DrogueResult(
-                center_mm=(float(c.center[0]), float(c.center[1]), float(c.center[2])),
-                normal=(float(c.normal[0]), float(c.normal[1]), float(c.normal[2])),
-                radius_mm=float(c.radius),
-                rms_mm=float(c.rms),
-            ),
-        )
+        return PoseResult(lock=True, reason="tracked", leds=results, drogue=drogue_result(circle))
 
     def _ring_checks(self, X: np.ndarray, st: _State) -> tuple[Circle3D, float, list[int]]:
         """The ring tests of :func:`app.geometry.ring.find_ring` on the tracked points, with
@@ -574,43 +569,20 @@ class StereoTracker:
             raise _Fallback(f"ring radius {circle.radius:.1f} mm out of tolerance")
         if circle.rms > itol:
             raise _Fallback(f"ring RMS {circle.rms:.2f} mm > {itol:.2f} mm")
-        rel = X - circle.center
-        off = rel @ circle.normal
-        dist = np.sqrt(
-            (np.linalg.norm(rel - off[:, None] * circle.normal, axis=1) - circle.radius) ** 2
-            + off**2
-        )
-        if np.any(dist > itol):
+        if np.any(distance_to_circle(X, circle) > itol):
             raise _Fallback("a tracked LED is off the ring")
         angles = slot_angles_deg(X, circle)
         offset = slot_offset_deg(angles, n)
         slots, resid = slot_residuals(angles, offset, n)
         if len(set(slots.tolist())) != len(slots) or np.any(np.abs(resid) > atol):
             raise _Fallback("the tracked LEDs are not on distinct, evenly spaced slots")
-        view = -circle.center / max(float(np.linalg.norm(circle.center)), 1e-9)
-        view_deg = math.degrees(math.acos(float(np.clip(circle.normal @ view, -1.0, 1.0))))
-        if view_deg > params.max_view_angle_deg:
+        if view_angle_deg(circle) > params.max_view_angle_deg:
             raise _Fallback("the ring is seen edge-on")
         prior = RingPrior(st.center_mm, st.normal)
-        dc = float(np.linalg.norm(circle.center - prior.center_mm))
-        dn = math.degrees(math.acos(float(np.clip(circle.normal @ prior.normal, -1.0, 1.0))))
-        if dc > prior.gate_mm or dn > prior.gate_deg:
-            raise _Fallback(f"the ring moved {dc:.0f} mm / {dn:.0f}° from the last lock")
-        order = np.argsort(np.arange(len(X)))
-        hyp = _Hypothesis(
-            members=order,
-            points=X,
-            slots=slots,
-            resid_deg=resid,
-            circle=circle,
-            offset_deg=offset,
-            cost=0.0,
-            angle_tol=atol,
-            inlier_tol=itol,
-            extra_on_ring=0,
-        )
-        local = float((2.0 * (params.radius_mm + prior.gate_mm)) ** 3)
-        nfa = log10_nfa(len(X), len(X), local, hyp, params)
+        if not agrees_with_prior(circle, prior):
+            dc = float(np.linalg.norm(circle.center - prior.center_mm))
+            raise _Fallback(f"the ring moved away from the last lock ({dc:.0f} mm)")
+        nfa = log10_nfa(len(X), prior_volume_mm3(params, prior), circle, X, resid, params)
         if nfa > params.log10_nfa_max:
             raise _Fallback(f"not distinctive (NFA 10^{nfa:.1f})")
         near = float(np.linalg.norm(circle.center - st.center_mm)) <= 2.0 * cfg.ring_radius_mm
