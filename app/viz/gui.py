@@ -89,6 +89,21 @@ def _fit(name: str, value: float) -> float:
     return min(max(value, lo), hi)
 
 
+def _slider(gui: Any, label: str, name: str, step: float, cfg: Any, locked: bool) -> Any:
+    """A slider over ``LIMITS[name]``, starting at the config's value clamped into it (viser
+    refuses an initial value outside the range)."""
+    lo, hi = LIMITS[name]
+    value = _fit(name, getattr(cfg, name))
+    return gui.add_slider(
+        label,
+        min=lo,
+        max=hi,
+        step=step,
+        initial_value=int(value) if isinstance(step, int) else value,
+        disabled=locked,
+    )
+
+
 @dataclass
 class ClientPanel:
     """One client's simulation controls (client-scoped viser handles)."""
@@ -276,30 +291,9 @@ class DockingGui:
                 turbulence=gui.add_dropdown(
                     "Turbulence", TURBULENCE, initial_value=cfg.turbulence, disabled=locked
                 ),
-                closure=gui.add_slider(
-                    "Closure (m/s)",
-                    min=0.2,
-                    max=3.0,
-                    step=0.1,
-                    initial_value=_fit("closure_speed_mps", cfg.closure_speed_mps),
-                    disabled=locked,
-                ),
-                noise=gui.add_slider(
-                    "Noise σ (DN)",
-                    min=0.0,
-                    max=20.0,
-                    step=0.5,
-                    initial_value=_fit("noise_sigma", cfg.noise_sigma),
-                    disabled=locked,
-                ),
-                clutter=gui.add_slider(
-                    "Clutter lights",
-                    min=0,
-                    max=20,
-                    step=1,
-                    initial_value=int(_fit("clutter", cfg.clutter)),
-                    disabled=locked,
-                ),
+                closure=_slider(gui, "Closure (m/s)", "closure_speed_mps", 0.1, cfg, locked),
+                noise=_slider(gui, "Noise σ (DN)", "noise_sigma", 0.5, cfg, locked),
+                clutter=_slider(gui, "Clutter lights", "clutter", 1, cfg, locked),
                 dropout=[
                     gui.add_checkbox(
                         f"LED {i} off", initial_value=i in cfg.led_dropout, disabled=locked
