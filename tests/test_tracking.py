@@ -227,3 +227,48 @@ def test_reset_forgets_the_lock(calib) -> None:  # type: ignore[no-untyped-def]
     assert not tracker.locked
     tracker.update(pair.left, pair.right)
     assert tracker.last_mode == "acquired"
+
+
+def _only_windows(image: np.ndarray, rects: list[tuple[int, int, int, int]]) -> np.ndarray:
+    out = np.zeros_like(image)
+    for x0, y0, x1, y1 in rects:
+        out[y0:y1, x0:x1] = image[y0:y1, x0:x1]
+    return out
+
+
+def test_next_windows_are_all_a_tracked_frame_reads(calib) -> None:  # type: ignore[no-untyped-def]
+    """Images blank outside ``next_windows`` give the full images' result; an acquisition
+    (no windows, or a fallback) asks ``full_frame`` for the whole pair."""
+
+    def settings(i: int) -> RenderSettings:
+        # frame 5: LED 2 hidden → a tracked LED vanishes → fallback to the full frame
+        return RenderSettings(occluded=(2,)) if i == 5 else RenderSettings(glints=10)
+
+    # exact_peak=False: the threshold's peak from the windows only (the rest is unknown)
+    ref = StereoTracker(calib, exact_peak=False)
+    tracker = StereoTracker(calib, exact_peak=False)
+    asked: list[int] = []
+    windowed = 0
+    for i, pair in enumerate(_frames(calib, 1000.0, 9, settings)):
+        a = ref.update(pair.left, pair.right)
+        rects = tracker.next_windows()
+        if rects is None:
+            left, right = pair.left, pair.right
+        else:
+            windowed += 1
+            left, right = _only_windows(pair.left, rects[0]), _only_windows(pair.right, rects[1])
+            # each window is a square of one common side inside the image
+            sides = {(x1 - x0, y1 - y0) for x0, y0, x1, y1 in rects[0] + rects[1]}
+            assert len(sides) == 1 and next(iter(sides))[0] == next(iter(sides))[1]
+
+        def full(i: int = i, p: RenderedPair = pair) -> tuple[np.ndarray, np.ndarray]:
+            asked.append(i)
+            return p.left, p.right
+
+        b = tracker.update(left, right, full_frame=full)
+        assert tracker.last_mode == ref.last_mode, (i, tracker.last_fallback)
+        assert a.lock == b.lock
+        if a.lock:
+            assert _max_diff_mm(a, b) <= 1e-9
+    assert windowed == 8  # every frame after the first lock is windowed
+    assert asked == [5]  # the occluded frame: fallback → the full pair

@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Literal
 
@@ -87,8 +88,9 @@ from app.vision.preprocess import (
 from app.vision.result import LedResult, PoseResult, StageTimings
 from app.vision.types import Blob
 
-__all__ = ["ImageError", "StereoTracker", "TrackerStats"]
+__all__ = ["ImageError", "Rect", "StereoTracker", "TrackerStats"]
 
+Rect = tuple[int, int, int, int]  # (x0, y0, x1, y1) px, half-open
 UNKNOWN_MOTION_PX = 24.0  # window growth (px) while an LED's velocity is not known yet
 Mode = Literal["acquired", "tracked", "lost"]
 
@@ -190,8 +192,20 @@ class StereoTracker:
         return self._state is not None
 
     # ------------------------------------------------------------------ entry
-    def update(self, left: np.ndarray, right: np.ndarray) -> PoseResult:
-        """Track (or acquire) on one stereo pair; same inputs and result as ``process``."""
+    def update(
+        self,
+        left: np.ndarray,
+        right: np.ndarray,
+        full_frame: Callable[[], tuple[np.ndarray, np.ndarray]] | None = None,
+    ) -> PoseResult:
+        """Track (or acquire) on one stereo pair; same inputs and result as ``process``.
+
+        ``full_frame``: optional zero-argument callable giving the full (left, right) pair,
+        called only when a tracked frame falls back to full-frame acquisition. With it a
+        caller may pass images in which only the rectangles of :meth:`next_windows` are
+        filled in (a windowed render; full images when it returned ``None``) and still get
+        exactly the result of full images.
+        """
         t0 = time.perf_counter()
         left, right = check_pair(self.calibration, left, right)
         self.last_fallback = None
@@ -201,6 +215,8 @@ class StereoTracker:
             except _Fallback as exc:
                 self.last_fallback = str(exc)
                 self.stats.fallbacks += 1
+                if full_frame is not None:
+                    left, right = check_pair(self.calibration, *full_frame())
             else:
                 self.last_mode = "tracked"
                 self.stats.tracked += 1
@@ -208,6 +224,24 @@ class StereoTracker:
                 result.timing_ms = StageTimings(total=total)
                 return result
         return self._acquire(left, right)
+
+    def next_windows(self) -> tuple[list[Rect], list[Rect]] | None:
+        """Pixel rectangles (x0, y0, x1, y1), half-open, of the left and right images that
+        the next :meth:`update` reads if it tracks; ``None`` when it will acquire on the full
+        frame (no lock, or a predicted window leaves the image). A caller that fills in only
+        these windows should build the tracker with ``exact_peak=False`` (the whole frame's
+        peak is then unknown)."""
+        if self._state is None:
+            return None
+        try:
+            win_l, win_r = self._plan(self._state)
+        except _Fallback:
+            return None
+        side = (win_l or win_r)[0].side
+        return (
+            [(w.x0, w.y0, w.x0 + side, w.y0 + side) for w in win_l],
+            [(w.x0, w.y0, w.x0 + side, w.y0 + side) for w in win_r],
+        )
 
     # ------------------------------------------------------------------ acquisition
     def _acquire(self, left: np.ndarray, right: np.ndarray) -> PoseResult:
@@ -327,6 +361,16 @@ class StereoTracker:
             out.append(_Window(led_id, x0, y0, side, 1 + len(out) * (side + 1), row, exp))
         return out
 
+    def _plan(self, st: _State) -> tuple[list[_Window], list[_Window]]:
+        """The windows (one common side) of both images for the predicted LEDs."""
+        pred = self._predict(st)
+        side = 2 * int(max(p.half for p in pred)) + 1
+        ids = [p.led_id for p in pred]
+        expected = [p.expected for p in pred]
+        win_l = self._windows([p.left for p in pred], ids, expected, side, 0)
+        win_r = self._windows([p.right for p in pred], ids, expected, side, side + 1)
+        return win_l, win_r
+
     def _threshold(
         self, gray: np.ndarray, image: np.ndarray, background: tuple[float, float], last: int
     ) -> int:
@@ -345,18 +389,15 @@ class StereoTracker:
         return int(min(255, max(1, round(bg + max(0.25 * (peak - bg), 6.0 * sigma)))))
 
     def _extract(
-        self, left: np.ndarray, right: np.ndarray, st: _State, pred: list[_Prediction]
+        self, left: np.ndarray, right: np.ndarray, st: _State
     ) -> tuple[list[_Window], list[_Window], np.ndarray, list[Blob], tuple[int, int]]:
         """Crop every window of both images into one mosaic (left windows on the top row,
         right windows below, one zero column/row between windows) and extract the blobs
         there: one gray conversion, threshold, median and labelling for the whole frame pair.
         """
         cfg = self.config
-        side = 2 * int(max(p.half for p in pred)) + 1
-        ids = [p.led_id for p in pred]
-        expected = [p.expected for p in pred]
-        win_l = self._windows([p.left for p in pred], ids, expected, side, 0)
-        win_r = self._windows([p.right for p in pred], ids, expected, side, side + 1)
+        win_l, win_r = self._plan(st)
+        side = win_l[0].side
         cols = max(len(win_l), len(win_r))
         if left.ndim != right.ndim or (left.ndim == 3 and left.shape[2] != right.shape[2]):
             raise _Fallback("left and right images have different channel counts")
@@ -441,8 +482,7 @@ class StereoTracker:
         st = self._state
         assert st is not None
         cfg, cal = self.config, self.calibration
-        pred = self._predict(st)
-        win_l, win_r, gray, blobs, (thr_l, thr_r) = self._extract(left, right, st, pred)
+        win_l, win_r, gray, blobs, (thr_l, thr_r) = self._extract(left, right, st)
         got_l = self._assign(win_l, blobs, "left")
         got_r = self._assign(win_r, blobs, "right")
         led_ids = sorted(i for i in got_l if i in got_r)
