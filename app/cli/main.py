@@ -4,11 +4,19 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 from collections.abc import Sequence
 
 # Each module defines ``register(subparsers)`` which adds its parser and sets ``func``.
-SUBCOMMANDS = ("process", "render", "simulate", "campaign", "calibrate", "serve")
+SUBCOMMANDS = (
+    "process",
+    "render",
+    "simulate",
+    "campaign",
+    "calibrate",
+    "serve",
+)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -31,7 +39,15 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    code = args.func(args)
+    try:
+        code = args.func(args)
+        sys.stdout.flush()
+    except BrokenPipeError:
+        # the reader went away (``aar-dock simulate | head``): not an error of ours. Point
+        # stdout at devnull so that the interpreter's final flush does not raise again.
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        return 1  # as Python's documentation suggests (signal module, "Note on SIGPIPE")
     return int(code or 0)
 
 

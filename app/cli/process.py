@@ -7,10 +7,19 @@ import sys
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("process", help="estimate the drogue pose from one stereo pair")
-    p.add_argument("left", help="left image (PNG/JPEG/BMP/TIFF)")
-    p.add_argument("right", help="right image")
-    p.add_argument("--calib", help="calibration JSON (default: sample_data/calibration.json)")
+    p = sub.add_parser(
+        "process",
+        help="estimate the drogue pose from one stereo pair",
+        description="Run the navigation pipeline on LEFT RIGHT, or on a bundled sample pair "
+        "(--sample pair_1000mm; --list-samples names them).",
+    )
+    p.add_argument("left", nargs="?", help="left image (PNG/JPEG/BMP/TIFF)")
+    p.add_argument("right", nargs="?", help="right image")
+    p.add_argument(
+        "--sample", metavar="NAME", help="a sample pair shipped with the package (pair_1000mm, ...)"
+    )
+    p.add_argument("--list-samples", action="store_true", help="print the bundled sample pairs")
+    p.add_argument("--calib", help="calibration JSON (default: the bundled paper calibration)")
     p.add_argument("--json", action="store_true", help="print the result contract as JSON")
     p.add_argument("--matcher", choices=["epipolar", "paper"], default="epipolar")
     p.add_argument("--ring-radius-mm", type=float, default=75.0)
@@ -52,12 +61,23 @@ def _summary(result) -> str:  # type: ignore[no-untyped-def]
 
 def run(args: argparse.Namespace) -> int:
     from app.geometry.calibration import CalibrationError, StereoCalibration
-    from app.sim.paths import load_default_calibration
+    from app.sim.paths import MissingDataError, load_default_calibration, sample_pair, sample_pairs
     from app.vision.io import check_pair, read_image
     from app.vision.pipeline import NavigationPipeline, PipelineConfig
     from app.vision.preprocess import ImageError
 
+    if args.list_samples:
+        print("\n".join(sample_pairs()))
+        return 0
     try:
+        if args.sample is not None:
+            if args.left or args.right:
+                raise ValueError("give either LEFT RIGHT or --sample, not both")
+            left_path, right_path = (str(p) for p in sample_pair(args.sample))
+        elif args.left and args.right:
+            left_path, right_path = args.left, args.right
+        else:
+            raise ValueError("give LEFT and RIGHT images, or --sample NAME (see --list-samples)")
         threshold: int | str = int(args.threshold) if args.threshold.isdigit() else args.threshold
         if threshold not in ("auto", "otsu") and not (
             isinstance(threshold, int) and 1 <= threshold <= 255
@@ -66,9 +86,9 @@ def run(args: argparse.Namespace) -> int:
                 f"--threshold must be 'auto', 'otsu' or 1..255, got {args.threshold!r}"
             )
         calib = StereoCalibration.load(args.calib) if args.calib else load_default_calibration()
-        left = read_image(args.left)
-        right = read_image(args.right)
-        check_pair(left, right, args.left, args.right)
+        left = read_image(left_path)
+        right = read_image(right_path)
+        check_pair(left, right, left_path, right_path)
         config = PipelineConfig(
             threshold=threshold,  # type: ignore[arg-type]
             matcher=args.matcher,
@@ -77,7 +97,7 @@ def run(args: argparse.Namespace) -> int:
             led_diameter_mm=args.led_diameter_mm,
         )
         result = NavigationPipeline(calib, config).process(left, right)
-    except (CalibrationError, ImageError, ValueError) as exc:
+    except (CalibrationError, ImageError, MissingDataError, ValueError) as exc:
         print(f"aar-dock process: error: {exc}", file=sys.stderr)
         return 2
     if args.json:

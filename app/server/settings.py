@@ -18,18 +18,27 @@ worker process, ``app.server.sim_process``), ``AAR_SIM_STEP_TIMEOUT_S``,
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 from typing import Annotated, Any
 
 from pydantic import Field, field_validator
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
+from app.sim import paths
+
 LOCAL_HOSTS = ("localhost", "127.0.0.1", "::1")
 WILDCARD_BIND = ("0.0.0.0", "::", "")
 
-REPO_ROOT = Path(__file__).resolve().parents[2]
-DEFAULT_CALIBRATION = REPO_ROOT / "sample_data" / "calibration.json"
-DEFAULT_STATIC = REPO_ROOT / "static"
+# shipped inside the package (app/sim/paths.py): found from a wheel as from the checkout
+DEFAULT_CALIBRATION = paths.sample_data_dir() / "calibration.json"
+DEFAULT_STATIC = paths.static_dir()
+
+
+def default_recordings_dir() -> Path:
+    """``$XDG_DATA_HOME/aar-dock/recordings`` (``~/.local/share/...``): never the working tree."""
+    base = os.environ.get("XDG_DATA_HOME") or str(Path.home() / ".local" / "share")
+    return Path(base) / "aar-dock" / "recordings"
 
 
 class Settings(BaseSettings):
@@ -51,7 +60,9 @@ class Settings(BaseSettings):
     token: str | None = Field(None, description="bearer token for mutating endpoints")
     calibration: Path = Field(DEFAULT_CALIBRATION, description="stereo calibration JSON")
     max_upload_mb: float = Field(20.0, gt=0.0, description="largest accepted upload (MB)")
-    recordings_dir: Path = Field(Path("recordings"), description="where recordings are written")
+    recordings_dir: Path = Field(
+        default_factory=default_recordings_dir, description="where recordings are written"
+    )
     recording_max_s: float = Field(300.0, gt=0.0, description="a recording stops after this")
     recording_max_mb: float = Field(200.0, gt=0.0, description="size bound of one recording")
     history_s: float = Field(60.0, gt=0.0, le=3600.0, description="ring buffer length (s)")
