@@ -249,6 +249,10 @@ def create_app(
         def index() -> FileResponse:
             return FileResponse(static_dir / "index.html")
 
+        @app.get("/favicon.ico", include_in_schema=False)
+        def favicon() -> FileResponse:
+            return FileResponse(static_dir / "favicon.svg", media_type="image/svg+xml")
+
     else:
 
         @app.get("/", include_in_schema=False)
