@@ -4,16 +4,13 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import BaseModel, Field
 
+# the simulation's configuration lives in the core (the 3-D view uses it without the web layer)
+from app.sim.sim_config import STRICT, SimConfig, Turbulence
 from app.vision.result import PoseResult
 
 Vec3 = tuple[float, float, float]
-Turbulence = Literal["none", "light", "moderate", "severe"]
-
-#: Request models: an unknown field (a typo such as ``"turbulance"``) or a non-finite number
-#: (``NaN``, ``Infinity``) is a 422 naming the field, never silently ignored or a 500.
-STRICT = ConfigDict(extra="forbid", allow_inf_nan=False)
 
 
 class Control(BaseModel):
@@ -59,31 +56,6 @@ class TickRecord(BaseModel):
     timings_ms: dict[str, float] = Field(
         default_factory=dict, description="per-stage latencies (ms): pipeline stages, step, publish"
     )
-
-
-class SimConfig(BaseModel):
-    """User-settable simulation parameters (validated ranges → 422)."""
-
-    model_config = STRICT
-
-    turbulence: Turbulence = "light"
-    seed: int = Field(0, ge=0, le=2**31 - 1)
-    closure_speed_mps: float = Field(1.2, ge=0.1, le=5.0)
-    noise_sigma: float = Field(2.0, ge=0.0, le=50.0, description="image noise σ (grey levels)")
-    clutter: int = Field(0, ge=0, le=50, description="number of distractor lights")
-    led_dropout: list[int] = Field(default_factory=list, description="LED ids (1..5) switched off")
-    tick_hz: float = Field(30.0, ge=1.0, le=120.0)
-    matcher: Literal["epipolar", "paper"] = "epipolar"
-    vision: bool = True
-
-    @field_validator("led_dropout")
-    @classmethod
-    def _check_dropout(cls, v: list[int]) -> list[int]:
-        if any(i < 1 or i > 5 for i in v):
-            raise ValueError("LED ids must be in 1..5")
-        if len(set(v)) != len(v):
-            raise ValueError("LED ids must be unique")
-        return sorted(v)
 
 
 class SimConfigUpdate(BaseModel):

@@ -8,7 +8,7 @@ disabled until it enters the operator token (see :mod:`app.viz.access`).
 Every change from a client is checked on the server, whatever the browser shows: the client
 must be allowed to control (:meth:`AccessPolicy.may_control`), the value must be of the
 widget's type and inside the widget's range (:data:`LIMITS`), and the resulting configuration
-must pass :class:`app.server.schemas.SimConfig` (the REST API's model). A refused change is
+must pass :class:`app.sim.sim_config.SimConfig` (the REST API's model). A refused change is
 logged, not applied, and the client's widgets are re-synced to the real configuration.
 """
 
@@ -29,13 +29,13 @@ import numpy as np
 import viser
 import viser.uplot as uplot
 
-from app.server.schemas import SimConfig
+from app.sim.sim_config import LED_COUNT, TURBULENCE_LEVELS, SimConfig
 from app.viz.access import MAX_TOKEN_CHARS, AccessPolicy
 from app.viz.overlay import draw_detections
 
 log = logging.getLogger(__name__)
 WINDOW = 300  # samples kept in each chart (fixed window)
-TURBULENCE = ("none", "light", "moderate", "severe")
+TURBULENCE = TURBULENCE_LEVELS
 XYZ_COLORS = ("#e04040", "#30a050", "#3070e0")
 CTRL_COLORS = ("#444444", "#e08020", "#2090d0", "#a040c0")
 # the widgets' ranges (tighter than SimConfig's: the GUI offers less than the REST API)
@@ -44,7 +44,7 @@ LIMITS: dict[str, tuple[float, float]] = {
     "noise_sigma": (0.0, 20.0),
     "clutter": (0, 20),
 }
-N_LEDS = 5
+N_LEDS = LED_COUNT
 BUTTONS = ("start", "stop", "reset")
 LOCKED_NOTE = "**Read-only.** Enter the operator token (`AAR_TOKEN`) and press Unlock."
 UNLOCKED_NOTE = "**Operator controls unlocked** for this browser tab."
