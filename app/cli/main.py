@@ -16,6 +16,8 @@ SUBCOMMANDS = (
     "campaign",
     "calibrate",
     "serve",
+    "track",
+    "push",
 )
 
 
