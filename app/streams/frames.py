@@ -1,0 +1,129 @@
+"""The frame-source interface: timestamped stereo pairs and the source's counters."""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Literal, Protocol
+
+import numpy as np
+from numpy.typing import NDArray
+
+SourceKind = Literal["video", "camera", "push"]
+Image = NDArray[np.uint8]
+
+
+class SourceError(ValueError):
+    """A source spec that cannot be opened (missing file, no device, bad syntax)."""
+
+
+class EndOfStream(Exception):
+    """Raised by ``read`` when a finite source (files, a recording) has no more pairs."""
+
+
+@dataclass
+class StereoFrame:
+    """One stereo pair. Times in seconds on the source's clock (file time, device monotonic
+    clock or the pusher's clock); ``t_s`` is the pair's time (mean of both sides)."""
+
+    left: Image
+    right: Image
+    t_s: float
+    seq: int  # frame counter of the source (pushed pairs: the pusher's sequence number)
+    t_left_s: float | None = None
+    t_right_s: float | None = None
+    exposure_ms: float | None = None
+
+    @property
+    def skew_s(self) -> float:
+        """|t_left − t_right| (s); 0 when the sides carry no own time."""
+        if self.t_left_s is None or self.t_right_s is None:
+            return 0.0
+        return abs(self.t_left_s - self.t_right_s)
+
+
+@dataclass
+class SourceStats:
+    """Counters of one source (thread-safe updates through :meth:`add`)."""
+
+    pairs: int = 0  # pairs delivered
+    dropped_skew: int = 0  # frames dropped by the pairing (|Δt| > max skew, or unmatched)
+    dropped_backpressure: int = 0  # pairs overwritten before being read (push: keep newest)
+    rejected: int = 0  # pushed messages refused (bad header, undecodable image)
+    last_skew_ms: float | None = None
+    max_skew_ms: float = 0.0
+    _times: deque[float] = field(default_factory=lambda: deque(maxlen=64))
+    _lock: threading.Lock = field(default_factory=threading.Lock)
+
+    def delivered(self, frame: StereoFrame) -> None:
+        with self._lock:
+            self.pairs += 1
+            skew_ms = frame.skew_s * 1e3
+            self.last_skew_ms = skew_ms
+            self.max_skew_ms = max(self.max_skew_ms, skew_ms)
+            self._times.append(time.monotonic())
+
+    def add(self, name: str, n: int = 1) -> None:
+        with self._lock:
+            setattr(self, name, getattr(self, name) + n)
+
+    def fps(self, window_s: float = 2.0) -> float:
+        """Delivered pairs per second over the last ``window_s`` (wall clock)."""
+        with self._lock:
+            times = list(self._times)
+        now = time.monotonic()
+        recent = [t for t in times if t >= now - window_s]
+        if len(recent) < 2:
+            return 0.0
+        span = recent[-1] - recent[0]
+        return (len(recent) - 1) / span if span > 0 else 0.0
+
+    def as_dict(self) -> dict[str, float | int | None]:
+        with self._lock:
+            return {
+                "pairs": self.pairs,
+                "dropped_skew": self.dropped_skew,
+                "dropped_backpressure": self.dropped_backpressure,
+                "rejected": self.rejected,
+                "last_skew_ms": self.last_skew_ms,
+                "max_skew_ms": self.max_skew_ms,
+            }
+
+
+class FrameSource(Protocol):
+    """What the stream loop consumes."""
+
+    kind: SourceKind
+    spec: str
+    stats: SourceStats
+
+    def read(self, timeout_s: float | None = None) -> StereoFrame | None:
+        """The next pair; ``None`` if none arrived within ``timeout_s`` (live sources);
+        raises :class:`EndOfStream` at the end of a finite source."""
+        ...
+
+    def close(self) -> None: ...
+
+
+def ensure_gray_or_bgr(image: NDArray[np.generic]) -> Image:
+    """8-bit gray or BGR as the pipeline takes it: a BGR frame whose three channels are
+    equal (a grey camera through a video codec) becomes gray; BGRA loses alpha."""
+    img = np.asarray(image)
+    if img.dtype != np.uint8:
+        if img.dtype == np.uint16:
+            img = (img >> 8).astype(np.uint8)
+        else:
+            raise SourceError(f"unsupported image type {img.dtype}")
+    if img.ndim == 3 and img.shape[2] == 4:
+        img = np.ascontiguousarray(img[:, :, :3])
+    if img.ndim == 3 and img.shape[2] == 1:
+        img = img[:, :, 0]
+    if img.ndim == 3 and img.shape[2] == 3:
+        b, g, r = img[:, :, 0], img[:, :, 1], img[:, :, 2]
+        if np.array_equal(b, g) and np.array_equal(g, r):
+            return np.ascontiguousarray(b)
+    if img.ndim not in (2, 3):
+        raise SourceError(f"unsupported image shape {img.shape}")
+    return img

@@ -1,0 +1,261 @@
+"""Raw-frame recordings: lossless PNG pairs + per-pair times + the calibration used.
+
+Layout of a frame recording directory (``<recording id>.frames`` next to the telemetry)::
+
+    meta.json        {"format": "aar-dock-frames/1", "status": "recording"|"complete", ...}
+    calibration.json the StereoCalibration the live pipeline used
+    frames.jsonl     one line per pair: {"i", "seq", "t_s", "t_left_s", "t_right_s",
+                     "exposure_ms", "left", "right", "record_seq"}
+    left/000000.png, right/000000.png, ...
+
+Crash safety: each PNG is written to a temporary name and renamed; the pair's line is
+appended (and flushed) only after both files are in place, and ``fsync``-ed every
+``FSYNC_PERIOD_S``. A reader uses only complete lines whose two files exist, so a killed
+writer leaves a readable recording up to its last flushed pair. Bounds: ``max_s`` seconds and
+``max_bytes`` bytes of images; beyond them the writer stops accepting (``stop_reason``).
+The writer runs in its own thread behind a bounded queue: a pair that does not fit is
+dropped and counted (``dropped``), never blocking the caller (the stream loop).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import queue
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import cv2
+
+from app.streams.frames import (
+    EndOfStream,
+    SourceError,
+    SourceKind,
+    SourceStats,
+    StereoFrame,
+    ensure_gray_or_bgr,
+)
+
+FORMAT = "aar-dock-frames/1"
+FSYNC_PERIOD_S = 0.5
+PNG_LEVEL = 1  # fast lossless compression (≈ 20 ms for a 1280×1024 grey image)
+
+
+def is_frame_recording(path: str | Path) -> bool:
+    p = Path(path)
+    return p.is_dir() and (p / "frames.jsonl").is_file()
+
+
+def _atomic_write(path: Path, data: bytes) -> None:
+    tmp = path.with_name(f".{path.name}.tmp")
+    with open(tmp, "wb") as f:
+        f.write(data)
+    os.replace(tmp, path)
+
+
+class FrameRecordingWriter:
+    def __init__(
+        self,
+        directory: str | Path,
+        calibration: Any,
+        *,
+        max_s: float = 300.0,
+        max_bytes: int = 2_000_000_000,
+        queue_pairs: int = 16,
+        source: str | None = None,
+    ) -> None:
+        self.directory = Path(directory)
+        self.directory.mkdir(parents=True, exist_ok=False)
+        (self.directory / "left").mkdir()
+        (self.directory / "right").mkdir()
+        self.max_s, self.max_bytes = max_s, max_bytes
+        self.pairs = 0
+        self.bytes = 0
+        self.dropped = 0
+        self.stop_reason: str | None = None
+        self.source = source
+        self._t0 = time.monotonic()
+        self._queue: queue.Queue[tuple[StereoFrame, int | None] | None] = queue.Queue(queue_pairs)
+        self._lines = open(self.directory / "frames.jsonl", "ab")
+        self._last_sync = time.monotonic()
+        self._closed = False
+        if calibration is not None:
+            _atomic_write(
+                self.directory / "calibration.json",
+                json.dumps(calibration.to_dict(), indent=2).encode(),
+            )
+        self._write_meta("recording")
+        self._thread = threading.Thread(target=self._run, name="frame-recorder", daemon=True)
+        self._thread.start()
+
+    @property
+    def accepting(self) -> bool:
+        return not self._closed and self.stop_reason is None
+
+    def _write_meta(self, status: str) -> None:
+        meta = {
+            "format": FORMAT,
+            "status": status,
+            "pairs": self.pairs,
+            "bytes": self.bytes,
+            "dropped": self.dropped,
+            "max_s": self.max_s,
+            "max_bytes": self.max_bytes,
+            "stop_reason": self.stop_reason,
+            "source": self.source,
+        }
+        _atomic_write(self.directory / "meta.json", json.dumps(meta, indent=2).encode())
+
+    def submit(self, frame: StereoFrame, record_seq: int | None = None) -> bool:
+        """Queue a pair (never blocks); ``False`` if dropped (queue full, bound reached)."""
+        if not self.accepting:
+            return False
+        if time.monotonic() - self._t0 >= self.max_s:
+            self.stop_reason = f"reached {self.max_s:g} s"
+            return False
+        try:
+            self._queue.put_nowait((frame, record_seq))
+        except queue.Full:
+            self.dropped += 1
+            return False
+        return True
+
+    def _run(self) -> None:
+        while True:
+            item = self._queue.get()
+            if item is None:
+                return
+            if self.stop_reason is not None:
+                continue
+            try:
+                self._write(*item)
+            except Exception as exc:  # disk full, ...: stop, keep what is on disk
+                self.stop_reason = f"write failed: {exc}"
+
+    def _write(self, frame: StereoFrame, record_seq: int | None) -> None:
+        i = self.pairs
+        names = (f"left/{i:06d}.png", f"right/{i:06d}.png")
+        blobs = []
+        for img in (frame.left, frame.right):
+            ok, buf = cv2.imencode(".png", img, [cv2.IMWRITE_PNG_COMPRESSION, PNG_LEVEL])
+            if not ok:
+                raise OSError("PNG encoding failed")
+            blobs.append(buf.tobytes())
+        size = sum(len(b) for b in blobs)
+        if self.bytes + size > self.max_bytes:
+            self.stop_reason = f"reached {self.max_bytes / 1e6:g} MB"
+            return
+        for name, blob in zip(names, blobs, strict=True):
+            _atomic_write(self.directory / name, blob)
+        line = {
+            "i": i,
+            "seq": frame.seq,
+            "t_s": frame.t_s,
+            "t_left_s": frame.t_left_s,
+            "t_right_s": frame.t_right_s,
+            "exposure_ms": frame.exposure_ms,
+            "left": names[0],
+            "right": names[1],
+            "record_seq": record_seq,
+        }
+        self._lines.write(json.dumps(line).encode() + b"\n")
+        self._lines.flush()
+        self.pairs += 1
+        self.bytes += size
+        now = time.monotonic()
+        if now - self._last_sync >= FSYNC_PERIOD_S:
+            os.fsync(self._lines.fileno())
+            self._last_sync = now
+
+    def close(self, reason: str = "stopped") -> dict[str, Any]:
+        """Write what is queued, then the final metadata; returns it."""
+        if not self._closed:
+            self._closed = True
+            self._queue.put(None)
+            self._thread.join(timeout=60.0)
+            self._lines.flush()
+            os.fsync(self._lines.fileno())
+            self._lines.close()
+            if self.stop_reason is None:
+                self.stop_reason = reason
+            self._write_meta("complete")
+        return json.loads((self.directory / "meta.json").read_text())
+
+
+def read_index(directory: str | Path) -> list[dict[str, Any]]:
+    """The complete pairs of a frame recording (a torn last line or missing file: skipped)."""
+    d = Path(directory)
+    out: list[dict[str, Any]] = []
+    with open(d / "frames.jsonl", "rb") as f:
+        for line in f:
+            if not line.endswith(b"\n"):
+                break
+            try:
+                entry = json.loads(line)
+            except ValueError:
+                break
+            if (d / entry["left"]).is_file() and (d / entry["right"]).is_file():
+                out.append(entry)
+    return out
+
+
+def recording_calibration(directory: str | Path) -> Any:
+    """The calibration stored with a frame recording, or ``None``."""
+    from app.geometry.calibration import StereoCalibration
+
+    path = Path(directory) / "calibration.json"
+    return StereoCalibration.load(path) if path.is_file() else None
+
+
+class FrameRecordingSource:
+    """A frame recording as a source (``video:DIR``): the stored pairs with their times."""
+
+    kind: SourceKind = "video"
+
+    def __init__(self, directory: str | Path) -> None:
+        self.directory = Path(directory)
+        if not is_frame_recording(self.directory):
+            raise SourceError(f"{str(directory)!r} is not a frame recording (no frames.jsonl)")
+        self.spec = f"video:{self.directory}"
+        self.entries = read_index(self.directory)
+        if not self.entries:
+            raise SourceError(f"frame recording {str(directory)!r} holds no complete pair")
+        self.index = 0
+        self.stats = SourceStats()
+
+    def read_next(self) -> StereoFrame | None:
+        if self.index >= len(self.entries):
+            return None
+        e = self.entries[self.index]
+        self.index += 1
+        imgs = []
+        for side in ("left", "right"):
+            img = cv2.imread(str(self.directory / e[side]), cv2.IMREAD_UNCHANGED)
+            if img is None:
+                raise SourceError(f"cannot decode {e[side]}")
+            imgs.append(ensure_gray_or_bgr(img))
+        frame = StereoFrame(
+            left=imgs[0],
+            right=imgs[1],
+            t_s=float(e["t_s"]),
+            seq=int(e["seq"]),
+            t_left_s=e.get("t_left_s"),
+            t_right_s=e.get("t_right_s"),
+            exposure_ms=e.get("exposure_ms"),
+        )
+        return frame
+
+    def read(self, timeout_s: float | None = None) -> StereoFrame | None:
+        frame = self.read_next()
+        if frame is None:
+            raise EndOfStream(self.spec)
+        self.stats.delivered(frame)
+        return frame
+
+    def restart(self) -> None:
+        self.index = 0
+
+    def close(self) -> None:
+        self.index = len(self.entries)
