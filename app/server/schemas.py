@@ -22,6 +22,31 @@ class Control(BaseModel):
     rudder: float
 
 
+class Guidance(BaseModel):
+    """Guidance of a camera stream (``app.streams.guidance``): approach frame of the left
+    camera (x forward, y right, z down; m), from the drogue filter's estimate."""
+
+    closure_speed_mps: float | None = None
+    predicted_miss_m: float | None = None
+    time_to_contact_s: float | None = None
+    drogue_velocity_mps: Vec3 | None = None
+    coast_s: float = Field(0.0, description="time since the filter last accepted a lock (s)")
+
+
+class StreamInfo(BaseModel):
+    """The frame source behind a stream record (video, camera, push)."""
+
+    spec: str
+    frame: int = Field(description="the source's frame number (pushed: the pusher's seq)")
+    frame_t_s: float = Field(description="capture time on the source's clock (s)")
+    mode: str = Field(description="tracker: acquired / tracked / lost / error")
+    fps: float
+    pairs: int
+    dropped_skew: int
+    dropped_backpressure: int
+    skew_ms: float | None = None
+
+
 class TickRecord(BaseModel):
     """One published step: a simulated tick or an uploaded stereo pair.
 
@@ -30,7 +55,7 @@ class TickRecord(BaseModel):
     """
 
     seq: int = Field(description="publication counter (monotonic within a server run)")
-    source: Literal["sim", "upload"]
+    source: Literal["sim", "upload", "video", "camera", "push"]
     t_s: float = Field(description="simulation time of this run (s); 0 for uploads")
     clock_s: float = Field(description="server loop clock when published (s)")
     wall_time: float = Field(description="UNIX time when published (s)")
@@ -56,6 +81,8 @@ class TickRecord(BaseModel):
     timings_ms: dict[str, float] = Field(
         default_factory=dict, description="per-stage latencies (ms): pipeline stages, step, publish"
     )
+    guidance: Guidance | None = None
+    stream: StreamInfo | None = None
 
 
 class SimConfigUpdate(BaseModel):

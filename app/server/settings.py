@@ -93,6 +93,33 @@ class Settings(BaseSettings):
     )
     log_level: str = Field("info")
 
+    # ---- live stereo streams (app.streams; app/server/stream_service.py) -------------
+    source: str = Field(
+        "sim",
+        description="frame source at start-up: sim, push, video:LEFT,RIGHT, video:DIR "
+        "(a frame recording), camera:I,J or camera:I (side-by-side)",
+    )
+    stream_max_skew_ms: float = Field(
+        10.0, ge=0.0, le=1000.0, description="left/right pairing tolerance (ms)"
+    )
+    stream_realtime: bool = Field(
+        True, description="pace video sources at their own frame times (false: as fast as possible)"
+    )
+    stream_loop: bool = Field(False, description="restart a video source at its end")
+    stream_fps: float = Field(
+        30.0, gt=0.0, le=1000.0, description="frame rate of image folders without timestamps"
+    )
+    stream_roots: Annotated[list[Path] | None, NoDecode] = Field(
+        None,
+        description="folders a video source switched through the API may read from "
+        "(default: the recordings directory); the --source flag is not restricted",
+    )
+    push_max_mb: float | None = Field(
+        None,
+        gt=0.0,
+        description="largest pushed WebSocket message (MB); default AAR_MAX_REQUEST_MB",
+    )
+
     # ---- hardening -------------------------------------------------------------------
     trusted_hosts: Annotated[list[str] | None, NoDecode] = Field(
         None,
@@ -141,7 +168,7 @@ class Settings(BaseSettings):
     )
     retry_after_s: int = Field(2, ge=1, le=3600, description="Retry-After of a 429 (s)")
 
-    @field_validator("trusted_hosts", "allowed_origins", mode="before")
+    @field_validator("trusted_hosts", "allowed_origins", "stream_roots", mode="before")
     @classmethod
     def _split_list(cls, v: Any) -> Any:
         if isinstance(v, str):
@@ -166,6 +193,12 @@ class Settings(BaseSettings):
         if self.max_request_mb is not None:
             return int(self.max_request_mb * 1e6)
         return int((2 * self.max_upload_mb + 1) * 1e6)
+
+    @property
+    def push_limit_bytes(self) -> int:
+        if self.push_max_mb is not None:
+            return int(self.push_max_mb * 1e6)
+        return self.stereo_request_limit_bytes
 
     @property
     def json_limit_bytes(self) -> int:
