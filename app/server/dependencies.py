@@ -93,6 +93,7 @@ class AppState:
     viser_port: int | None = None
     upload_pool: Any = None  # app.server.upload_pool.UploadPool; None: uploads in threads
     sim_worker: Any = None  # app.server.sim_process.SimWorker; None: simulation in a thread
+    streams: Any = None  # app.server.stream_service.StreamService (the active frame source)
     extras: dict[str, Any] = field(default_factory=dict)
 
     def apply_sim_config(self, config: SimConfig) -> None:
@@ -103,6 +104,8 @@ class AppState:
     def apply_calibration(self, calibration: StereoCalibration) -> None:
         self.loop.set_calibration(calibration)
         self.uploads.set_calibration(calibration)
+        if self.streams is not None:
+            self.streams.set_calibration(calibration)
         if self.viz is not None:
             self.viz.set_calibration(calibration)
 

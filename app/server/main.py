@@ -33,9 +33,10 @@ from app.server import security
 from app.server.dependencies import AppState, CalibrationStore, UploadProcessor
 from app.server.errors import validation_exception_handler
 from app.server.recording import Recorder
-from app.server.routers import calibration, recording, sim, state, stereo, telemetry
+from app.server.routers import calibration, recording, sim, state, stereo, stream, telemetry
 from app.server.schemas import SimConfig
 from app.server.settings import WILDCARD_BIND, Settings
+from app.server.stream_service import StreamService
 from app.server.telemetry import TelemetryHub
 from app.server.tick_loop import (
     Clock,
@@ -135,6 +136,7 @@ def create_app(
             upload_pool=upload_pool,
             sim_worker=None if process_factory is None else process_factory.worker,
         )
+        st.streams = StreamService(loop, calib, settings)
 
         def release_workers() -> None:
             if process_factory is not None:
@@ -144,7 +146,10 @@ def create_app(
 
         try:
             _start_services(st, settings, warm=source_factory is None)
+            if settings.source.strip() not in ("", "sim"):
+                st.streams.switch(settings.source)  # SourceError: the service does not start
         except BaseException:
+            st.streams.close()
             if st.viz is not None:
                 st.viz.stop()
             release_workers()
@@ -160,6 +165,7 @@ def create_app(
             yield
         finally:
             app.state.aar = None
+            st.streams.close()
             recorder.close()
             loop.stop()
             if st.viz is not None:
@@ -231,7 +237,7 @@ def create_app(
 
     app.add_exception_handler(SourceUnavailable, source_unavailable)
     security.install(app, settings, API_PREFIX)
-    for module in (state, sim, stereo, calibration, recording, telemetry):
+    for module in (state, sim, stereo, calibration, recording, telemetry, stream):
         app.include_router(module.router, prefix=API_PREFIX)
     try:
         checker: Any = importlib.import_module("app.server.routes_checkerboard")

@@ -19,7 +19,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from app.server.schemas import Control, SimConfig, TickRecord
+from app.server.schemas import Control, Guidance, SimConfig, StreamInfo, TickRecord
 
 log = logging.getLogger(__name__)
 
@@ -118,8 +118,16 @@ def _vec(value: Any) -> tuple[float, float, float] | None:
     return (float(arr[0]), float(arr[1]), float(arr[2]))
 
 
+def _finite(value: Any) -> float | None:
+    if value is None:
+        return None
+    v = float(value)
+    return v if math.isfinite(v) else None
+
+
 def tick_to_record(tick: Any, *, seq: int, clock_s: float, run: int, step_ms: float) -> TickRecord:
-    """Convert a ``DockingTick`` (duck-typed) to the published :class:`TickRecord`."""
+    """Convert a ``DockingTick`` or a stream's ``StreamTick`` (duck-typed) to the published
+    :class:`TickRecord`."""
     pose = getattr(tick, "pose", None)
     timings: dict[str, float] = {"step": step_ms}
     if pose is not None:
@@ -141,9 +149,23 @@ def tick_to_record(tick: Any, *, seq: int, clock_s: float, run: int, step_ms: fl
     uav = getattr(tick, "uav_state", None)
     miss = getattr(tick, "miss_m", None)
     captured = getattr(tick, "captured", None)
+    source = getattr(tick, "source", "sim")
+    guidance = stream = None
+    if source != "sim":  # a camera stream (app.streams.processor.StreamTick)
+        g = tick.guidance
+        guidance = Guidance(
+            closure_speed_mps=_finite(g.closure_speed_mps),
+            predicted_miss_m=_finite(g.predicted_miss_m),
+            time_to_contact_s=_finite(g.time_to_contact_s),
+            drogue_velocity_mps=_vec(g.drogue_velocity_mps),
+            coast_s=float(g.coast_s) if math.isfinite(g.coast_s) else 0.0,
+        )
+        info = getattr(tick, "stream", None)
+        stream = StreamInfo.model_validate(info) if info else None
+        miss = None  # the predicted miss is guidance, not a measured crossing
     return TickRecord(
         seq=seq,
-        source="sim",
+        source=source,
         t_s=float(getattr(tick, "t_s", 0.0)),
         clock_s=clock_s,
         wall_time=time.time(),
@@ -169,6 +191,8 @@ def tick_to_record(tick: Any, *, seq: int, clock_s: float, run: int, step_ms: fl
             else [(float(p[0]), float(p[1]), float(p[2])) for p in np.asarray(leds)]
         ),
         timings_ms=timings,
+        guidance=guidance,
+        stream=stream,
     )
 
 
@@ -315,6 +339,13 @@ class TickLoop:
             except Exception:  # a broken subscriber must not stop the loop
                 log.exception("tick subscriber failed")
         self._add_stage("publish", (time.perf_counter() - t0) * 1e3)
+
+    def publish_stream(self, record: TickRecord, raw: Any = None) -> None:
+        """Publish a record of a camera stream (its own thread, its own pace: see
+        ``app.server.stream_service``); its stage timings join the loop's metrics."""
+        for name, value in record.timings_ms.items():
+            self._add_stage(name, value)
+        self.publish(record, raw)
 
     def history(self, seconds: float | None = None) -> list[TickRecord]:
         items = list(self._history)
