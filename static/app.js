@@ -5,10 +5,18 @@ const API = "/api/v1";
 const $ = (id) => document.getElementById(id);
 const LED_COLORS = ["#e63c3c", "#f0aa28", "#3cc85a", "#328cf0", "#be50e6"];
 const CHART_WINDOW_S = 10;
+// The page redraws its numbers and chart at most this often, on a timer of its own: a 3-D view
+// rendering in software (no GPU) shares this page's main thread, and redrawing on every
+// telemetry message (30 Hz) queued them up until the numbers lagged seconds behind.
+const RENDER_HZ = 10;
+const STALE_S = 2.0; // telemetry older than this: "lagging" in the connection badge
 let serviceConfig = null;
 let latest = null;
 let dirty = false;
-const series = []; // {t, y, z, lat}
+let simRunning = null; // from /healthz: false → the banner says STOPPED
+let lastMiss = null; // {miss, captured, run}: the last plane crossing's miss (set on one tick)
+let chartRun = null;
+const series = []; // {t, y, z, lat} of the current run only
 
 function authHeaders() {
   const tok = $("token").value.trim();
@@ -42,29 +50,61 @@ const fmt = (v, d = 2) => (v === null || v === undefined || Number.isNaN(v) ? "�
 function connectTelemetry() {
   const proto = location.protocol === "https:" ? "wss://" : "ws://";
   const ws = new WebSocket(proto + location.host + API + "/telemetry");
-  ws.onopen = () => { $("conn").textContent = "live"; };
-  ws.onclose = () => { $("conn").textContent = "reconnecting…"; setTimeout(connectTelemetry, 1000); };
+  ws.onopen = () => { $("conn").textContent = "live"; $("conn").dataset.state = "live"; };
+  ws.onclose = () => {
+    $("conn").textContent = "reconnecting…"; $("conn").dataset.state = "closed";
+    setTimeout(connectTelemetry, 1000);
+  };
   ws.onmessage = (ev) => {
+    // cheap: keep the latest record and the chart series; drawing happens on the timer
     const rec = JSON.parse(ev.data);
     latest = rec;
-    if (rec.source === "sim" && rec.rel_position_m) {
-      const r = rec.rel_position_m;
-      if (series.length && rec.t_s < series[series.length - 1].t) series.length = 0; // new run
-      series.push({ t: rec.t_s, y: r[1], z: r[2], lat: Math.hypot(r[1], r[2]) });
-      while (series.length && series[0].t < rec.t_s - CHART_WINDOW_S) series.shift();
+    if (rec.source === "sim") {
+      if (rec.miss_m !== null && rec.miss_m !== undefined) lastMiss = { miss: rec.miss_m, captured: rec.captured, run: rec.run };
+      if (rec.run !== chartRun || (series.length && rec.t_s < series[series.length - 1].t)) {
+        series.length = 0; // a new run: its own line, never joined to the last run's
+        chartRun = rec.run;
+      }
+      if (rec.rel_position_m) {
+        const r = rec.rel_position_m;
+        series.push({ t: rec.t_s, y: r[1], z: r[2], lat: Math.hypot(r[1], r[2]) });
+        while (series.length && series[0].t < rec.t_s - CHART_WINDOW_S) series.shift();
+      }
     }
-    if (!dirty) { dirty = true; requestAnimationFrame(render); }
+    dirty = true;
   };
 }
 
-function render() {
-  dirty = false;
+function renderBanner() {
   const rec = latest;
-  if (!rec) return;
   const lock = $("lock");
+  if (simRunning === false && (!rec || rec.source === "sim")) {
+    lock.textContent = "STOPPED";
+    lock.className = "lock stopped";
+    $("lock-reason").textContent = "simulation stopped (Start to resume)";
+    return;
+  }
+  if (!rec) return;
   lock.textContent = rec.lock ? "LOCK" : "NO LOCK";
   lock.className = "lock " + (rec.lock ? "on" : "off");
   $("lock-reason").textContent = rec.lock ? "" : (rec.lock_reason || "");
+}
+
+function renderLag() {
+  if (!latest || $("conn").dataset.state !== "live") return;
+  const lag = Date.now() / 1000 - latest.wall_time;
+  const stale = simRunning !== false && latest.source === "sim" && lag > STALE_S;
+  $("conn").textContent = stale ? "lagging " + lag.toFixed(1) + " s" : "live";
+  $("conn").className = "conn" + (stale ? " warn" : "");
+}
+
+function render() {
+  renderLag();
+  if (!dirty) return;
+  dirty = false;
+  const rec = latest;
+  if (!rec) return;
+  renderBanner();
   $("source").textContent = rec.source + " / " + rec.run;
   $("t_s").textContent = fmt(rec.t_s, 2);
   $("phase").textContent = rec.phase || "–";
@@ -77,7 +117,8 @@ function render() {
   const c = rec.control;
   for (const k of ["throttle", "aileron", "elevator", "rudder"]) $("c-" + k).textContent = c ? fmt(c[k], 4) : "–";
   $("nleds").textContent = rec.pose ? rec.pose.leds.length : "–";
-  $("miss").textContent = fmt(rec.miss_m, 3);
+  // the miss is set on the one tick that crosses the drogue plane: show the last crossing's
+  $("miss").textContent = lastMiss ? fmt(lastMiss.miss, 3) + " (run " + lastMiss.run + (lastMiss.captured ? ", captured)" : ")") : "–";
   $("step-ms").textContent = fmt(rec.timings_ms.step, 1);
   $("vision-ms").textContent = fmt(rec.timings_ms.total, 1);
   drawChart();
@@ -118,6 +159,7 @@ async function pollHealth() {
     const h = await api("GET", "/healthz");
     $("tick-rate").textContent = fmt(h.tick_rate_hz, 1);
     $("dropped").textContent = h.dropped_ticks;
+    if (simRunning !== h.sim_running) { simRunning = h.sim_running; renderBanner(); }
   } catch (e) { /* server restarting */ }
 }
 
@@ -136,7 +178,11 @@ function simMsg(text, err) { const m = $("sim-msg"); m.textContent = text; m.cla
 function wireControls() {
   for (const [id, path] of [["btn-start", "/sim/start"], ["btn-stop", "/sim/stop"], ["btn-reset", "/sim/reset"]]) {
     $(id).addEventListener("click", async () => {
-      try { const s = await api("POST", path); simMsg((s.running ? "running" : "stopped") + ", run " + s.run); }
+      try {
+        const s = await api("POST", path);
+        simMsg((s.running ? "running" : "stopped") + ", run " + s.run);
+        simRunning = s.running; renderBanner();
+      }
       catch (e) { simMsg(e.message, true); }
     });
   }
@@ -183,11 +229,23 @@ function drawPair(canvas, img, leds, key, size) {
   }
 }
 
+function clearUploadResult() {
+  $("upload-result").hidden = true;
+  $("upload").dataset.state = "pending";
+  $("upload-summary").textContent = "";
+  document.querySelector("#led-table tbody").innerHTML = "";
+  for (const id of ["upload-left", "upload-right"]) {
+    const c = $(id);
+    c.getContext("2d").clearRect(0, 0, c.width, c.height);
+  }
+}
+
 function wireUpload() {
   $("upload-form").addEventListener("submit", async (ev) => {
     ev.preventDefault();
     const form = new FormData(ev.target);
     const st = $("upload-status");
+    clearUploadResult(); // never leave the previous pair's result under a new request
     st.textContent = "processing…"; st.className = "msg";
     try {
       const res = await api("POST", "/stereo", form);
@@ -214,9 +272,12 @@ function wireUpload() {
       summary += "; pipeline " + fmt(res.timing_ms.total, 1) + " ms";
       $("upload-summary").textContent = summary;
       $("upload-result").hidden = false;
+      $("upload").dataset.state = "done";
       st.textContent = "done";
     } catch (e) {
-      st.textContent = e.message; st.className = "msg err";
+      clearUploadResult();
+      $("upload").dataset.state = "failed";
+      st.textContent = "failed: " + e.message; st.className = "msg err";
     }
   });
 }
@@ -261,6 +322,17 @@ function wireRecordings() {
   });
 }
 
+/** Is WebGL drawn by the CPU here (SwiftShader, llvmpipe: no GPU, e.g. headless chromium)? */
+function softwareWebGL() {
+  try {
+    const gl = document.createElement("canvas").getContext("webgl");
+    if (!gl) return true;
+    const ext = gl.getExtension("WEBGL_debug_renderer_info");
+    const name = ext ? String(gl.getParameter(ext.UNMASKED_RENDERER_WEBGL)) : "";
+    return /swiftshader|llvmpipe|software|softpipe/i.test(name);
+  } catch (e) { return true; }
+}
+
 // ---- start ----------------------------------------------------------------------------------
 async function init() {
   wireControls(); wireUpload(); wireRecordings();
@@ -268,7 +340,12 @@ async function init() {
     serviceConfig = await api("GET", "/config");
     if (serviceConfig.token_required) $("token-row").hidden = false;
     if (serviceConfig.viser_port) {
-      const url = serviceConfig.viser_url || (location.protocol + "//" + location.hostname + ":" + serviceConfig.viser_port + "/");
+      let url = serviceConfig.viser_url || (location.protocol + "//" + location.hostname + ":" + serviceConfig.viser_port + "/");
+      if (softwareWebGL()) {
+        // no GPU: render the 3-D view at half resolution (a quarter of the pixels to shade)
+        url += (url.includes("?") ? "&" : "?") + "fixedDpr=0.5";
+        $("viser-note").hidden = false;
+      }
       $("viser-frame").src = url;
     } else {
       $("viser-missing").hidden = false;
@@ -276,6 +353,7 @@ async function init() {
     fillSimForm(await api("GET", "/sim/config"));
   } catch (e) { simMsg(e.message, true); }
   connectTelemetry();
+  setInterval(render, 1000 / RENDER_HZ);
   pollHealth(); setInterval(pollHealth, 1000);
   refreshRecordings(); setInterval(refreshRecordings, 5000);
 }

@@ -50,6 +50,10 @@ LOCKED_NOTE = "**Read-only.** Enter the operator token (`AAR_TOKEN`) and press U
 UNLOCKED_NOTE = "**Operator controls unlocked** for this browser tab."
 
 
+# x: seconds since the start of the current run (not a date: "time": False)
+T_AXES: tuple[Any, ...] = ({"label": "t since run start (s)"}, {})
+
+
 def _series(label: str, color: str, dash: bool = False) -> uplot.Series:
     s: dict[str, Any] = {"label": label, "stroke": color, "width": 1.5}
     if dash:
@@ -162,6 +166,8 @@ class DockingGui:
         gui.configure_theme(control_width="medium")
         self.status = gui.add_markdown("**starting…**")
         self._buf: dict[str, deque[float]] = {}
+        self._chart_run: int | None = None
+        self._last_miss: tuple[float, bool, int] | None = None  # miss (m), captured, run
         self._panels: dict[int, ClientPanel] = {}
         self._panels_lock = threading.Lock()  # panel builds (one folder context at a time), sync
         # GUI changes run here, one at a time, in message order (read-modify-apply of the config)
@@ -185,6 +191,7 @@ class DockingGui:
                 ),
                 title="drogue − probe (m): measured vs reference",
                 scales={"x": {"time": False}},
+                axes=T_AXES,
                 aspect=1.6,
             )
             self.plot_miss = gui.add_uplot(
@@ -196,6 +203,7 @@ class DockingGui:
                 ),
                 title="miss distance (m)",
                 scales={"x": {"time": False}},
+                axes=T_AXES,
                 aspect=2.2,
             )
             self.plot_ctrl = gui.add_uplot(
@@ -209,6 +217,7 @@ class DockingGui:
                 ),
                 title="control deflections",
                 scales={"x": {"time": False}},
+                axes=T_AXES,
                 aspect=2.0,
             )
         with gui.add_folder("Cameras"):
@@ -479,9 +488,20 @@ class DockingGui:
         dq.append(value)
 
     def record(self, record: Any) -> None:
-        """Accumulate one simulated tick into the chart buffers (cheap; every tick)."""
+        """Accumulate one simulated tick into the chart buffers (cheap; every tick).
+
+        The charts hold the current run only: a new run (or time going back) clears them, so
+        that two runs are never joined by a line and the time axis (s since the run's start)
+        stays monotonic, as uPlot requires.
+        """
         if record.source != "sim":
             return
+        ts = self._buf.get("t")
+        if record.run != self._chart_run or (ts and record.t_s < ts[-1]):
+            self._buf.clear()
+            self._chart_run = record.run
+        if record.miss_m is not None:  # set on the one tick that crosses the drogue plane
+            self._last_miss = (float(record.miss_m), bool(record.captured), int(record.run))
         nan = float("nan")
         tip = np.asarray(record.probe_tip_m) if record.probe_tip_m is not None else None
         est = record.drogue_estimate_m or record.drogue_measured_m
@@ -529,9 +549,13 @@ class DockingGui:
             r = record.rel_position_m
             lines.append(f"drogue − probe: ({r[0]:+.2f}, {r[1]:+.2f}, {r[2]:+.2f}) m")
         if record.captured is not None:
-            cap = "**captured**" if record.captured else "not captured"
-            miss = f" · miss {record.miss_m:.3f} m" if record.miss_m is not None else ""
-            lines.append(cap + miss)
+            lines.append("**captured**" if record.captured else "not captured")
+        if self._last_miss is not None:
+            miss, captured, run = self._last_miss
+            lines.append(
+                f"last plane crossing: miss {miss:.3f} m (run {run}"
+                + (", captured)" if captured else ")")
+            )
         self.status.content = "  \n".join(lines)
 
     def set_images(self, record: Any, raw: Any) -> None:

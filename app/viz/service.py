@@ -14,14 +14,21 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import viser
 
 from app.viz.access import AccessPolicy, install_gate
+from app.viz.framing import docking_targets, frame_view
 from app.viz.gui import DockingGui
 from app.viz.scene import DockingScene, ReceiverGeometry
 
 log = logging.getLogger(__name__)
 UPLOAD_HOLD_S = 8.0  # an uploaded pair stays on the image panels this long
+#: a view narrower than this (px) is the operators' page's embedded view: the control panel
+#: starts minimized there, so that it does not cover the docking
+EMBED_MAX_WIDTH_PX = 1100
+#: before the first tick: a view from the side and above, between receiver and drogue
+DEFAULT_VIEW = ((-15.5, 6.0, 4.5), (-15.0, 1.2, 6.2))
 
 
 def viser_client_dir() -> Path | None:
@@ -85,6 +92,9 @@ class VizService:
         self._listeners: list[Callable[[float], None]] = []
         self._pending_calibration: Any = None
         self._pending_reset = False
+        self._framed_run: int | None = None
+        self._minimized: set[int] = set()  # clients whose control panel was minimized
+        self._framed: set[int] = set()  # clients whose camera was framed on the docking
         self.updates = 0
 
     # ---- lifecycle --------------------------------------------------------------------
@@ -96,10 +106,11 @@ class VizService:
         self.policy = AccessPolicy.from_settings(settings, viser_port=self.server.get_port())
         install_gate(self.server, self.policy, self._filter_gui_update)
         self.server.gui.set_panel_label("aar-dock: probe-and-drogue docking")
-        # a view from the side and above, between the receiver and the drogue (tanker frame, z down)
+        # a view from the side and above, between the receiver and the drogue (tanker frame, z
+        # down); each client is framed on the docking when it connects (_frame_client)
         cam = self.server.initial_camera
-        cam.position = (-15.5, 6.0, 4.5)
-        cam.look_at = (-15.0, 1.2, 6.2)
+        cam.position, cam.look_at = DEFAULT_VIEW
+        self.server.on_client_connect(self._on_client_connect)
         try:
             geometry: ReceiverGeometry | None = ReceiverGeometry.from_docking_defaults()
         except ImportError:  # pragma: no cover - the simulation is part of the package
@@ -124,6 +135,82 @@ class VizService:
             self.gui.close()
         if self.server is not None:
             self.server.stop()
+
+    # ---- framing ----------------------------------------------------------------------
+    def _on_client_connect(self, client: Any) -> None:
+        """Frame the client's camera once, when it has told us its canvas size and field of view
+        (its first camera message)."""
+        done = threading.Event()
+
+        def first_camera(_camera: Any) -> None:
+            if not done.is_set():
+                done.set()
+                self._frame_client(client)
+
+        client.camera.on_update(first_camera)
+
+    def _frame_client(self, client: Any) -> None:
+        try:
+            cam = client.camera
+            if int(cam.image_width) < EMBED_MAX_WIDTH_PX:
+                client.gui.main_panel.minimize()
+                self._minimized.add(int(client.client_id))
+            with self._lock:
+                record = self._prev_sim
+            points = docking_targets(record) if record is not None else np.zeros((0, 3))
+            if len(points) == 0:
+                return
+            position, look_at = frame_view(points, fov_rad=float(cam.fov), aspect=cam.aspect)
+            with client.atomic():
+                cam.look_at = look_at
+                cam.position = position
+            self._framed.add(int(client.client_id))
+        except Exception:
+            log.exception("viser: framing the view of client %s failed", client.client_id)
+
+    def _reframe_initial(self, record: Any) -> None:
+        """A new run: "Reset View" (viser's initial camera) frames its start."""
+        if self.server is None or record.run == self._framed_run:
+            return
+        points = docking_targets(record)
+        if len(points) == 0:
+            return
+        self._framed_run = record.run
+        cam = self.server.initial_camera
+        fov = float(cam.fov) if cam.fov else np.radians(50.0)
+        position, look_at = frame_view(points, fov_rad=fov, aspect=16 / 10)
+        cam.position, cam.look_at = position, look_at
+
+    def views(self) -> list[dict[str, Any]]:
+        """Each connected client's camera as its browser reports it (the framing test)."""
+        out: list[dict[str, Any]] = []
+        if self.server is None:
+            return out
+        for cid, client in self.server.get_clients().items():
+            cam = client.camera
+            try:
+                out.append(
+                    {
+                        "client_id": int(cid),
+                        "position": [float(v) for v in cam.position],
+                        "look_at": [float(v) for v in cam.look_at],
+                        "up": [float(v) for v in cam.up_direction],
+                        "fov_rad": float(cam.fov),
+                        "width_px": int(cam.image_width),
+                        "height_px": int(cam.image_height),
+                        "framed": int(cid) in self._framed,
+                        "panel_minimized": int(cid) in self._minimized,
+                    }
+                )
+            except AssertionError:  # no camera message from this client yet
+                continue
+        return out
+
+    def targets(self) -> list[list[float]]:
+        """The points the framing keeps in view (drogue, probe tip, receiver), tanker frame (m)."""
+        with self._lock:
+            record = self._prev_sim
+        return [] if record is None else docking_targets(record).tolist()
 
     # ---- inputs -----------------------------------------------------------------------
     def publish(self, record: Any, raw: Any) -> None:
@@ -200,6 +287,7 @@ class VizService:
                 elif latest is not None and latest[0].seq != shown_seq:
                     record, raw, frame_uav = latest
                     shown_seq = record.seq
+                    self._reframe_initial(record)
                     self.scene.update(
                         record, raw, images=images_due and not upload_live, frame_uav=frame_uav
                     )

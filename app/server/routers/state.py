@@ -1,4 +1,4 @@
-"""Reads: ``/state``, ``/history``, ``/healthz``, ``/metrics``, ``/config``."""
+"""Reads: ``/state``, ``/history``, ``/healthz``, ``/metrics``, ``/config``, ``/scene/view``."""
 
 from __future__ import annotations
 
@@ -6,6 +6,7 @@ from typing import Annotated
 
 from fastapi import APIRouter, HTTPException, Query, Request, status
 from fastapi.responses import PlainTextResponse
+from pydantic import BaseModel, Field
 
 from app.server.dependencies import StateDep
 from app.server.metrics import render_metrics
@@ -90,3 +91,34 @@ def service_config(request: Request, state: StateDep) -> ServiceConfig:
         max_upload_mb=state.settings.max_upload_mb,
         image_size=state.calibrations.current.image_size,
     )
+
+
+class ClientView(BaseModel):
+    """One 3-D view's camera as its browser reports it (tanker frame, m; rad; px)."""
+
+    client_id: int
+    position: list[float]
+    look_at: list[float]
+    up: list[float]
+    fov_rad: float = Field(description="vertical field of view (rad)")
+    width_px: int
+    height_px: int
+    framed: bool = Field(description="the camera was framed on the docking when it connected")
+    panel_minimized: bool = Field(description="the control panel was minimized (embedded view)")
+
+
+class SceneView(BaseModel):
+    targets_m: list[list[float]] = Field(
+        description="points kept in view: drogue centre and rim, probe tip, receiver (m)"
+    )
+    clients: list[ClientView]
+
+
+@router.get("/scene/view", response_model=SceneView)
+def scene_view(state: StateDep) -> SceneView:
+    """The 3-D views' cameras and the docking points they frame (empty without viser)."""
+    viz = state.viz
+    if viz is None:
+        return SceneView(targets_m=[], clients=[])
+    clients = [ClientView(**v) for v in viz.views()]
+    return SceneView(targets_m=viz.targets(), clients=clients)
