@@ -1,4 +1,5 @@
-"""Record a run: JSONL telemetry (one tick record a line) plus a ``.viser`` scene file.
+"""Record a run: JSONL telemetry (one tick record a line), a ``.viser`` scene file and, on
+request, the raw stereo frames (``<id>.frames``, :mod:`app.streams.recording`).
 
 Layout of one recording ``<id>`` (``rec-YYYYmmdd-HHMMSS-xxxxxx``) in the recordings directory:
 
@@ -20,6 +21,12 @@ Layout of one recording ``<id>`` (``rec-YYYYmmdd-HHMMSS-xxxxxx``) in the recordi
     recovered metadata says so: ``scene_file: null``, ``scene_note``). Replay offline: viser's
     client with ``?playbackPath=<url of the .viser file>`` (served at ``/viser-client/``).
 
+``<id>.frames/`` (``POST /recording/start?frames=true``)
+    Lossless PNG pairs, per-pair times and the calibration used, written by a thread of its
+    own (a pair it cannot keep up with is dropped and counted, never blocking the tick
+    thread); every pair is on disk before its index line, so a crash keeps all complete pairs.
+    ``aar-dock track --left <id>.frames`` and ``serve --source video:<id>.frames`` replay it.
+
 Recovery: a :class:`Recorder` created over a directory recovers the recordings a crash left
 behind (metadata still ``recording`` and no live owner, or a JSONL without metadata): it drops a
 torn last line, counts the records, and writes ``status="interrupted"`` metadata, so they are
@@ -37,6 +44,7 @@ import threading
 import time
 import uuid
 import weakref
+from collections.abc import Callable
 from pathlib import Path
 from typing import IO, Any, Literal, Protocol
 
@@ -66,6 +74,10 @@ class RecordingMeta(RecordingInfo):
     scene_note: str | None = None  # why there is no scene file, when there is none
     recovered_wall: float | None = None  # when an interrupted recording was recovered
     recovery_note: str | None = None
+    frames_dir: str | None = None  # raw stereo frames (app.streams.recording), if recorded
+    frame_pairs: int = 0
+    frames_bytes: int = 0
+    frames_dropped: int = 0  # pairs the frame writer could not keep up with
 
 
 class SceneSerializer(Protocol):
@@ -160,6 +172,8 @@ class Recorder:
         self._wake: threading.Event | None = None
         self._last_sync = 0.0
         self._dirty = False
+        self._frames: Any = None  # app.streams.recording.FrameRecordingWriter
+        self._accept_frame: Callable[[Any], bool] | None = None
         self.recovered: list[RecordingMeta] = self.recover() if recover else []
 
     @property
@@ -173,7 +187,17 @@ class Recorder:
         _write_atomic(self._meta_path(info.id), info.model_dump_json(indent=2).encode())
 
     # ---- recording -------------------------------------------------------------------
-    def start(self) -> RecordingMeta:
+    def start(
+        self,
+        *,
+        frames: bool = False,
+        calibration: Any = None,
+        accept_frame: Callable[[Any], bool] | None = None,
+        source: str | None = None,
+    ) -> RecordingMeta:
+        """Start a recording. ``frames``: also the raw stereo pairs of every tick that has
+        images (lossless PNG + times + ``calibration``, in ``<id>.frames``); ``accept_frame``
+        filters the raw ticks whose pairs are written (a stream's fresh-track epoch)."""
         with self._lock:
             if self._info is not None:
                 raise RuntimeError(f"recording {self._info.id} is already active")
@@ -190,6 +214,22 @@ class Recorder:
                     scene_file = f"{rec_id}.viser"
                 except Exception:
                     log.exception("could not start the scene serializer")
+            writer = None
+            if frames:
+                from app.streams.recording import FrameRecordingWriter
+
+                try:
+                    writer = FrameRecordingWriter(
+                        self.directory / f"{rec_id}.frames",
+                        calibration,
+                        max_s=self.max_s,
+                        max_bytes=self.max_bytes,
+                        source=source,
+                    )
+                except Exception:
+                    fh.close()
+                    tele.unlink(missing_ok=True)
+                    raise
             info = RecordingMeta(
                 id=rec_id,
                 started_wall=time.time(),
@@ -199,13 +239,18 @@ class Recorder:
                 status="recording",
                 max_s=self.max_s,
                 max_mb=self.max_mb,
+                frames_dir=None if writer is None else writer.directory.name,
             )
             try:
                 self._write_meta(info)
             except Exception:
                 fh.close()
                 tele.unlink(missing_ok=True)
+                if writer is not None:
+                    writer.close("metadata write failed")
                 raise
+            self._frames = writer
+            self._accept_frame = accept_frame
             self._fh = fh
             self._serializer = serializer
             self._info = info
@@ -244,8 +289,32 @@ class Recorder:
             info.ticks += 1
             info.telemetry_bytes += len(line)
             info.last_record_wall = record.wall_time
-            if info.telemetry_bytes + self._scene_bytes_est > self.max_bytes:
+            writer = self._frames
+            if writer is not None and raw is not None:
+                self._submit_frame(writer, record, raw)
+            if self._total_bytes(info) > self.max_bytes:
                 self._request_stop(f"reached {self.max_bytes / 1e6:g} MB")
+            elif writer is not None and writer.stop_reason is not None:
+                self._request_stop(f"frames: {writer.stop_reason}")
+
+    def _total_bytes(self, info: RecordingMeta) -> int:
+        frames = self._frames.bytes if self._frames is not None else 0
+        return info.telemetry_bytes + self._scene_bytes_est + frames
+
+    def _submit_frame(self, writer: Any, record: TickRecord, raw: Any) -> None:
+        """(lock held) Queue the tick's stereo pair for the frame writer (never blocks)."""
+        accept = self._accept_frame
+        if accept is not None and not accept(raw):
+            return
+        frame = getattr(raw, "frame", None)  # a stream tick carries its StereoFrame
+        if frame is None:
+            left, right = getattr(raw, "left_image", None), getattr(raw, "right_image", None)
+            if left is None or right is None:
+                return
+            from app.streams.frames import StereoFrame
+
+            frame = StereoFrame(left=left, right=right, t_s=record.t_s, seq=record.seq)
+        writer.submit(frame, record.seq)
 
     def _request_stop(self, reason: str) -> None:
         """(lock held) The watchdog thread stops it: serializing must not block the tick thread."""
@@ -264,8 +333,10 @@ class Recorder:
             reason = self._limit_reason
             if reason is None and remaining <= 0:
                 reason = f"reached {self.max_s:g} s"
-            if reason is None and info.telemetry_bytes + self._scene_bytes_est > self.max_bytes:
+            if reason is None and self._total_bytes(info) > self.max_bytes:
                 reason = f"reached {self.max_bytes / 1e6:g} MB"
+            if reason is None and self._frames is not None and self._frames.stop_reason:
+                reason = f"frames: {self._frames.stop_reason}"
             fh = self._fh
             sync = fh if self._dirty and now - self._last_sync >= FSYNC_PERIOD_S else None
             if sync is not None:
@@ -304,6 +375,7 @@ class Recorder:
             self._finishing = info
             fh, self._fh = self._fh, None
             ser, self._serializer = self._serializer, None
+            writer, self._frames = self._frames, None
             wake, self._wake = self._wake, None
             self._limit_reason = None
         if wake is not None:
@@ -321,6 +393,11 @@ class Recorder:
                 "stop_reason": reason,
                 "status": "complete",
             }
+            if writer is not None:
+                fmeta = writer.close(reason)
+                update["frame_pairs"] = int(fmeta["pairs"])
+                update["frames_bytes"] = int(fmeta["bytes"])
+                update["frames_dropped"] = int(fmeta["dropped"])
             if ser is not None and info.scene_file is not None:
                 try:
                     data = ser.serialize()
@@ -405,6 +482,12 @@ class Recorder:
                 (self.directory / tmp).unlink(missing_ok=True)
             scene_path = self.directory / scene_name
             scene_ok = scene_path.is_file()  # written atomically: complete if present
+            frames_path = self.directory / f"{rec_id}.frames"
+            frame_pairs = 0
+            if (frames_path / "frames.jsonl").is_file():
+                from app.streams.recording import read_index
+
+                frame_pairs = len(read_index(frames_path))  # complete pairs only
             started = prior.started_wall if prior is not None else _wall_time(first)
             meta = RecordingMeta(
                 id=rec_id,
@@ -424,6 +507,8 @@ class Recorder:
                 scene_note=None if scene_ok else SCENE_LOST_NOTE,
                 recovered_wall=time.time(),
                 recovery_note="; ".join(notes) or None,
+                frames_dir=frames_path.name if frame_pairs or frames_path.is_dir() else None,
+                frame_pairs=frame_pairs,
             )
             self._write_meta(meta)  # while still holding the lock
         return meta

@@ -209,13 +209,6 @@ class StreamService:
     def accepts_push(self) -> bool:
         return isinstance(self.source, PushSource)
 
-    def begin_recording(self) -> int | None:
-        """A recording with frames starts at a fresh acquisition so that replaying it gives
-        the live results: the track is reset; pairs of an older track epoch are not
-        recorded. ``None`` for the simulation (nothing to reset)."""
-        processor = self.processor
-        return None if processor is None else processor.request_reset()
-
     # ---- status -----------------------------------------------------------------------
     def status(self) -> dict[str, Any]:
         source = self.source

@@ -1,4 +1,5 @@
-"""Recording a run: JSONL telemetry + ``.viser`` scene; listing and download.
+"""Recording a run: JSONL telemetry + ``.viser`` scene (+ raw stereo frames on request);
+listing and download.
 
 Recordings a crash interrupted are recovered when the service starts (``status:
 "interrupted"``): listed, telemetry downloadable; their scene file is lost (``scene_file: null``,
@@ -7,7 +8,9 @@ Recordings a crash interrupted are recovered when the service starts (``status:
 
 from __future__ import annotations
 
-from fastapi import APIRouter, Depends, HTTPException, status
+from typing import Annotated, Any
+
+from fastapi import APIRouter, Depends, HTTPException, Query, status
 from fastapi.responses import FileResponse
 
 from app.server.dependencies import StateDep, require_token
@@ -23,11 +26,38 @@ router = APIRouter(tags=["recording"])
     dependencies=[Depends(require_token)],
     responses={409: {"model": Message}},
 )
-def recording_start(state: StateDep) -> RecordingMeta:
+def recording_start(
+    state: StateDep,
+    frames: Annotated[
+        bool,
+        Query(description="also record the raw stereo frames (lossless PNG, times, calibration)"),
+    ] = False,
+) -> RecordingMeta:
+    """Start a recording. With ``frames=true`` the stereo pairs are recorded too, and a
+    camera stream's track restarts with a full-frame acquisition on the first recorded pair,
+    so that ``aar-dock track --left <id>.frames`` replays it to the live results."""
+    streams = state.streams
+    processor = None if streams is None else streams.processor
+    accept = None
+    if frames and processor is not None:
+        first_epoch = processor.epoch + 1
+
+        def accept(raw: Any) -> bool:
+            epoch = getattr(raw, "track_epoch", None)
+            return epoch is None or epoch >= first_epoch
+
     try:
-        return state.recorder.start()
+        info = state.recorder.start(
+            frames=frames,
+            calibration=state.calibrations.current,
+            accept_frame=accept,
+            source=None if streams is None else streams.spec,
+        )
     except RuntimeError as exc:
         raise HTTPException(status.HTTP_409_CONFLICT, str(exc)) from None
+    if processor is not None and frames:
+        processor.request_reset()
+    return info
 
 
 @router.post(
