@@ -26,6 +26,19 @@ def register(subparsers: Any) -> None:
     p.add_argument("--recordings-dir", help="where recordings go (default ./recordings)")
     p.add_argument("--no-viser", action="store_true", help="do not start the 3-D scene server")
     p.add_argument("--no-sim", action="store_true", help="do not start the simulated stream")
+    p.add_argument(
+        "--source",
+        help="frame source (AAR_SOURCE): sim (default), push, video:LEFT,RIGHT (two videos, "
+        "folders or globs), video:DIR (a frame recording), camera:I,J, camera:I (side-by-side)",
+    )
+    p.add_argument("--max-skew-ms", type=float, help="left/right pairing tolerance (default 10)")
+    p.add_argument(
+        "--as-fast-as-possible",
+        action="store_true",
+        help="read video sources as fast as they are processed (default: at their frame times)",
+    )
+    p.add_argument("--loop", action="store_true", help="restart a video source at its end")
+    p.add_argument("--fps", type=float, help="frame rate of image folders without timestamps")
     p.set_defaults(func=run)
 
 
@@ -55,6 +68,9 @@ def settings_from_args(args: argparse.Namespace) -> Any:
         ("tick_hz", "tick_hz"),
         ("calibration", "calibration"),
         ("recordings_dir", "recordings_dir"),
+        ("source", "source"),
+        ("max_skew_ms", "stream_max_skew_ms"),
+        ("fps", "stream_fps"),
     ):
         value = getattr(args, flag, None)
         if value is not None:
@@ -63,6 +79,10 @@ def settings_from_args(args: argparse.Namespace) -> Any:
         overrides["viser_enabled"] = False
     if args.no_sim:
         overrides["sim_autostart"] = False
+    if getattr(args, "as_fast_as_possible", False):
+        overrides["stream_realtime"] = False
+    if getattr(args, "loop", False):
+        overrides["stream_loop"] = True
     return Settings(**overrides)
 
 
@@ -81,6 +101,15 @@ def run(args: argparse.Namespace) -> int:
     except CalibrationError as exc:
         print(f"aar-dock serve: {exc}", file=sys.stderr)
         return 2
+    if settings.source.strip() not in ("", "sim", "push"):
+        from app.streams.frames import SourceError
+        from app.streams.sources import open_source, parse_source
+
+        try:  # fail here, with the reason, rather than in the service's start-up
+            open_source(parse_source(settings.source)).close()
+        except SourceError as exc:
+            print(f"aar-dock serve: --source: {exc}", file=sys.stderr)
+            return 2
     if not _port_free(settings.host, settings.port):
         print(f"aar-dock serve: port {settings.port} on {settings.host} is in use", file=sys.stderr)
         return 2
@@ -103,7 +132,12 @@ def run(args: argparse.Namespace) -> int:
         flush=True,
     )
     config = uvicorn.Config(
-        app, host=settings.host, port=settings.port, workers=1, log_level=settings.log_level
+        app,
+        host=settings.host,
+        port=settings.port,
+        workers=1,
+        log_level=settings.log_level,
+        ws_max_size=settings.push_limit_bytes + 4096,  # pushed pairs (the handler checks too)
     )
     server = uvicorn.Server(config)
     server.run()

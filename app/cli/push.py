@@ -1,0 +1,154 @@
+"""``aar-dock push``: read a stereo source on the camera computer and push its pairs to a
+running service (WebSocket ``/api/v1/stream/push``, protocol in :mod:`app.streams.protocol`)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from typing import Any
+
+
+def register(subparsers: Any) -> None:
+    p = subparsers.add_parser(
+        "push",
+        help="push stereo pairs (videos, folders, cameras) to a service started with --source push",
+        description=(
+            "Read stereo pairs (two videos, folders or globs; a frame recording; two camera "
+            "indices, or one side-by-side camera) and send them to the service's push "
+            "WebSocket. The service keeps the newest pair; its drops are in GET /api/v1/stream."
+        ),
+    )
+    p.add_argument(
+        "--left",
+        required=True,
+        help="left video/folder/glob, camera index, or a *.frames recording",
+    )
+    p.add_argument("--right", default="", help="right input (omit: recording or side-by-side)")
+    p.add_argument("--url", required=True, help="ws://HOST:PORT/api/v1/stream/push")
+    p.add_argument("--token", help="bearer token (AAR_TOKEN of the service)")
+    p.add_argument("--fps", type=float, help="send at this rate (default: the source's times)")
+    p.add_argument("--as-fast-as-possible", action="store_true", help="no pacing at all")
+    p.add_argument(
+        "--format",
+        choices=("png", "jpg"),
+        default="png",
+        help="image encoding (png: lossless, default; jpg: smaller)",
+    )
+    p.add_argument("--jpeg-quality", type=int, default=95)
+    p.add_argument("--count", type=int, help="stop after this many pairs")
+    p.add_argument("--loop", action="store_true", help="restart file sources at their end")
+    p.add_argument("--max-skew-ms", type=float, default=10.0)
+    p.set_defaults(func=run)
+
+
+def open_push_source(args: argparse.Namespace) -> Any:
+    """Camera indices → :class:`CameraSource`; anything else → :class:`VideoSource`."""
+    from app.streams.sources import CameraSource, SourceOptions, VideoSource
+
+    paced = args.fps is None and not args.as_fast_as_possible
+    options = SourceOptions(
+        realtime=paced, loop=args.loop, fps=args.fps or 30.0, max_skew_s=args.max_skew_ms / 1e3
+    )
+    left, right = args.left.strip(), args.right.strip()
+    if left.isdigit() and (not right or right.isdigit()):
+        return CameraSource(left, right, options)
+    return VideoSource(left, right, options)
+
+
+def _encode(img: Any, fmt: str, quality: int) -> bytes:
+    import cv2
+
+    if fmt == "png":
+        ok, buf = cv2.imencode(".png", img, [cv2.IMWRITE_PNG_COMPRESSION, 1])
+    else:
+        ok, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, quality])
+    if not ok:
+        raise RuntimeError(f"{fmt} encoding failed")
+    return bytes(buf.tobytes())
+
+
+def run(args: argparse.Namespace) -> int:
+    from websockets.exceptions import ConnectionClosed, InvalidHandshake
+    from websockets.sync.client import connect
+
+    from app.streams.frames import EndOfStream, SourceError
+    from app.streams.protocol import encode_message
+
+    try:
+        source = open_push_source(args)
+    except SourceError as exc:
+        print(f"aar-dock push: {exc}", file=sys.stderr)
+        return 2
+    headers = {"Authorization": f"Bearer {args.token}"} if args.token else None
+    sent = 0
+    nbytes = 0
+    t0 = time.monotonic()
+    period = 1.0 / args.fps if args.fps else 0.0
+    next_t = time.monotonic()
+    try:
+        with connect(
+            args.url,
+            additional_headers=headers,
+            max_size=None,
+            compression=None,
+            open_timeout=10,
+            proxy=None,
+        ) as ws:
+            while args.count is None or sent < args.count:
+                try:
+                    frame = source.read(timeout_s=1.0)
+                except EndOfStream:
+                    break
+                if frame is None:
+                    continue
+                if period:
+                    delay = next_t - time.monotonic()
+                    if delay > 0:
+                        time.sleep(delay)
+                    next_t = max(next_t + period, time.monotonic() - period)
+                msg = encode_message(
+                    _encode(frame.left, args.format, args.jpeg_quality),
+                    _encode(frame.right, args.format, args.jpeg_quality),
+                    t_s=frame.t_s,
+                    seq=frame.seq,
+                    exposure_ms=frame.exposure_ms,
+                    t_left_s=frame.t_left_s,
+                    t_right_s=frame.t_right_s,
+                )
+                ws.send(msg)
+                sent += 1
+                nbytes += len(msg)
+                try:  # the service answers only problems (at most one a second)
+                    while True:
+                        reply = ws.recv(timeout=0)
+                        print(f"aar-dock push: service: {reply}", file=sys.stderr)
+                except TimeoutError:
+                    pass
+            ws.send("stats")
+            stats: Any = None
+            deadline = time.monotonic() + 5.0
+            while time.monotonic() < deadline:
+                try:
+                    reply = json.loads(ws.recv(timeout=max(0.1, deadline - time.monotonic())))
+                except TimeoutError:
+                    break
+                if isinstance(reply, dict) and "error" in reply:
+                    print(f"aar-dock push: service: {reply['error']}", file=sys.stderr)
+                    continue
+                stats = reply
+                break
+    except (OSError, InvalidHandshake, ConnectionClosed) as exc:
+        print(f"aar-dock push: {type(exc).__name__}: {exc}", file=sys.stderr)
+        return 1
+    finally:
+        source.close()
+    wall = time.monotonic() - t0
+    print(
+        f"pushed {sent} pairs ({nbytes / 1e6:.1f} MB) in {wall:.1f} s "
+        f"({sent / wall if wall > 0 else 0:.1f} pairs/s)"
+    )
+    if stats is not None:
+        print("service " + json.dumps(stats))
+    return 0 if sent else 1
