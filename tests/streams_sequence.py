@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -88,3 +89,11 @@ def led_errors_mm(rows: list[dict], seq: Sequence) -> list[float]:
 
 def read_jsonl(path: Path) -> list[dict]:
     return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+
+
+@functools.cache
+def cached_sequence(n: int = 40) -> Sequence:
+    """One rendering per test session (the sample calibration)."""
+    from app.sim.paths import load_default_calibration
+
+    return render_sequence(load_default_calibration(), n)
