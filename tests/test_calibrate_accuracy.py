@@ -14,16 +14,11 @@ import cv2
 import numpy as np
 import pytest
 
+from app.geometry.board_detect import Board, PairDetection, detect_pairs, pair_name
 from app.geometry.calibration import StereoCalibration
-from app.geometry.checkerboard import (
-    Board,
-    PairDetection,
-    calibrate_from_detections,
-    detect_pairs,
-    pair_name,
-    write_report_png,
-)
+from app.geometry.calibration_report import write_report_png
 from app.geometry.projection import project_camera
+from app.geometry.stereo_calibrate import calibrate_from_detections
 from app.sim.checkerboard_render import load_truth, zero_skew
 
 REPO = Path(__file__).resolve().parents[1]
@@ -302,7 +297,7 @@ def test_skew_recovered_from_corners_of_the_paper_rig(sample, board, model):
 def test_skew_model_matches_the_projection_module():
     """The refinement's projection (eqs. 2 + 7) equals app.geometry.projection's, 5 terms + γ."""
     from app.geometry.calibration import CameraIntrinsics
-    from app.geometry.checkerboard import _project_skew
+    from app.geometry.stereo_calibrate import _project_skew
 
     K = np.array([[2394.4, -4.5, 692.7], [0.0, 2394.0, 590.8], [0.0, 0.0, 1.0]])
     dist = np.array([0.07, -0.13, 1e-3, -2e-3, 0.05])

@@ -12,7 +12,7 @@ from fastapi import FastAPI
 from fastapi.testclient import TestClient
 
 from app.geometry.calibration import StereoCalibration
-from app.server.routes_checkerboard import router
+from app.server.routers.checkerboard import router
 from app.sim.checkerboard_render import load_truth
 
 REPO = Path(__file__).resolve().parents[1]

@@ -13,15 +13,15 @@ import numpy as np
 import pytest
 
 from app.cli.main import main
-from app.geometry.checkerboard import (
+from app.geometry.board_detect import (
     Board,
     CheckerboardError,
     PairDetection,
-    calibrate_from_detections,
     check_image_sizes,
     pair_name,
     parse_board,
 )
+from app.geometry.stereo_calibrate import calibrate_from_detections
 
 REPO = Path(__file__).resolve().parents[1]
 SET_DIR = REPO / "sample_data" / "checkerboard"
@@ -125,7 +125,7 @@ def test_one_sided_pair_is_rejected_and_reported(tmp_path, capsys):
     blank = np.full((1024, 1280), 95, np.uint8)
     cv2.imwrite(str(folder / "right_03.png"), blank)
     report = tmp_path / "report"
-    code, out, err = _run(capsys, folder, "--report", str(report), "--fast")
+    code, out, err = _run(capsys, folder, "--report", str(report))
     assert code == 0, err
     assert "warning: pair 03 rejected: board found in the left image only" in err
     assert "views used      6 of 7 (1 rejected)" in out

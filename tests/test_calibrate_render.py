@@ -7,8 +7,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from app.geometry.board_detect import detect_corners
 from app.geometry.calibration import StereoCalibration
-from app.geometry.checkerboard import detect_corners
 from app.geometry.projection import project_camera
 from app.sim.checkerboard_render import (
     CheckerboardSpec,

@@ -512,7 +512,7 @@ def test_checkerboard_needs_the_token(client: TestClient, monkeypatch: pytest.Mo
     r = client.post(url, files=files, headers=AUTH)
     assert r.status_code == 400 and "is not a decodable image" in r.json()["detail"]
     # defence in depth: the route's own dependency (a bare app without the guard)
-    from app.server.routes_checkerboard import router
+    from app.server.routers.checkerboard import router
 
     bare = FastAPI()
     bare.include_router(router, prefix="/api/v1")

@@ -58,9 +58,16 @@ def register(subparsers: Any) -> None:
         help="warn when the stereo reprojection RMS exceeds this (px, default 0.5)",
     )
     p.add_argument(
-        "--fast",
+        "--workers",
+        type=int,
+        default=None,
+        help="detection processes (default: a pool of all CPUs when the set is large enough "
+        "to pay for it; 1 = none)",
+    )
+    p.add_argument(
+        "--keep-outliers",
         action="store_true",
-        help="skip the up-sampled corner pass (about 4x faster detection, slightly less accurate)",
+        help="do not drop reprojection-outlier views (robust z-score rule, see docs/calibration.md)",
     )
     p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     p.set_defaults(func=run)
@@ -74,15 +81,10 @@ def _fail(message: str) -> int:
 def run(args: argparse.Namespace) -> int:
     import cv2
 
+    from app.geometry.board_detect import Board, CheckerboardError, pair_name, parse_board
     from app.geometry.calibration import CalibrationError
-    from app.geometry.checkerboard import (
-        Board,
-        CheckerboardError,
-        calibrate_checkerboard,
-        pair_name,
-        parse_board,
-        write_report_png,
-    )
+    from app.geometry.calibration_report import write_report_png
+    from app.geometry.stereo_calibrate import calibrate_checkerboard
 
     left_files = sorted(Path(p) for p in glob.glob(args.left))
     right_files = sorted(Path(p) for p in glob.glob(args.right))
@@ -117,7 +119,8 @@ def run(args: argparse.Namespace) -> int:
             max_stereo_rms_px=args.max_rms,
             progress=not args.no_progress,
             estimate_skew=args.skew,
-            accurate=not args.fast,
+            workers=args.workers,
+            drop_outliers=not args.keep_outliers,
         )
         out = Path(args.out)
         if out.parent and not out.parent.exists():
@@ -139,7 +142,10 @@ def run(args: argparse.Namespace) -> int:
     for w in rep.warnings:
         print(f"warning: {w}", file=sys.stderr)
     il, ir = rep.intrinsics["left"], rep.intrinsics["right"]
-    print(f"views used      {rep.views_used} of {rep.pairs_given} ({len(rep.rejected)} rejected)")
+    print(
+        f"views used      {rep.views_used} of {rep.pairs_given} ({len(rep.rejected)} rejected"
+        + (f", {len(rep.dropped)} dropped as outliers)" if rep.dropped else ")")
+    )
     print(
         f"RMS (px)        left {rep.left_rms_px:.3f}  right {rep.right_rms_px:.3f}  stereo {rep.stereo_rms_px:.3f}"
     )
@@ -150,6 +156,12 @@ def run(args: argparse.Namespace) -> int:
             + (f"skew {i['skew']:.2f}" if args.skew else "(skew not estimated: 0)")
         )
     print(f"baseline        {rep.baseline_mm:.2f} mm, convergence {rep.convergence_deg:.3f} deg")
+    if rep.held_out is not None:
+        print(
+            f"held-out check  square size RMS {rep.held_out.rms_mm:.3f} mm, "
+            f"max {rep.held_out.max_mm:.3f} mm ({rep.held_out.folds}-fold, boards triangulated "
+            "by a calibration made without them)"
+        )
     print(
         f"wrote           {args.out}"
         + (f", {args.report}/report.json, {args.report}/report.png" if args.report else "")

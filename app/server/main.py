@@ -12,7 +12,6 @@ JSON (``app.server.errors``).
 from __future__ import annotations
 
 import asyncio
-import importlib
 import logging
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
@@ -33,7 +32,16 @@ from app.server import security
 from app.server.dependencies import AppState, CalibrationStore, UploadProcessor
 from app.server.errors import validation_exception_handler
 from app.server.recording import Recorder
-from app.server.routers import calibration, recording, sim, state, stereo, stream, telemetry
+from app.server.routers import (
+    calibration,
+    checkerboard,
+    recording,
+    sim,
+    state,
+    stereo,
+    stream,
+    telemetry,
+)
 from app.server.schemas import SimConfig
 from app.server.settings import WILDCARD_BIND, Settings
 from app.server.stream_service import StreamService
@@ -237,15 +245,8 @@ def create_app(
 
     app.add_exception_handler(SourceUnavailable, source_unavailable)
     security.install(app, settings, API_PREFIX)
-    for module in (state, sim, stereo, calibration, recording, telemetry, stream):
+    for module in (state, sim, stereo, calibration, checkerboard, recording, telemetry, stream):
         app.include_router(module.router, prefix=API_PREFIX)
-    try:
-        checker: Any = importlib.import_module("app.server.routes_checkerboard")
-    except ModuleNotFoundError as exc:
-        if exc.name != "app.server.routes_checkerboard":
-            raise
-    else:
-        app.include_router(checker.router, prefix=API_PREFIX)
 
     static_dir = settings.static_dir
     if static_dir.is_dir():

@@ -3,8 +3,12 @@
 Mounted by the service under ``/api/v1``. Multipart form: ``left`` and ``right`` (one file per
 image, repeated; pair k = k-th left file + k-th right file, in upload order), ``board``
 (inner corners, e.g. ``9x6``), ``square_mm``, optional ``model`` (``paper`` | ``full``),
-``estimate_skew``, ``max_rms_px`` and ``include_png``. Returns ``{"calibration": ..., "report": ...}`` (and
-``report_png_base64`` on request). The calibration is *not* activated here: send it to
+``estimate_skew``, ``max_rms_px``, ``drop_outliers`` and ``include_png``. Returns
+``{"calibration": ..., "report": ...}`` (and ``report_png_base64`` on request). The report
+is that of ``aar-dock calibrate`` (app.geometry.calibration_report): per-view errors with the
+held-out residual, ``rejected`` (board missing, or left/right grids not the same corners),
+``dropped`` (reprojection outliers, robust z-score rule), ``coverage``, ``held_out``,
+``detectors`` and the warnings. The calibration is *not* activated here: send it to
 ``PUT /api/v1/calibration`` to switch to it.
 
 Errors: 401 without the bearer token (when ``AAR_TOKEN`` is set); 400 for files that are not
@@ -27,15 +31,10 @@ import cv2
 import numpy as np
 from fastapi import APIRouter, Depends, File, Form, HTTPException, Request, UploadFile
 
+from app.geometry.board_detect import Board, CheckerboardError, pair_name, parse_board
 from app.geometry.calibration import CalibrationError
-from app.geometry.checkerboard import (
-    Board,
-    CheckerboardError,
-    calibrate_checkerboard,
-    pair_name,
-    parse_board,
-    report_png_bytes,
-)
+from app.geometry.calibration_report import report_png_bytes
+from app.geometry.stereo_calibrate import calibrate_checkerboard
 from app.server.dependencies import request_settings, require_token
 from app.server.image_guard import ImageHeader, ImageHeaderError, peek_header
 
@@ -120,6 +119,7 @@ def _calibrate(
     max_rms_px: float,
     include_png: bool,
     estimate_skew: bool,
+    drop_outliers: bool,
 ) -> dict[str, Any]:
     lefts = [_decode(b, lab) for b, lab in zip(left_bytes, left_labels, strict=True)]
     rights = [_decode(b, lab) for b, lab in zip(right_bytes, right_labels, strict=True)]
@@ -131,6 +131,7 @@ def _calibrate(
         model=model,
         max_stereo_rms_px=max_rms_px,
         estimate_skew=estimate_skew,
+        drop_outliers=drop_outliers,
     )
     payload: dict[str, Any] = {
         "calibration": result.calibration.to_dict(),
@@ -175,8 +176,11 @@ async def calibrate_from_checkerboard(
     estimate_skew: Annotated[
         bool, Form(description="also estimate the skew γ (OpenCV alone writes γ = 0)")
     ] = False,
+    drop_outliers: Annotated[
+        bool, Form(description="drop reprojection-outlier views (robust z-score rule)")
+    ] = True,
 ) -> dict[str, Any]:
-    """Calibrate the stereo rig from checkerboard pairs (Zhang's method, OpenCV); skew γ = 0."""
+    """Calibrate the stereo rig from checkerboard pairs (Zhang's method, OpenCV)."""
     if len(left) != len(right):
         raise HTTPException(
             status_code=422,
@@ -236,6 +240,7 @@ async def calibrate_from_checkerboard(
             max_rms_px,
             include_png,
             estimate_skew,
+            drop_outliers,
         )
     except (CheckerboardError, CalibrationError) as exc:
         raise HTTPException(status_code=422, detail=str(exc)) from None
