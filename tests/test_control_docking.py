@@ -72,22 +72,25 @@ def test_invalid_config_raises_value_error():
         DockingSimulation(DockingConfig(led_dropout=(9,)))
 
 
-def test_roi_tracking_window_keeps_lock_and_accuracy():
-    """The tracking window (shifted principal points) measures the same drogue as full frames."""
+def test_roi_tracking_alias_renders_only_the_tracker_windows():
+    """``roi_tracking`` (deprecated) is ``render_mode="windows"``: full-size images with only
+    the tracker's windows rendered, the same drogue measured as with full frames."""
     cfg = DockingConfig(
         turbulence="light", seed=2, vision=True, roi_tracking=True, station_keep_s=0.2
     )
     sim = DockingSimulation(cfg)
+    assert sim.effective_render_mode == "windows"
     windowed = 0
     errs = []
     for _ in range(60):
         tick = sim.step()
-        if tick.image_offsets_px is not None:
+        if tick.image_windows_px is not None:
             windowed += 1
-            assert tick.left_image is not None and tick.left_image.shape[0] < 1024
+            assert tick.left_image is not None and tick.left_image.shape == (1024, 1280)
+            assert len(tick.image_windows_px[0]) == 5 and len(tick.image_windows_px[1]) == 5
         if tick.drogue_measured_m is not None:
             errs.append(np.linalg.norm(tick.drogue_measured_m - tick.drogue_truth_m))
-    assert windowed > 50  # all but the acquisition frame(s)
+    assert windowed >= 10  # frames the tracker tracked (at 13 m it still often re-acquires)
     assert len(errs) == 60
     assert np.median(errs) < 0.05
 

@@ -6,7 +6,7 @@ import argparse
 import json
 import sys
 
-from app.cli.simulate import add_docking_options
+from app.cli.simulate import add_docking_options, rounded
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -42,7 +42,7 @@ def run(args: argparse.Namespace) -> int:
             vision=not args.truth_measurements,
             camera_hz=args.camera_hz,
             matcher=args.matcher,
-            roi_tracking=args.roi,
+            render_mode="windows" if args.roi else args.render,
             station_keep_s=args.station_keep,
         )
         cfg.validate()
@@ -85,6 +85,6 @@ def run(args: argparse.Namespace) -> int:
             client.close()
     summary = summarise(rows, cfg)
     paths = write_outputs(args.out, rows, summary)
-    print(json.dumps({k: v for k, v in summary.items() if k != "config"}))
+    print(json.dumps(rounded({k: v for k, v in summary.items() if k != "config"})))
     print(f"wrote {paths['csv']}, {paths['json']}, {paths['png']}", file=sys.stderr)
     return 0

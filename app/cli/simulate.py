@@ -21,8 +21,13 @@ def add_docking_options(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--matcher", default="epipolar", choices=["epipolar", "paper"])
     p.add_argument(
-        "--roi", action="store_true", help="render/process a tracking window around the drogue"
+        "--render",
+        default="windows",
+        choices=["windows", "full"],
+        help="windows: render only the tracker's windows while it tracks (fast, same poses); "
+        "full: render whole frames",
     )
+    p.add_argument("--roi", action="store_true", help=argparse.SUPPRESS)  # = --render windows
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -102,7 +107,7 @@ def run(args: argparse.Namespace) -> int:
             vision=not args.truth_measurements,
             camera_hz=args.camera_hz,
             matcher=args.matcher,
-            roi_tracking=args.roi,
+            render_mode="windows" if args.roi else args.render,
             station_keep_s=args.station_keep,
         )
         cfg.validate()
@@ -120,25 +125,51 @@ def run(args: argparse.Namespace) -> int:
     sim_s = sim.k * sim.dt
     out = sim.outcome()
     speed = {
-        "sim_time_s": round(sim_s, 6),
-        "wall_time_s": round(wall_s, 6),
-        "real_time_factor": round(sim_s / wall_s, 3) if wall_s > 0 else None,
+        "sim_time_s": round(sim_s, 3),
+        "wall_time_s": round(wall_s, 3),
+        "real_time_factor": round(sim_s / wall_s, 2) if wall_s > 0 else None,
     }
     if args.plot:
         paths = plot_run(log, Path(args.plot))
         if not args.json:
             for p in paths:
                 print(f"wrote {p}", file=sys.stderr)
+    d = rounded(out.to_dict())
     if args.json:
-        print(json.dumps({**out.to_dict(), **speed}))
+        print(json.dumps({**d, **speed}))
         return 0
-    d = out.to_dict()
-    miss = d["miss_distance_m"]
+
+    def show(v: float | None, unit: str, scale: float = 1.0, digits: int = 2) -> str:
+        return "n/a" if v is None else f"{scale * v:.{digits}f} {unit}"
+
     print(
-        f"captured={d['captured']} miss={'n/a' if miss is None else f'{100 * miss:.1f} cm'} "
-        f"closure={d['closure_speed_mps']} m/s time_to_capture={d['time_to_capture_s']} s "
+        f"captured={d['captured']} miss={show(d['miss_distance_m'], 'cm', 100.0, 1)} "
+        f"closure={show(d['closure_speed_mps'], 'm/s')} "
+        f"time_to_capture={show(d['time_to_capture_s'], 's')} "
         f"aborts={d['aborts']} max_saturation={d['max_control_saturation']:.2f} "
         f"sim={speed['sim_time_s']:.1f} s wall={speed['wall_time_s']:.1f} s "
         f"({speed['real_time_factor']}× real time)"
     )
     return 0
+
+
+#: decimals kept per output key (units: m, m/s, s, fractions); the rest 4 significant digits
+ROUNDING = {
+    "miss_distance_m": 4,  # 0.1 mm
+    "closure_speed_mps": 3,
+    "time_to_capture_s": 2,
+    "max_control_saturation": 3,
+}
+
+
+def rounded(d: dict[str, Any]) -> dict[str, Any]:
+    """Floats rounded to what they mean (``ROUNDING``; others to 4 significant digits)."""
+    out: dict[str, Any] = {}
+    for k, v in d.items():
+        if isinstance(v, dict):
+            out[k] = rounded(v)
+        elif isinstance(v, float) and not isinstance(v, bool):
+            out[k] = round(v, ROUNDING[k]) if k in ROUNDING else float(f"{v:.4g}")
+        else:
+            out[k] = v
+    return out

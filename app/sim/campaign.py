@@ -85,7 +85,7 @@ def summarise(rows: list[dict[str, Any]], config: DockingConfig | None = None) -
             "vision": config.vision,
             "matcher": config.matcher,
             "camera_hz": config.camera_hz,
-            "roi_tracking": config.roi_tracking,
+            "render_mode": "windows" if config.roi_tracking else config.render_mode,
             "tick_hz": config.tick_hz,
             "closure_speed_mps": config.closure_speed_mps,
             "station_keep_s": config.station_keep_s,

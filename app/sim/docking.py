@@ -38,7 +38,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field, replace
 from functools import lru_cache
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -48,14 +48,17 @@ from app.control.drogue_filter import DrogueFilter
 from app.control.lqr import IntegralLqr
 from app.control.observer import StateObserver
 from app.control.reference import GuidanceConfig, ReferenceGenerator
+from app.geometry.calibration import StereoCalibration
+from app.sim.camera_sensor import RENDER_MODES, StereoCameraSensor
 from app.sim.frames import euler_to_matrix, look_at_camera
 from app.sim.hose_drogue import HoseDrogue, HoseDrogueParams
+from app.sim.led_ring import LedRing
+from app.sim.paths import load_default_calibration
 from app.sim.receiver import INPUT_NAMES, STATE_NAMES, Actuators, FlightCondition, LinearReceiver
+from app.sim.stereo_render import Rect, RenderSettings
 from app.sim.turbulence import LEVELS, DrydenTurbulence
-
-if TYPE_CHECKING:
-    from app.geometry.calibration import StereoCalibration
-    from app.vision.result import PoseResult
+from app.vision.pipeline import PipelineConfig
+from app.vision.result import PoseResult
 
 FloatArray = NDArray[np.float64]
 PHASES = ("approach", "final", "contact", "station_keeping", "backoff")
@@ -99,12 +102,17 @@ class DockingConfig:
     camera_body_m: tuple[float, float, float] = (0.0, -0.35, -0.35)
     camera_aim_ahead_m: float = 0.0
     abort_margin: float = 1.0
-    roi_tracking: bool = False  # render + process only a window around the predicted ring
-    roi_margin_px: int = 48
+    # "full": render whole frames; "windows": render only the tracker's windows while it
+    # tracks (bit-identical there; full frames to acquire) — the fast closed loop
+    render_mode: str = "full"
+    roi_tracking: bool = False  # deprecated alias of render_mode="windows"
+    roi_margin_px: int = 48  # unused (the tracker sizes its windows)
 
     def validate(self) -> None:
         if self.turbulence not in LEVELS:
             raise ValueError(f"turbulence must be one of {LEVELS}, got {self.turbulence!r}")
+        if self.render_mode not in RENDER_MODES:
+            raise ValueError(f"render_mode must be one of {RENDER_MODES}, got {self.render_mode!r}")
         if self.matcher not in ("epipolar", "paper"):
             raise ValueError(f"matcher must be 'epipolar' or 'paper', got {self.matcher!r}")
         positive = (
@@ -152,8 +160,11 @@ class DockingTick:
     rel_position_m: FloatArray  # drogue minus probe tip
     uav_state_names: tuple[str, ...] = STATE_NAMES
     control_names: tuple[str, ...] = INPUT_NAMES
-    # with roi_tracking: top-left pixel of the left/right windows the images were cut from
+    # unused since the tracker (images are always full-size); kept for compatibility
     image_offsets_px: tuple[tuple[int, int], tuple[int, int]] | None = None
+    # render_mode="windows": the rectangles (x0, y0, x1, y1) rendered in the left/right image
+    # (pixels elsewhere are 0); None for a full render
+    image_windows_px: tuple[list[Rect], list[Rect]] | None = None
 
 
 @dataclass
@@ -248,9 +259,7 @@ class DockingSimulation:
             config.airspeed_mps, config.air_density, self.dt, tuple(config.probe_tip_body_m)
         )
         self._calibration = calibration
-        self._pipeline: Any = None
-        self._render_settings: Any = None
-        self._ring: Any = None
+        self._camera: StereoCameraSensor | None = None
         if config.vision:
             self._init_vision()
         self.r_probe_b = np.asarray(config.probe_tip_body_m, float)
@@ -261,35 +270,36 @@ class DockingSimulation:
         self.reset()
 
     # ------------------------------------------------------------------ set-up
-    def _init_vision(self) -> None:
-        from app.sim.led_ring import LedRing
-        from app.sim.paths import load_default_calibration
-        from app.sim.stereo_render import RenderSettings
-        from app.vision.pipeline import NavigationPipeline, PipelineConfig
+    @property
+    def effective_render_mode(self) -> str:
+        """``render_mode``, or "windows" with the deprecated ``roi_tracking``."""
+        return "windows" if self.config.roi_tracking else self.config.render_mode
 
+    def _init_vision(self) -> None:
         cfg = self.config
         if self._calibration is None:
             self._calibration = load_default_calibration()
-        self._pipeline = NavigationPipeline(
+        self._camera = StereoCameraSensor(
             self._calibration,
+            RenderSettings(
+                noise_sigma=cfg.noise_sigma,
+                clutter=cfg.clutter,
+                occluded=tuple(int(i) for i in cfg.led_dropout),
+                fast_noise=True,
+                supersample=4,
+            ),
+            LedRing(
+                radius_mm=cfg.ring_radius_m * 1000.0,
+                count=cfg.led_count,
+                led_diameter_mm=cfg.led_diameter_mm,
+            ),
             PipelineConfig(
                 ring_radius_mm=cfg.ring_radius_m * 1000.0,
                 led_count=cfg.led_count,
                 led_diameter_mm=cfg.led_diameter_mm,
                 matcher=cfg.matcher,  # type: ignore[arg-type]
             ),
-        )
-        self._render_settings = RenderSettings(
-            noise_sigma=cfg.noise_sigma,
-            clutter=cfg.clutter,
-            occluded=tuple(int(i) for i in cfg.led_dropout),
-            fast_noise=True,
-            supersample=4,
-        )
-        self._ring = LedRing(
-            radius_mm=cfg.ring_radius_m * 1000.0,
-            count=cfg.led_count,
-            led_diameter_mm=cfg.led_diameter_mm,
+            mode=self.effective_render_mode,
         )
 
     def reset(self, seed: int | None = None) -> None:
@@ -298,8 +308,8 @@ class DockingSimulation:
         if seed is not None:
             self.config = cfg = replace(cfg, seed=int(seed))
         m = self.models
-        if self._pipeline is not None:
-            self._pipeline.reset()  # a new run: no track (LED ids, 3-LED prior) from the last
+        if self._camera is not None:
+            self._camera.reset()  # a new run: no lock, no LED history from the last
         rng = np.random.default_rng([cfg.seed, 1])
         self._rng_sensor = np.random.default_rng([cfg.seed, 2])
         self._frame_seed = np.random.default_rng([cfg.seed, 3])
@@ -353,7 +363,7 @@ class DockingSimulation:
         self._failed = False
         self._last_lock = False
         self._last_reason: str | None = "no frame yet"
-        self._image_offsets: tuple[tuple[int, int], tuple[int, int]] | None = None
+        self._image_windows: tuple[list[Rect], list[Rect]] | None = None
         self._prev_tip = self.probe_tip()
         self._prev_drogue = self.drogue.position_m.copy()
         self._prev_normal = self.drogue.normal()
@@ -372,102 +382,35 @@ class DockingSimulation:
         return r_tb @ self.R_bc, x[9:12] + r_tb @ self.r_cam_b
 
     # ------------------------------------------------------------------ sensing
-    def _roi(
-        self, x_hat: FloatArray
-    ) -> tuple[Any, Any, tuple[tuple[int, int], tuple[int, int]]] | None:
-        """Tracking window around the ring *predicted* by the drogue filter and own-state estimate:
-        a calibration with shifted principal points (exact for the pinhole + distortion model) and
-        a pipeline for it; None for a full frame (acquisition, or lost track)."""
-        from app.geometry.calibration import CameraIntrinsics, StereoCalibration
-        from app.geometry.projection import project_stereo
-        from app.vision.pipeline import NavigationPipeline
-
-        cfg = self.config
-        if not (cfg.roi_tracking and self.filter.initialised):
-            return None
-        if self.filter.coast_time_s > 0.5 * cfg.coast_limit_s:
-            return None
-        calib = self._calibration
-        assert calib is not None
-        r_tc_hat, cam_hat = self._camera_pose(x_hat)
-        c_cam = r_tc_hat.T @ (self.filter.position - cam_hat)
-        if c_cam[2] < 0.5:
-            return None
-        sigma = float(np.sqrt(np.max(np.diag(self.filter.P)[:3])))
-        reach = (cfg.ring_radius_m + 3.0 * sigma + 0.05) * 1000.0
-        pts = c_cam * 1000.0 + reach * np.array(
-            [[0, 0, 0], [1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0]], float
-        )
-        pl, pr = project_stereo(calib, pts)
-        w_img, h_img = calib.image_size
-        boxes = []
-        for px in (pl, pr):
-            lo = np.floor(px.min(axis=0)) - cfg.roi_margin_px
-            hi = np.ceil(px.max(axis=0)) + cfg.roi_margin_px
-            boxes.append((lo, hi))
-        # window sizes rounded up to 64 px: few distinct shapes (the renderer caches per shape)
-        w = int(min(64 * np.ceil(max(b[1][0] - b[0][0] for b in boxes) / 64), w_img))
-        h = int(min(64 * np.ceil(max(b[1][1] - b[0][1] for b in boxes) / 64), h_img))
-        offs = []
-        for lo, hi in boxes:
-            cx, cy = 0.5 * (lo + hi)
-            x0 = int(np.clip(round(cx - w / 2), 0, w_img - w))
-            y0 = int(np.clip(round(cy - h / 2), 0, h_img - h))
-            offs.append((x0, y0))
-
-        def shifted(cam: CameraIntrinsics, off: tuple[int, int]) -> CameraIntrinsics:
-            k = cam.K.copy()
-            k[0, 2] -= off[0]
-            k[1, 2] -= off[1]
-            return CameraIntrinsics(K=k, dist=cam.dist.copy())
-
-        roi_cal = StereoCalibration(
-            image_size=(w, h),
-            left=shifted(calib.left, offs[0]),
-            right=shifted(calib.right, offs[1]),
-            R=calib.R,
-            T=calib.T,
-        )
-        pipe = NavigationPipeline(roi_cal, self._pipeline.config)
-        return roi_cal, pipe, (offs[0], offs[1])
-
     def _camera_measurement(
         self, x_hat: FloatArray
     ) -> tuple[FloatArray | None, FloatArray | None, Any, Any, Any, FloatArray | None]:
-        """Render + pipeline. Returns (z_T, R_T, pose, left, right, led_truth_cam_mm)."""
-        from app.sim.stereo_render import render_pair
-
-        roi = self._roi(x_hat)
-        calib_used, pipeline = (self._calibration, self._pipeline) if roi is None else roi[:2]
-        self._image_offsets = None if roi is None else roi[2]
+        """Render + tracker. Returns (z_T, R_T, pose, left, right, led_truth_cam_mm)."""
+        assert self._camera is not None and self._calibration is not None
         r_tc, cam_t = self._camera_pose(self.x)
         c_cam_m = r_tc.T @ (self.drogue.position_m - cam_t)
         n_cam = r_tc.T @ self.drogue.normal()
-        pair = render_pair(
-            calib_used,  # type: ignore[arg-type]
-            c_cam_m * 1000.0,
-            n_cam,
-            settings=self._render_settings,
-            ring=self._ring,
-            seed=int(self._frame_seed.integers(2**31)),
+        frame = self._camera.capture(
+            c_cam_m * 1000.0, n_cam, seed=int(self._frame_seed.integers(2**31))
         )
-        pose = pipeline.process(pair.left, pair.right)
-        leds = np.asarray(pair.truth.led_xyz_mm, float)
+        self._image_windows = frame.windows
+        pose = frame.pose
+        left, right, leds = frame.left, frame.right, np.asarray(frame.led_truth_cam_mm, float)
         if not pose.lock or pose.drogue is None:
-            return None, None, pose, pair.left, pair.right, leds
+            return None, None, pose, left, right, leds
         meas_cam_m = np.asarray(pose.drogue.center_mm, float) / 1000.0
         r_tc_hat, cam_hat = self._camera_pose(x_hat)
         z_t = cam_hat + r_tc_hat @ meas_cam_m
         depth = max(float(meas_cam_m[2]), 0.5)
         calib = self._calibration
-        f_px = float(calib.left.fx)  # type: ignore[union-attr]
-        base_m = float(calib.baseline_mm) / 1000.0  # type: ignore[union-attr]
+        f_px = float(calib.left.fx)
+        base_m = float(calib.baseline_mm) / 1000.0
         sig_d = 0.15  # px, effective disparity noise of the ring-centre fit (conservative)
         sig_lat = 0.003 + depth * 0.1 / f_px
         sig_z = 0.005 + depth**2 * sig_d / (f_px * base_m)
         r_cam = np.diag([sig_lat**2, sig_lat**2, sig_z**2])
         r_t = r_tc_hat @ r_cam @ r_tc_hat.T + np.eye(3) * 0.01**2
-        return z_t, r_t, pose, pair.left, pair.right, leds
+        return z_t, r_t, pose, left, right, leds
 
     def _own_measurement(self) -> FloatArray:
         m = self.models
@@ -493,7 +436,7 @@ class DockingSimulation:
         self.filter.predict(dt)
         z_t = r_t = None
         pose = left = right = leds = None
-        self._image_offsets = None
+        self._image_windows = None
         frame_due = self.t + 1e-9 >= self._next_frame_t
         if frame_due:
             self._next_frame_t += self._camera_period
@@ -602,7 +545,7 @@ class DockingSimulation:
             captured=self.captured,
             miss_m=miss_now,
             rel_position_m=d_pos - tip,
-            image_offsets_px=self._image_offsets,
+            image_windows_px=self._image_windows,
         )
 
     def _abort(self) -> None:
