@@ -320,3 +320,43 @@ def test_recording_survives_kill_9_of_the_server(tmp_path: Path) -> None:
         assert scene.status_code == 404 and SCENE_LOST_NOTE in scene.json()["detail"]
     finally:
         _end(proc)
+
+
+def test_frames_of_an_abandoned_recording_are_recovered_and_replayable(tmp_path: Path) -> None:
+    """A crash during a recording with raw frames: every pair whose index line was written
+    is recovered (``frame_pairs``) and reads back losslessly."""
+    import numpy as np
+
+    from app.geometry.calibration import paper_calibration
+    from app.streams.recording import FrameRecordingSource, recording_calibration
+
+    calib = paper_calibration()
+    rec = Recorder(tmp_path, max_s=60)
+    info = rec.start(frames=True, calibration=calib)
+    assert info.frames_dir == f"{info.id}.frames"
+    images = []
+    for i in range(6):
+        left = np.full((16, 20), i, np.uint8)
+        right = np.full((16, 20), 100 + i, np.uint8)
+        images.append((left, right))
+        rec.on_tick(_record(i), SimpleNamespace(left_image=left, right_image=right))
+    writer = rec._frames
+    deadline = time.monotonic() + 10
+    while writer.pairs < 6 and time.monotonic() < deadline:  # the writer thread catches up
+        time.sleep(0.01)
+    frames_dir = tmp_path / info.frames_dir
+    with open(frames_dir / "frames.jsonl", "ab") as f:  # killed while writing pair 7
+        f.write(b'{"i": 6, "se')
+    watchdog = [t for t in threading.enumerate() if t.name.endswith(info.id)]
+    del rec, writer  # a crash: no stop()
+    _wait_gone(watchdog)
+
+    got = Recorder(tmp_path).get(info.id)
+    assert got is not None and got.status == "interrupted"
+    assert got.frames_dir == info.frames_dir and got.frame_pairs == 6 and got.ticks == 6
+    src = FrameRecordingSource(frames_dir)
+    for i, (left, right) in enumerate(images):
+        frame = src.read()
+        assert frame is not None and frame.seq == i and frame.t_s == pytest.approx(0.1 * i)
+        assert np.array_equal(frame.left, left) and np.array_equal(frame.right, right)
+    assert np.array_equal(recording_calibration(frames_dir).R, calib.R)

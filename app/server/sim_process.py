@@ -81,19 +81,9 @@ def calibration_from_wire(data: dict[str, Any] | None) -> Any:
     ``StereoCalibration.from_dict`` would re-orthonormalise R and move it by an ulp)."""
     if data is None:
         return None
-    from app.geometry.calibration import CameraIntrinsics, StereoCalibration
+    from app.streams.recording import exact_calibration
 
-    def cam(d: dict[str, Any]) -> CameraIntrinsics:
-        return CameraIntrinsics(K=np.asarray(d["K"], float), dist=np.asarray(d["dist"], float))
-
-    w, h = data["image_size"]
-    return StereoCalibration(
-        image_size=(int(w), int(h)),
-        left=cam(data["left"]),
-        right=cam(data["right"]),
-        R=np.asarray(data["R"], float),
-        T=np.asarray(data["T"], float),
-    )
+    return exact_calibration(data)
 
 
 # ---- images in shared memory -------------------------------------------------------------------

@@ -28,6 +28,7 @@ from pathlib import Path
 from typing import Any
 
 import cv2
+import numpy as np
 
 from app.streams.frames import (
     EndOfStream,
@@ -201,12 +202,35 @@ def read_index(directory: str | Path) -> list[dict[str, Any]]:
     return out
 
 
+def exact_calibration(data: dict[str, Any]) -> Any:
+    """A :class:`StereoCalibration` from its ``to_dict()`` bit for bit (no re-validation:
+    ``StereoCalibration.from_dict`` re-orthonormalises R and may move it by an ulp, and a
+    replay must use the very numbers the live pipeline used)."""
+    from app.geometry.calibration import CameraIntrinsics, StereoCalibration
+
+    def cam(d: dict[str, Any]) -> CameraIntrinsics:
+        return CameraIntrinsics(K=np.asarray(d["K"], float), dist=np.asarray(d["dist"], float))
+
+    w, h = data["image_size"]
+    return StereoCalibration(
+        image_size=(int(w), int(h)),
+        left=cam(data["left"]),
+        right=cam(data["right"]),
+        R=np.asarray(data["R"], float),
+        T=np.asarray(data["T"], float),
+    )
+
+
 def recording_calibration(directory: str | Path) -> Any:
-    """The calibration stored with a frame recording, or ``None``."""
+    """The calibration stored with a frame recording (checked, then exact), or ``None``."""
     from app.geometry.calibration import StereoCalibration
 
     path = Path(directory) / "calibration.json"
-    return StereoCalibration.load(path) if path.is_file() else None
+    if not path.is_file():
+        return None
+    data = json.loads(path.read_text())
+    StereoCalibration.from_dict(data)  # CalibrationError if it is not a valid calibration
+    return exact_calibration(data)
 
 
 class FrameRecordingSource:

@@ -36,7 +36,8 @@ def recording_start(
     """Start a recording. With ``frames=true`` the stereo pairs are recorded too, and a
     camera stream's track restarts with a full-frame acquisition on the first recorded pair,
     so that ``aar-dock track --left <id>.frames`` replays it to the live results."""
-    streams = state.streams
+    streams = getattr(state, "streams", None)
+    calibrations = getattr(state, "calibrations", None)
     processor = None if streams is None else streams.processor
     accept = None
     if frames and processor is not None:
@@ -49,7 +50,7 @@ def recording_start(
     try:
         info = state.recorder.start(
             frames=frames,
-            calibration=state.calibrations.current,
+            calibration=None if calibrations is None else calibrations.current,
             accept_frame=accept,
             source=None if streams is None else streams.spec,
         )
