@@ -341,6 +341,9 @@ async function init() {
     if (serviceConfig.token_required) $("token-row").hidden = false;
     if (serviceConfig.viser_port) {
       let url = serviceConfig.viser_url || (location.protocol + "//" + location.hostname + ":" + serviceConfig.viser_port + "/");
+      // "index.html": viser then knows this is the embedded view (its control panel starts
+      // minimized there; the camera is framed on the docking for every view)
+      url = url.split("?")[0].replace(/\/?$/, "/") + "index.html";
       if (softwareWebGL()) {
         // no GPU: render the 3-D view at half resolution (a quarter of the pixels to shade)
         url += (url.includes("?") ? "&" : "?") + "fixedDpr=0.5";

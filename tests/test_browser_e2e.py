@@ -105,6 +105,37 @@ def test_chromium_present() -> None:
     )
 
 
+def _views_in_frame(base: str) -> tuple[bool, dict]:
+    """Is every docking target inside the embedded view, as its browser reports its camera?"""
+    from app.viz.framing import project
+
+    view = _get_json(base + "/api/v1/scene/view")
+    targets = np.asarray(view["targets_m"], float)
+    embedded = [c for c in view["clients"] if c["panel_minimized"]]
+    if len(targets) == 0 or not embedded:
+        return False, view
+    for c in embedded:
+        uv = project(
+            targets,
+            position=c["position"],
+            look_at=c["look_at"],
+            up=c["up"],
+            fov_rad=c["fov_rad"],
+            width_px=c["width_px"],
+            height_px=c["height_px"],
+        )
+        inside = (
+            np.isfinite(uv).all()
+            and (uv[:, 0] > 0).all()
+            and (uv[:, 0] < c["width_px"]).all()
+            and (uv[:, 1] > 0).all()
+            and (uv[:, 1] < c["height_px"]).all()
+        )
+        if not inside:
+            return False, {**view, "uv": uv.tolist()}
+    return True, view
+
+
 def test_operators_page_end_to_end(service) -> None:
     assert Path(CHROMIUM).exists(), "chromium missing at /usr/bin/chromium"
     from playwright.sync_api import sync_playwright
@@ -117,6 +148,8 @@ def test_operators_page_end_to_end(service) -> None:
             page = browser.new_page(viewport={"width": 1500, "height": 1000})
             errors: list[str] = []
             page.on("pageerror", lambda e: errors.append(str(e)))
+            missing: list[str] = []  # e.g. /favicon.ico used to 404
+            page.on("response", lambda r: missing.append(r.url) if r.status == 404 else None)
             page.goto(base + "/", wait_until="domcontentloaded")
             # 1. telemetry arrives over the WebSocket and the numbers change over 2 s
             page.wait_for_function(
@@ -150,6 +183,15 @@ def test_operators_page_end_to_end(service) -> None:
             small = img[::4, ::4].reshape(-1, 3)
             distinct = len(np.unique(small // 8, axis=0))
             assert float(img.std()) > 10.0 and distinct > 50, (img.std(), distinct)
+            # 2b. framing: the embedded view's control panel is minimized and the camera its
+            #     browser reports sees the drogue (centre and rim), the probe and the receiver
+            #     (nose, tail, wing tips) — projected with that camera, all inside the canvas
+            deadline = time.time() + 20
+            framed, view = _views_in_frame(base)
+            while not framed and time.time() < deadline:
+                page.wait_for_timeout(500)
+                framed, view = _views_in_frame(base)
+            assert framed, json.dumps(view)[-1500:]
             # 3. upload a stereo pair through the form: 5 matched LEDs in the table
             page.set_input_files("#left-file", str(PAIR / "left.png"))
             page.set_input_files("#right-file", str(PAIR / "right.png"))
@@ -170,6 +212,29 @@ def test_operators_page_end_to_end(service) -> None:
                 " return n; }",
             )
             assert px > 100
+            # 3b. a failed upload clears the previous result: no stale table, image or summary
+            bad = ARTIFACTS / "not_an_image.png"
+            bad.write_bytes(b"this is not a PNG")
+            page.set_input_files("#left-file", str(bad))
+            page.set_input_files("#right-file", str(bad))
+            page.click("#upload-form button[type=submit]")
+            page.wait_for_function(
+                "document.getElementById('upload').dataset.state === 'failed'", timeout=30_000
+            )
+            assert page.inner_text("#upload-status").startswith("failed: 400")
+            assert page.is_hidden("#upload-result")
+            assert page.eval_on_selector_all("#led-table tbody tr", "rows => rows.length") == 0
+            assert page.inner_text("#upload-summary") == ""
+            # 3c. Stop shows STOPPED in the banner; Start brings the lock state back
+            page.click("#btn-stop")
+            page.wait_for_function(
+                "document.getElementById('lock').textContent === 'STOPPED'", timeout=10_000
+            )
+            page.click("#btn-start")
+            page.wait_for_function(
+                "['LOCK', 'NO LOCK'].includes(document.getElementById('lock').textContent)",
+                timeout=20_000,
+            )
             page.wait_for_timeout(1500)
             page.screenshot(path=str(ARTIFACTS / "operators_page.png"), full_page=True)
             if os.environ.get("AAR_UPDATE_SCREENSHOT"):
@@ -211,5 +276,6 @@ def test_operators_page_end_to_end(service) -> None:
             assert "aar-dock" in docs.inner_text(".swagger-ui .title")
             assert not external, external
             assert not errors, errors
+            assert not missing, missing
         finally:
             browser.close()

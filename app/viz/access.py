@@ -230,6 +230,15 @@ def _handshake_headers(ws: Any, client_id: int) -> Any:
     return raw, getattr(request, "headers", None)
 
 
+def handshake_path(server: Any, client_id: int) -> str | None:
+    """The path of a client's WebSocket handshake (viser's client connects to the path of its
+    page: ``/`` opened directly, ``/index.html`` as the operators' page embeds it)."""
+    ws = getattr(server, "_websock_server", None)
+    raw = getattr(ws, "_live_connections", {}).get(client_id)
+    path = getattr(getattr(raw, "request", None), "path", None)
+    return path.partition("?")[0] if isinstance(path, str) else None
+
+
 def install_gate(server: Any, policy: AccessPolicy, gui_filter: GuiFilter | None = None) -> bool:
     """Put ``policy`` in front of every message handler of ``server`` (a ViserServer).
 

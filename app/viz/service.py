@@ -17,18 +17,21 @@ from typing import Any
 import numpy as np
 import viser
 
-from app.viz.access import AccessPolicy, install_gate
+from app.viz.access import AccessPolicy, handshake_path, install_gate
 from app.viz.framing import docking_targets, frame_view
 from app.viz.gui import DockingGui
 from app.viz.scene import DockingScene, ReceiverGeometry
 
 log = logging.getLogger(__name__)
 UPLOAD_HOLD_S = 8.0  # an uploaded pair stays on the image panels this long
-#: a view narrower than this (px) is the operators' page's embedded view: the control panel
-#: starts minimized there, so that it does not cover the docking
-EMBED_MAX_WIDTH_PX = 1100
+#: the operators' page embeds the 3-D view as ``<viser URL>/index.html``, so its WebSocket
+#: connects to this path: there the control panel starts minimized (it would cover the docking;
+#: the page has its own controls). Opened directly (``/``), the panel stays open.
+EMBED_PATH = "/index.html"
 #: before the first tick: a view from the side and above, between receiver and drogue
 DEFAULT_VIEW = ((-15.5, 6.0, 4.5), (-15.0, 1.2, 6.2))
+INITIAL_FOV_RAD = float(np.radians(50.0))  # the views' vertical field of view
+FRAME_ASPECT = 1.0  # frame for a square view: landscape views (wider) see everything too
 
 
 def viser_client_dir() -> Path | None:
@@ -92,9 +95,8 @@ class VizService:
         self._listeners: list[Callable[[float], None]] = []
         self._pending_calibration: Any = None
         self._pending_reset = False
-        self._framed_run: int | None = None
+        self._framed_run: int | None = None  # the run viser's initial camera frames
         self._minimized: set[int] = set()  # clients whose control panel was minimized
-        self._framed: set[int] = set()  # clients whose camera was framed on the docking
         self.updates = 0
 
     # ---- lifecycle --------------------------------------------------------------------
@@ -107,9 +109,10 @@ class VizService:
         install_gate(self.server, self.policy, self._filter_gui_update)
         self.server.gui.set_panel_label("aar-dock: probe-and-drogue docking")
         # a view from the side and above, between the receiver and the drogue (tanker frame, z
-        # down); each client is framed on the docking when it connects (_frame_client)
+        # down) until the first tick; then each run is framed (_reframe_initial)
         cam = self.server.initial_camera
         cam.position, cam.look_at = DEFAULT_VIEW
+        cam.fov = INITIAL_FOV_RAD
         self.server.on_client_connect(self._on_client_connect)
         try:
             geometry: ReceiverGeometry | None = ReceiverGeometry.from_docking_defaults()
@@ -138,38 +141,24 @@ class VizService:
 
     # ---- framing ----------------------------------------------------------------------
     def _on_client_connect(self, client: Any) -> None:
-        """Frame the client's camera once, when it has told us its canvas size and field of view
-        (its first camera message)."""
-        done = threading.Event()
+        """The embedded view (WebSocket on :data:`EMBED_PATH`) starts with its panel minimized.
 
-        def first_camera(_camera: Any) -> None:
-            if not done.is_set():
-                done.set()
-                self._frame_client(client)
-
-        client.camera.on_update(first_camera)
-
-    def _frame_client(self, client: Any) -> None:
+        The camera is not moved here: a client starts from viser's initial camera, which
+        :meth:`_reframe_initial` keeps framed on the current run (a camera set per client
+        races with the client applying the initial camera and ends up half of each).
+        """
         try:
-            cam = client.camera
-            if int(cam.image_width) < EMBED_MAX_WIDTH_PX:
+            if self.server is not None and (
+                handshake_path(self.server, int(client.client_id)) == EMBED_PATH
+            ):
                 client.gui.main_panel.minimize()
                 self._minimized.add(int(client.client_id))
-            with self._lock:
-                record = self._prev_sim
-            points = docking_targets(record) if record is not None else np.zeros((0, 3))
-            if len(points) == 0:
-                return
-            position, look_at = frame_view(points, fov_rad=float(cam.fov), aspect=cam.aspect)
-            with client.atomic():
-                cam.look_at = look_at
-                cam.position = position
-            self._framed.add(int(client.client_id))
         except Exception:
-            log.exception("viser: framing the view of client %s failed", client.client_id)
+            log.exception("viser: minimizing the panel of client %s failed", client.client_id)
 
     def _reframe_initial(self, record: Any) -> None:
-        """A new run: "Reset View" (viser's initial camera) frames its start."""
+        """A new run: viser's initial camera (where a new view starts, and "Reset View")
+        frames its drogue and receiver; views already open keep their camera."""
         if self.server is None or record.run == self._framed_run:
             return
         points = docking_targets(record)
@@ -177,9 +166,9 @@ class VizService:
             return
         self._framed_run = record.run
         cam = self.server.initial_camera
-        fov = float(cam.fov) if cam.fov else np.radians(50.0)
-        position, look_at = frame_view(points, fov_rad=fov, aspect=16 / 10)
-        cam.position, cam.look_at = position, look_at
+        position, look_at = frame_view(points, fov_rad=INITIAL_FOV_RAD, aspect=FRAME_ASPECT)
+        cam.look_at = look_at
+        cam.position = position
 
     def views(self) -> list[dict[str, Any]]:
         """Each connected client's camera as its browser reports it (the framing test)."""
@@ -198,7 +187,6 @@ class VizService:
                         "fov_rad": float(cam.fov),
                         "width_px": int(cam.image_width),
                         "height_px": int(cam.image_height),
-                        "framed": int(cid) in self._framed,
                         "panel_minimized": int(cid) in self._minimized,
                     }
                 )

@@ -103,7 +103,6 @@ class ClientView(BaseModel):
     fov_rad: float = Field(description="vertical field of view (rad)")
     width_px: int
     height_px: int
-    framed: bool = Field(description="the camera was framed on the docking when it connected")
     panel_minimized: bool = Field(description="the control panel was minimized (embedded view)")
 
 
