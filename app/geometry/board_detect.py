@@ -307,15 +307,27 @@ def _run_tasks(
         return out
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor, as_completed
+    from concurrent.futures.process import BrokenProcessPool
 
     results: list[CornerResult | None] = [None] * len(tasks)
+    done = [False] * len(tasks)
     ctx = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(max_workers=min(workers, len(tasks)), mp_context=ctx) as pool:
-        futures = {pool.submit(_detect_task, t): k for k, t in enumerate(tasks)}
-        for fut in as_completed(futures):
-            results[futures[fut]] = fut.result()
-            if bar is not None:
-                bar.update(1)
+    try:
+        with ProcessPoolExecutor(max_workers=min(workers, len(tasks)), mp_context=ctx) as pool:
+            futures = {pool.submit(_detect_task, t): k for k, t in enumerate(tasks)}
+            for fut in as_completed(futures):
+                k = futures[fut]
+                results[k], done[k] = fut.result(), True
+                if bar is not None:
+                    bar.update(1)
+    except (BrokenProcessPool, OSError, RuntimeError):
+        # no worker could start (e.g. a script without ``if __name__ == "__main__"`` under
+        # spawn, or no process slots left): finish in this process
+        for k, t in enumerate(tasks):
+            if not done[k]:
+                results[k] = _detect_task(t)
+                if bar is not None:
+                    bar.update(1)
     return results
 
 
