@@ -548,6 +548,20 @@ class DockingGui:
         if record.rel_position_m is not None:
             r = record.rel_position_m
             lines.append(f"drogue − probe: ({r[0]:+.2f}, {r[1]:+.2f}, {r[2]:+.2f}) m")
+        stream, guidance = getattr(record, "stream", None), getattr(record, "guidance", None)
+        if stream is not None:  # a camera stream (app.streams): rate, drops, skew, tracker
+            skew = "–" if stream.skew_ms is None else f"{stream.skew_ms:.1f}"
+            lines.append(
+                f"{stream.fps:.1f} fps · dropped {stream.dropped_skew} (skew) "
+                f"{stream.dropped_backpressure} (newest kept) · skew {skew} ms · {stream.mode}"
+            )
+        if guidance is not None and guidance.closure_speed_mps is not None:
+            ttc = guidance.time_to_contact_s
+            lines.append(
+                f"closure {guidance.closure_speed_mps:+.2f} m/s · "
+                f"contact in {'–' if ttc is None else f'{ttc:.1f} s'} · "
+                f"predicted miss {guidance.predicted_miss_m or 0.0:.3f} m"
+            )
         if record.captured is not None:
             lines.append("**captured**" if record.captured else "not captured")
         if self._last_miss is not None:
