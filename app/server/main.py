@@ -133,6 +133,7 @@ def create_app(
             settings.recordings_dir,
             max_s=settings.recording_max_s,
             max_mb=settings.recording_max_mb,
+            max_frames_mb=settings.recording_frames_max_mb,
         )
         st = AppState(
             settings=settings,

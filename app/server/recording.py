@@ -153,6 +153,7 @@ class Recorder:
         *,
         max_s: float = 300.0,
         max_mb: float = 200.0,
+        max_frames_mb: float = 4000.0,
         scene_serializer_factory: Any = None,
         recover: bool = True,
     ) -> None:
@@ -160,6 +161,7 @@ class Recorder:
         self.max_s = max_s
         self.max_mb = max_mb
         self.max_bytes = int(max_mb * 1e6)
+        self.max_frames_bytes = int(max_frames_mb * 1e6)  # raw frames: a bound of their own
         self.scene_serializer_factory = scene_serializer_factory
         self._lock = threading.Lock()
         self._info: RecordingMeta | None = None
@@ -223,7 +225,7 @@ class Recorder:
                         self.directory / f"{rec_id}.frames",
                         calibration,
                         max_s=self.max_s,
-                        max_bytes=self.max_bytes,
+                        max_bytes=self.max_frames_bytes,
                         source=source,
                     )
                 except Exception:
@@ -298,8 +300,8 @@ class Recorder:
                 self._request_stop(f"frames: {writer.stop_reason}")
 
     def _total_bytes(self, info: RecordingMeta) -> int:
-        frames = self._frames.bytes if self._frames is not None else 0
-        return info.telemetry_bytes + self._scene_bytes_est + frames
+        """Telemetry + scene (``max_mb``); the frames have their own bound (the writer's)."""
+        return info.telemetry_bytes + self._scene_bytes_est
 
     def _submit_frame(self, writer: Any, record: TickRecord, raw: Any) -> None:
         """(lock held) Queue the tick's stereo pair for the frame writer (never blocks)."""

@@ -114,6 +114,9 @@ class Settings(BaseSettings):
         description="folders a video source switched through the API may read from "
         "(default: the recordings directory); the --source flag is not restricted",
     )
+    recording_frames_max_mb: float = Field(
+        4000.0, gt=0.0, description="size bound of the raw frames of one recording (MB)"
+    )
     push_max_mb: float | None = Field(
         None,
         gt=0.0,

@@ -13,7 +13,7 @@ appended (and flushed) only after both files are in place, and ``fsync``-ed ever
 ``FSYNC_PERIOD_S``. A reader uses only complete lines whose two files exist, so a killed
 writer leaves a readable recording up to its last flushed pair. Bounds: ``max_s`` seconds and
 ``max_bytes`` bytes of images; beyond them the writer stops accepting (``stop_reason``).
-The writer runs in its own thread behind a bounded queue: a pair that does not fit is
+The writer runs in its own thread (the two PNGs of a pair encoded in parallel) behind a bounded queue: a pair that does not fit is
 dropped and counted (``dropped``), never blocking the caller (the stream loop).
 """
 
@@ -24,6 +24,7 @@ import os
 import queue
 import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -42,6 +43,13 @@ from app.streams.frames import (
 FORMAT = "aar-dock-frames/1"
 FSYNC_PERIOD_S = 0.5
 PNG_LEVEL = 1  # fast lossless compression (≈ 20 ms for a 1280×1024 grey image)
+
+
+def _encode_png(img: np.ndarray) -> bytes:
+    ok, buf = cv2.imencode(".png", img, [cv2.IMWRITE_PNG_COMPRESSION, PNG_LEVEL])
+    if not ok:
+        raise OSError("PNG encoding failed")
+    return bytes(buf.tobytes())
 
 
 def is_frame_recording(path: str | Path) -> bool:
@@ -82,6 +90,8 @@ class FrameRecordingWriter:
         self._lines = open(self.directory / "frames.jsonl", "ab")
         self._last_sync = time.monotonic()
         self._closed = False
+        # both images of a pair are encoded at once (OpenCV releases the GIL while encoding)
+        self._pool = ThreadPoolExecutor(2, thread_name_prefix="frame-png")
         if calibration is not None:
             _atomic_write(
                 self.directory / "calibration.json",
@@ -138,12 +148,7 @@ class FrameRecordingWriter:
     def _write(self, frame: StereoFrame, record_seq: int | None) -> None:
         i = self.pairs
         names = (f"left/{i:06d}.png", f"right/{i:06d}.png")
-        blobs = []
-        for img in (frame.left, frame.right):
-            ok, buf = cv2.imencode(".png", img, [cv2.IMWRITE_PNG_COMPRESSION, PNG_LEVEL])
-            if not ok:
-                raise OSError("PNG encoding failed")
-            blobs.append(buf.tobytes())
+        blobs = list(self._pool.map(_encode_png, (frame.left, frame.right)))
         size = sum(len(b) for b in blobs)
         if self.bytes + size > self.max_bytes:
             self.stop_reason = f"reached {self.max_bytes / 1e6:g} MB"
@@ -176,6 +181,7 @@ class FrameRecordingWriter:
             self._closed = True
             self._queue.put(None)
             self._thread.join(timeout=60.0)
+            self._pool.shutdown(wait=True)
             self._lines.flush()
             os.fsync(self._lines.fileno())
             self._lines.close()

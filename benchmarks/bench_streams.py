@@ -1,0 +1,109 @@
+"""Cost of a stream source per stereo pair: decoding vs tracking, and the whole stream loop.
+
+Over a rendered 1280×1024 sequence (the stream tests' sequence, ``tests/streams_sequence.py``)
+written as MJPG videos and as PNG folders, per pair, in the same run:
+
+* ``tracker (in memory)`` — :class:`StereoTracker` on pairs already in memory (the baseline);
+* ``read MJPG`` / ``read PNG`` — the source alone (``VideoSource``: decode + pairing);
+* ``read + track + guidance`` — :class:`StreamProcessor` behind the source, i.e. what
+  ``aar-dock track`` and the service's stream thread do per pair;
+* ``push encode (PNG)`` — what ``aar-dock push`` spends encoding one pair.
+
+Prints a Markdown table: median and p90 ms per pair and the ratio to the baseline.
+
+    .venv/bin/python benchmarks/bench_streams.py [--frames 40] [--repeats 3]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+from streams_sequence import render_sequence, write_avi, write_png_folders  # noqa: E402
+
+from app.sim.paths import load_default_calibration  # noqa: E402
+from app.streams.frames import EndOfStream  # noqa: E402
+from app.streams.processor import StreamProcessor  # noqa: E402
+from app.streams.sources import SourceOptions, VideoSource  # noqa: E402
+from app.vision.tracking import StereoTracker  # noqa: E402
+
+
+def per_pair(run: Callable[[], int], repeats: int) -> list[float]:
+    out: list[float] = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        n = run()
+        out.append((time.perf_counter() - t0) * 1e3 / n)
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--frames", type=int, default=40)
+    ap.add_argument("--repeats", type=int, default=3)
+    args = ap.parse_args()
+    calib = load_default_calibration()
+    seq = render_sequence(calib, args.frames)
+    d = Path(tempfile.mkdtemp(prefix="bench-streams-"))
+    la, ra = write_avi(seq, d)
+    lp, rp = write_png_folders(seq, d)
+    fast = SourceOptions(realtime=False)
+
+    def tracker_in_memory() -> int:
+        tr = StereoTracker(calib)
+        for left, right in zip(seq.lefts, seq.rights, strict=True):
+            tr.update(left, right)
+        return len(seq.lefts)
+
+    def read(left: Path, right: Path, process: bool) -> Callable[[], int]:
+        def run() -> int:
+            src = VideoSource(str(left), str(right), fast)
+            proc = StreamProcessor(calib) if process else None
+            n = 0
+            while True:
+                try:
+                    frame = src.read()
+                except EndOfStream:
+                    return n
+                if frame is not None:
+                    n += 1
+                    if proc is not None:
+                        proc.process(frame)
+
+        return run
+
+    def encode() -> int:
+        for left, right in zip(seq.lefts, seq.rights, strict=True):
+            for img in (left, right):
+                cv2.imencode(".png", img, [cv2.IMWRITE_PNG_COMPRESSION, 1])
+        return len(seq.lefts)
+
+    rows = [
+        ("tracker (in memory, baseline)", tracker_in_memory),
+        ("read MJPG .avi pair", read(la, ra, False)),
+        ("read PNG folders pair", read(lp, rp, False)),
+        ("read MJPG + track + guidance", read(la, ra, True)),
+        ("read PNG + track + guidance", read(lp, rp, True)),
+        ("push: encode a pair as PNG", encode),
+    ]
+    results = [(name, per_pair(fn, args.repeats)) for name, fn in rows]
+    base = float(np.median(results[0][1]))
+    w, h = calib.image_size
+    print(f"{args.frames} pairs of {w}×{h}, {args.repeats} repeats; ms per stereo pair\n")
+    print("| stage | median ms | p90 ms | × tracker |")
+    print("|---|---|---|---|")
+    for name, vals in results:
+        med = float(np.median(vals))
+        print(f"| {name} | {med:.2f} | {np.quantile(vals, 0.9):.2f} | {med / base:.2f} |")
+
+
+if __name__ == "__main__":
+    main()
