@@ -8,19 +8,19 @@ ENV PYTHONDONTWRITEBYTECODE=1 \
     AAR_HOST=0.0.0.0 \
     AAR_PORT=8000 \
     AAR_VISER_PORT=8080 \
-    AAR_CALIBRATION=/app/sample_data/calibration.json \
-    AAR_STATIC_DIR=/app/static \
     AAR_RECORDINGS_DIR=/data/recordings
 
 WORKDIR /app
 RUN useradd --create-home --uid 10001 aar && mkdir -p /data/recordings && chown aar /data/recordings
 
-# runtime dependencies only (no [dev] extra)
+# runtime dependencies only (no [dev] extra). The page, the paper's calibration and the sample
+# pairs ship inside the package (app/_data links to static/ and sample_data/): copy them first.
 COPY pyproject.toml README.md ./
-COPY app ./app
-RUN pip install . && rm -rf build
 COPY static ./static
 COPY sample_data ./sample_data
+COPY app ./app
+RUN pip install . && rm -rf build /app/app /app/static /app/sample_data
+WORKDIR /data
 
 USER aar
 EXPOSE 8000 8080

@@ -6,7 +6,8 @@ directory outside the repository: ``aar-dock process --sample`` gives a lock on 
 sample pair (checked against its shipped ``truth.json``) and ``aar-dock serve`` answers
 ``/api/v1/healthz`` and serves the operators' page, its script and the favicon.
 
-Needs the network (or a warm pip cache) for the dependencies: marked ``slow``.
+Needs the network (or a warm pip cache) for the dependencies: marked ``slow``. No container
+engine runs here, so the Dockerfile is checked against the package instead (not slow).
 """
 
 from __future__ import annotations
@@ -27,7 +28,6 @@ import pytest
 
 from app.sim.paths import REPO_ROOT
 
-pytestmark = pytest.mark.slow
 INSTALL_TIMEOUT_S = 900
 SERVE_TIMEOUT_S = 120
 
@@ -93,6 +93,7 @@ def installed(tmp_path_factory) -> tuple[Path, Path, dict[str, str]]:
     return bin_dir, work, env
 
 
+@pytest.mark.slow
 def test_installed_package_is_not_the_checkout(installed):
     bin_dir, work, env = installed
     out = _run(
@@ -101,6 +102,7 @@ def test_installed_package_is_not_the_checkout(installed):
     assert Path(out).resolve().is_relative_to(bin_dir.parent.resolve())
 
 
+@pytest.mark.slow
 def test_process_a_shipped_sample(installed):
     bin_dir, work, env = installed
     exe = str(bin_dir / "aar-dock")
@@ -117,6 +119,7 @@ def test_process_a_shipped_sample(installed):
     assert np.linalg.norm(np.subtract(result["drogue"]["center_mm"], truth["center_mm"])) < 0.5
 
 
+@pytest.mark.slow
 def test_serve_health_and_page(installed):
     bin_dir, work, env = installed
     port, viser_port = _free_port(), _free_port()
@@ -159,3 +162,30 @@ def test_serve_health_and_page(installed):
             proc.wait()
         log.close()
     shutil.rmtree(work / "__pycache__", ignore_errors=True)
+
+
+def test_dockerfile_agrees_with_the_package() -> None:
+    """What the image relies on exists: the health URL is a route of the app, the command is
+    the package's script, and the package data is in the build context before ``pip install``."""
+    import tomllib
+
+    from app.server.main import create_app
+    from app.server.settings import Settings
+
+    text = (REPO_ROOT / "Dockerfile").read_text()
+    lines = [ln.strip() for ln in text.splitlines()]
+    (health,) = {m for m in text.split("'") if m.startswith("http://127.0.0.1:8000/")}
+    path = health.removeprefix("http://127.0.0.1:8000")
+    app = create_app(Settings(viser_enabled=False, sim_autostart=False))  # type: ignore[call-arg]
+    assert "get" in app.openapi()["paths"].get(path, {}), path
+    assert 'CMD ["aar-dock", "serve"]' in lines
+    scripts = tomllib.loads((REPO_ROOT / "pyproject.toml").read_text())["project"]["scripts"]
+    assert "aar-dock" in scripts
+    install = next(i for i, ln in enumerate(lines) if ln.startswith("RUN pip install ."))
+    copied = {ln.split()[1] for ln in lines[:install] if ln.startswith("COPY ")}
+    assert {"static", "sample_data", "app", "pyproject.toml"} <= copied, copied
+    for link in ("static", "sample_data"):  # what the package data globs go through
+        target = (REPO_ROOT / "app" / "_data" / link).resolve()
+        assert target == (REPO_ROOT / link).resolve(), target
+    ignored = (REPO_ROOT / ".dockerignore").read_text().split()
+    assert "sample_data/pair_1000mm" not in ignored and "static" not in ignored

@@ -22,8 +22,8 @@ def register(subparsers: Any) -> None:
     p.add_argument("--port", type=int, help="HTTP port (default 8000, AAR_PORT)")
     p.add_argument("--viser-port", type=int, help="viser port, pinned (default 8080)")
     p.add_argument("--tick-hz", type=float, help="tick loop rate (default 30 Hz)")
-    p.add_argument("--calibration", help="stereo calibration JSON (default sample_data/...)")
-    p.add_argument("--recordings-dir", help="where recordings go (default ./recordings)")
+    p.add_argument("--calibration", help="stereo calibration JSON (default: bundled paper rig)")
+    p.add_argument("--recordings-dir", help="where recordings go (default: see AAR_RECORDINGS_DIR)")
     p.add_argument("--no-viser", action="store_true", help="do not start the 3-D scene server")
     p.add_argument("--no-sim", action="store_true", help="do not start the simulated stream")
     p.add_argument(
