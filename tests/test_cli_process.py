@@ -96,4 +96,52 @@ def test_sample_pairs_give_their_truth(name, capsys):
     tol_mm = 0.5 if "2500" not in name else 2.0
     assert np.linalg.norm(np.array(out["drogue"]["center_mm"]) - truth["center_mm"]) < tol_mm
     for led in out["leds"]:
-        assert np.linalg.norm(np.array(led["xyz_mm"]) - truth["led_xyz_mm"][led["id"] - 1]) < 2 * tol_mm
+        assert (
+            np.linalg.norm(np.array(led["xyz_mm"]) - truth["led_xyz_mm"][led["id"] - 1])
+            < 2 * tol_mm
+        )
+
+
+def test_sample_option_uses_the_bundled_pair(capsys):
+    assert main(["process", "--list-samples"]) == 0
+    listed = capsys.readouterr().out.split()
+    assert listed == SAMPLE_PAIRS  # the checkout carries every pair; a wheel three of them
+    assert main(["process", "--sample", "pair_1000mm", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    truth = json.loads((REPO_ROOT / "sample_data" / "pair_1000mm" / "truth.json").read_text())
+    assert (
+        out["lock"]
+        and np.linalg.norm(np.subtract(out["drogue"]["center_mm"], truth["center_mm"])) < 0.5
+    )
+
+
+@pytest.mark.parametrize(
+    ("argv", "needle"),
+    [
+        (["--sample", "pair_9999mm"], "no sample pair 'pair_9999mm'"),
+        (["--sample", "pair_1000mm", "left.png", "right.png"], "not both"),
+        ([], "give LEFT and RIGHT"),
+        (["left.png"], "give LEFT and RIGHT"),
+    ],
+)
+def test_sample_option_errors_are_one_line(argv, needle, capsys):
+    assert main(["process", *argv]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and needle in err, err
+
+
+def test_closed_pipe_is_not_a_traceback():
+    """``aar-dock process --list-samples | head -0``: the reader is gone before we write."""
+    import os
+    import subprocess
+    import sys
+
+    exe = os.path.join(os.path.dirname(sys.executable), "aar-dock")
+    proc = subprocess.Popen(
+        [exe, "process", "--list-samples"], stdout=subprocess.PIPE, stderr=subprocess.PIPE
+    )
+    assert proc.stdout is not None and proc.stderr is not None
+    proc.stdout.close()  # before the child (≈ 1 s to start) writes anything
+    err = proc.stderr.read().decode()
+    assert proc.wait(timeout=60) == 1
+    assert "Traceback" not in err and "BrokenPipeError" not in err, err
