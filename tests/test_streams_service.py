@@ -242,3 +242,39 @@ def test_push_cli_to_serve_cli(served_push: tuple[str, int], media: dict[str, Pa
     assert len(recs) == status["frames"] >= 10
     assert sum(r["lock"] for r in recs) >= 0.95 * len(recs)
     assert recs[-1]["stream"]["frame"] == 19  # the newest pair is never the one dropped
+
+
+class _FakeSim:
+    """A stand-in simulation (``StepSource``): one tick a step, never done."""
+
+    done = False
+
+    def __init__(self) -> None:
+        self.t = 0.0
+
+    def step(self) -> Any:
+        from types import SimpleNamespace
+
+        self.t += 1 / 30
+        return SimpleNamespace(t_s=self.t, pose=None, lock=False, lock_reason="fake sim")
+
+
+def test_one_source_at_a_time_sim_start_stops_the_stream(
+    tmp_path: Path, media: dict[str, Path]
+) -> None:
+    source = f"video:{media['left_avi']},{media['right_avi']}"
+    settings = _settings(tmp_path, source=source, stream_loop=True)  # real time, endless
+    app = create_app(settings, source_factory=lambda config, calib: _FakeSim())
+    with TestClient(app) as c:
+        st = c.app.state.aar  # type: ignore[attr-defined]
+        assert not st.loop.running  # the stream replaced the simulation
+        _wait(lambda: c.get("/api/v1/stream").json()["frames"] >= 3, 30, "video frames")
+        assert c.post("/api/v1/sim/start").status_code == 200
+        status = c.get("/api/v1/stream").json()
+        assert (status["source"], status["state"]) == ("sim", "sim")
+        n_video = len(_records(c, "video"))
+        _wait(lambda: len(_records(c, "sim")) >= 5, 30, "simulated ticks")
+        assert len(_records(c, "video")) == n_video  # the stream thread is gone
+        r = c.put("/api/v1/stream/source", json={"source": "camera:/no/such/device.avi"})
+        assert r.status_code == 422 and "no such video file" in r.json()["detail"]
+        assert st.loop.running  # a refused source changes nothing

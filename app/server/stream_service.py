@@ -55,6 +55,14 @@ class StreamService:
         self.started_wall: float | None = None
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
+        loop.before_start_sim = self._on_sim_start
+
+    def _on_sim_start(self) -> None:
+        """``POST /sim/start`` (or the scene's button) while a stream runs: back to sim."""
+        with self._lock:
+            if self.source is not None:
+                self._stop_stream()
+                self.spec, self.state, self.last_error = "sim", "sim", None
 
     # ---- configuration --------------------------------------------------------------
     def options(self, *, realtime: bool | None = None, loop: bool | None = None) -> SourceOptions:
@@ -97,9 +105,7 @@ class StreamService:
             self._check_roots(spec)
         with self._lock:
             if spec.kind is None:
-                self._stop_stream()
-                self.spec, self.state, self.last_error = "sim", "sim", None
-                self.loop.start_sim()
+                self.loop.start_sim()  # stops the stream first (_on_sim_start)
                 return self.status()
             source = open_source(spec, self.options(realtime=realtime, loop=loop))
             self._stop_stream()

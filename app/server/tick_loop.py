@@ -244,6 +244,7 @@ class TickLoop:
         self._next_t: float | None = None
         self.heartbeat: float | None = None
         self.started_at: float | None = None
+        self.before_start_sim: Callable[[], None] | None = None
 
     # ---- configuration ------------------------------------------------------------
     def _history_len(self) -> int:
@@ -302,6 +303,11 @@ class TickLoop:
             self._rebuild()
 
     def start_sim(self) -> None:
+        """Run the simulated stream; a camera stream that is active is stopped first
+        (``before_start_sim``, set by ``app.server.stream_service``): one source at a time."""
+        hook = self.before_start_sim
+        if hook is not None:
+            hook()
         with self._lock:
             if self._source is None or self._source.done:
                 self._rebuild()

@@ -27,6 +27,7 @@ class StreamTick:
     guidance: GuidanceState
     mode: str  # tracker mode: acquired / tracked / lost / error
     track_epoch: int  # increments when the tracker is reset (a recording starts fresh)
+    processor: Any = field(default=None, repr=False)  # the StreamProcessor that made it
     extra_timings_ms: dict[str, float] = field(default_factory=dict)
     stream: dict[str, Any] = field(default_factory=dict)  # the source's counters
 
@@ -110,5 +111,6 @@ class StreamProcessor:
             guidance=state,
             mode=mode,
             track_epoch=self.epoch,
+            processor=self,
             extra_timings_ms={"track": track_ms},
         )

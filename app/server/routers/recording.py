@@ -45,7 +45,9 @@ def recording_start(
 
         def accept(raw: Any) -> bool:
             epoch = getattr(raw, "track_epoch", None)
-            return epoch is None or epoch >= first_epoch
+            if epoch is None or getattr(raw, "processor", None) is not processor:
+                return True  # the simulation, or a source switched to since: a fresh track
+            return bool(epoch >= first_epoch)
 
     try:
         info = state.recorder.start(
