@@ -22,7 +22,7 @@ from app.geometry.projection import undistort_pixels
 from app.geometry.ring import RingFit, RingParams, RingPrior, find_ring
 from app.geometry.triangulation import refine_reprojection, triangulate_linear
 from app.vision.appearance import AppearanceConfig, appearance_reasons, blob_color_bgr
-from app.vision.features import BlobGate, TooManyBlobs, extract_blobs
+from app.vision.features import BlobGate, TooManyBlobs, band_maxima, detect_blobs
 from app.vision.ihwt import describe
 from app.vision.matching import (
     descriptor_distances,
@@ -34,9 +34,7 @@ from app.vision.preprocess import (
     ImageError,
     ThresholdMode,
     background_level,
-    binarize,
     choose_threshold,
-    median_filter,
     to_gray,
     validate_image,
 )
@@ -169,10 +167,12 @@ class NavigationPipeline:
         t0 = time.perf_counter()
         stats = background_level(gray)
         bg = stats[0]
-        threshold = choose_threshold(gray, cfg.threshold, stats)
-        mask = median_filter(binarize(gray, threshold), cfg.median_ksize)
+        # one pass for the band maxima: the peak of eq. 10's "auto" rule and the bright bands
+        bands = band_maxima(gray)
+        threshold = choose_threshold(gray, cfg.threshold, stats, float(bands.max()))
         t1 = time.perf_counter()
-        blobs, rejected = extract_blobs(gray, mask, bg, cfg.gate)
+        # binarise, median-filter, label and centroid only around the bright pixels
+        blobs, rejected = detect_blobs(gray, threshold, bg, cfg.gate, cfg.median_ksize, bands)
         if image.ndim == 3 and cfg.appearance.enabled:
             blobs = [replace(b, color_bgr=blob_color_bgr(image, b, threshold)) for b in blobs]
         t2 = time.perf_counter()

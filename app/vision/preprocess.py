@@ -43,9 +43,10 @@ def to_gray(image: U8Image) -> U8Image:
 
 
 def background_level(gray: U8Image) -> tuple[float, float]:
-    """Robust background level and noise σ (DN) from a 1/16 subsample: the median and
+    """Robust background level and noise σ (DN) from a 1/32 subsample (every 8th row, every 4th
+    column: one eighth of the memory traffic): the median and
     1.4826·MAD, both read off the 256-bin histogram (no sort)."""
-    hist = np.bincount(gray[::4, ::4].ravel(), minlength=256).astype(np.int64)
+    hist = np.bincount(gray[::8, ::4].ravel(), minlength=256).astype(np.int64)
     half = hist.sum() / 2.0
     med = int(np.searchsorted(np.cumsum(hist), half))
     # histogram of |x − med|: fold the histogram about the median
@@ -60,7 +61,10 @@ def background_level(gray: U8Image) -> tuple[float, float]:
 
 
 def choose_threshold(
-    gray: U8Image, mode: ThresholdMode = "auto", background: tuple[float, float] | None = None
+    gray: U8Image,
+    mode: ThresholdMode = "auto",
+    background: tuple[float, float] | None = None,
+    peak: float | None = None,
 ) -> int:
     """Threshold T_s of eq. 10 (DN).
 
@@ -70,7 +74,8 @@ def choose_threshold(
       robust when the LEDs cover < 0.1 % of the frame (where Otsu drifts into the noise)
       and low enough (a quarter of the peak) that a 2-px LED at 5 m survives the median filter.
 
-    ``background`` is ``background_level(gray)`` if the caller already has it.
+    ``background`` is ``background_level(gray)`` and ``peak`` the image's maximum (DN) if the
+    caller already has them.
     """
     if isinstance(mode, bool) or not isinstance(mode, int | str):
         raise ValueError(f"threshold must be an int 1..255, 'auto' or 'otsu', got {mode!r}")
@@ -83,9 +88,16 @@ def choose_threshold(
         return max(int(t), 1)
     if mode == "auto":
         bg, sigma = background if background is not None else background_level(gray)
-        peak = float(cv2.minMaxLoc(gray)[1])
-        return int(min(255, max(1, round(bg + max(0.25 * (peak - bg), 6.0 * sigma)))))
+        if peak is None:
+            peak = float(cv2.minMaxLoc(gray)[1])
+        return auto_threshold(bg, sigma, peak)
     raise ValueError(f"threshold must be an int 1..255, 'auto' or 'otsu', got {mode!r}")
+
+
+def auto_threshold(background: float, sigma: float, peak: float) -> int:
+    """Eq. 10's "auto" threshold T = bg + max(0.25·(peak − bg), 6σ), clipped to 1..255 (DN)."""
+    t = round(background + max(0.25 * (peak - background), 6.0 * sigma))
+    return int(min(255, max(1, t)))
 
 
 def binarize(gray: U8Image, threshold: int) -> U8Image:
