@@ -9,7 +9,10 @@ written as MJPG videos and as PNG folders, per pair, in the same run:
   ``aar-dock track`` and the service's stream thread do per pair;
 * ``push encode (PNG)`` — what ``aar-dock push`` spends encoding one pair.
 
-Prints a Markdown table: median and p90 ms per pair and the ratio to the baseline.
+Prints a Markdown table: median and p90 ms per pair and the ratio to the baseline. Then the
+service's responsiveness: ``GET /api/v1/healthz`` latency (in process, 300 requests) with no
+source running (the baseline) and while the stream thread runs the MJPG video as fast as
+possible (its frame rate alongside).
 
     .venv/bin/python benchmarks/bench_streams.py [--frames 40] [--repeats 3]
 """
@@ -103,6 +106,47 @@ def main() -> None:
     for name, vals in results:
         med = float(np.median(vals))
         print(f"| {name} | {med:.2f} | {np.quantile(vals, 0.9):.2f} | {med / base:.2f} |")
+    service_latency(la, ra, d)
+
+
+def service_latency(left: Path, right: Path, tmp: Path) -> None:
+    from fastapi.testclient import TestClient
+
+    from app.server.main import create_app
+    from app.server.settings import Settings
+
+    settings = Settings(
+        viser_enabled=False,
+        sim_in_process=True,
+        uploads_in_process=True,
+        sim_autostart=False,
+        recordings_dir=tmp / "rec",
+        stream_realtime=False,
+        stream_loop=True,
+    )
+    with TestClient(create_app(settings)) as c:
+
+        def latency() -> tuple[float, float]:
+            out = []
+            for _ in range(300):
+                t0 = time.perf_counter()
+                c.get("/api/v1/healthz")
+                out.append((time.perf_counter() - t0) * 1e3)
+            return float(np.median(out)), float(np.quantile(out, 0.99))
+
+        idle = latency()
+        c.app.state.aar.streams.switch(f"video:{left},{right}")  # type: ignore[attr-defined]
+        time.sleep(1.0)
+        f0, t0 = c.get("/api/v1/stream").json()["frames"], time.monotonic()
+        busy = latency()
+        fps = (c.get("/api/v1/stream").json()["frames"] - f0) / (time.monotonic() - t0)
+    print("\n| GET /healthz (in process) | median ms | p99 ms | × idle (median) |")
+    print("|---|---|---|---|")
+    print(f"| no source (baseline) | {idle[0]:.2f} | {idle[1]:.2f} | 1.00 |")
+    print(
+        f"| MJPG stream as fast as possible ({fps:.0f} pairs/s) | {busy[0]:.2f} | "
+        f"{busy[1]:.2f} | {busy[0] / idle[0]:.2f} |"
+    )
 
 
 if __name__ == "__main__":
