@@ -281,3 +281,21 @@ def test_stream_guidance_against_constant_velocity_kinematics() -> None:
         out = g.update(k * dt, PoseResult(lock=False, reason="no blobs"))
     assert out.drogue_measured_m is None and out.drogue_estimate_m is None
     assert out.coast_s > 0.5
+
+
+def test_a_frame_of_the_wrong_size_is_no_lock_with_the_reason() -> None:
+    from app.geometry.calibration import paper_calibration
+    from app.streams.processor import StreamProcessor
+
+    proc = StreamProcessor(paper_calibration())
+    tick = proc.process(StereoFrame(_img(1), _img(1), t_s=0.0, seq=0))
+    assert not tick.lock and tick.mode == "error"
+    assert "bad frame" in (tick.lock_reason or "") and "1280" in (tick.lock_reason or "")
+    assert tick.guidance.drogue_estimate_m is None
+
+
+def test_a_missing_camera_device_is_a_source_error() -> None:
+    t0 = time.perf_counter()
+    with pytest.raises(SourceError, match="cannot open"):
+        open_source("camera:97,98")
+    assert time.perf_counter() - t0 < 10
