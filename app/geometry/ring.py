@@ -147,13 +147,15 @@ def _circumcircles(p: FloatArray, triples: np.ndarray) -> tuple[FloatArray, Floa
 def view_angle_deg(circle: Circle3D) -> float:
     """Angle (deg) between the ring's normal and the line of sight to its centre (0 = head on,
     90 = edge-on)."""
-    view = -circle.center / max(float(np.linalg.norm(circle.center)), 1e-9)
+    c = circle.center
+    view = -c / max(math.sqrt(float(c @ c)), 1e-9)
     return math.degrees(math.acos(float(np.clip(circle.normal @ view, -1.0, 1.0))))
 
 
 def agrees_with_prior(circle: Circle3D, prior: RingPrior) -> bool:
     """The circle is where the prior lock predicts it (centre and normal within the gates)."""
-    dc = float(np.linalg.norm(circle.center - np.asarray(prior.center_mm)))
+    d = circle.center - np.asarray(prior.center_mm)
+    dc = math.sqrt(float(d @ d))
     cosang = float(np.clip(circle.normal @ np.asarray(prior.normal), -1.0, 1.0))
     return dc <= prior.gate_mm and math.degrees(math.acos(cosang)) <= prior.gate_deg
 

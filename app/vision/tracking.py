@@ -163,10 +163,12 @@ class StereoTracker:
         calibration: StereoCalibration,
         config: PipelineConfig | None = None,
         exact_peak: bool = True,
-        describe: bool = True,
+        describe: bool = False,
     ) -> None:
         # describe: IHWT descriptors of the tracked blobs, for ``descriptor_distance`` (as
-        # the pipeline); False skips them (the field is then −1: not computed)
+        # the pipeline). Off by default: a tracked LED keeps its id by continuity, so the
+        # descriptor serves no decision there (the field is −1: not computed), and the
+        # windows need not hold the descriptor's window
         self.describe = describe
         # exact_peak: gray input, "auto" threshold: take the peak of eq. 10's rule over the
         # whole frame (a max reduction) so that a glint brighter than the LEDs sets the same
