@@ -278,3 +278,32 @@ def test_one_source_at_a_time_sim_start_stops_the_stream(
         r = c.put("/api/v1/stream/source", json={"source": "camera:/no/such/device.avi"})
         assert r.status_code == 422 and "no such video file" in r.json()["detail"]
         assert st.loop.running  # a refused source changes nothing
+
+
+def test_a_frame_recording_replays_with_its_own_calibration(tmp_path: Path) -> None:
+    from app.geometry.calibration import StereoCalibration, paper_calibration
+    from app.server.schemas import SimConfig
+    from app.server.stream_service import StreamService
+    from app.server.tick_loop import TickLoop
+    from app.sim.paths import load_default_calibration
+    from app.streams.frames import StereoFrame
+    from app.streams.recording import FrameRecordingWriter
+
+    data = paper_calibration().to_dict()
+    data["T"] = [-120.0, 0.5, -28.3]  # another rig than the service's
+    recorded_with = StereoCalibration.from_dict(data)
+    writer = FrameRecordingWriter(tmp_path / "r.frames", recorded_with)
+    img = np.zeros((8, 8), np.uint8)
+    writer.submit(StereoFrame(img, img, t_s=0.0, seq=0))
+    writer.close()
+    service_calib = load_default_calibration()
+    loop = TickLoop(SimConfig(), service_calib, source_factory=lambda c, k: _FakeSim())
+    streams = StreamService(loop, service_calib, _settings(tmp_path))
+    try:
+        streams.switch(f"video:{tmp_path / 'r.frames'}", realtime=False)
+        assert streams.processor is not None
+        used = streams.processor.calibration
+        assert np.array_equal(used.R, recorded_with.R) and np.array_equal(used.T, recorded_with.T)
+        assert not np.array_equal(service_calib.T, recorded_with.T)
+    finally:
+        streams.close()

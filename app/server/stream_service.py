@@ -111,7 +111,11 @@ class StreamService:
             self._stop_stream()
             self.loop.stop_sim()
             self.source = source
-            self.processor = StreamProcessor(self._calibration)
+            # a frame recording replays with the calibration it was recorded with
+            calibration = getattr(source, "calibration", None) or self._calibration
+            if calibration is not self._calibration:
+                log.info("%s: using the recording's own calibration", source.spec)
+            self.processor = StreamProcessor(calibration)
             self.spec = source.spec
             self.state = "running"
             self.last_error = None

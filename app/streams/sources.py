@@ -14,6 +14,7 @@ from __future__ import annotations
 import threading
 import time
 from dataclasses import dataclass
+from typing import Any
 
 import cv2
 import numpy as np
@@ -29,7 +30,11 @@ from app.streams.frames import (
 from app.streams.pairing import TimestampPairer
 from app.streams.protocol import PushMessage
 from app.streams.readers import CaptureReader, open_reader
-from app.streams.recording import FrameRecordingSource, is_frame_recording
+from app.streams.recording import (
+    FrameRecordingSource,
+    is_frame_recording,
+    recording_calibration,
+)
 
 DEFAULT_MAX_SKEW_S = 0.010
 
@@ -117,6 +122,7 @@ class VideoSource:
         self._last_seq = -1
         self._recording: FrameRecordingSource | None = None
         self._pairer: TimestampPairer | None = None
+        self.calibration: Any = None  # a frame recording's own calibration, if it has one
         if not right:
             if not is_frame_recording(left):
                 raise SourceError(
@@ -124,6 +130,7 @@ class VideoSource:
                     "(a folder with frames.jsonl); otherwise give LEFT,RIGHT"
                 )
             self._recording = FrameRecordingSource(left)
+            self.calibration = recording_calibration(left)
         else:
             self._open_pair()
 
