@@ -25,6 +25,7 @@ from app.server.schemas import STRICT
 from app.server.security import token_ok
 from app.streams.frames import SourceError
 from app.streams.protocol import ProtocolError, decode_message
+from app.streams.sources import PushSource
 
 router = APIRouter(prefix="/stream", tags=["stream"])
 ERROR_INTERVAL_S = 1.0
@@ -109,7 +110,7 @@ async def push(ws: WebSocket) -> None:
     async def problem(text: str) -> None:
         nonlocal last_error
         src = streams.source
-        if src is not None:
+        if isinstance(src, PushSource):
             src.stats.add("rejected")
         now = time.monotonic()
         if now - last_error >= ERROR_INTERVAL_S:
