@@ -77,6 +77,12 @@ def test_pairing_by_timestamps_drops_and_counts_skewed_frames(tmp_path: Path) ->
     assert src.stats.dropped_skew == 3
     assert src.stats.pairs == 4
     assert src.stats.max_skew_ms == pytest.approx(4.0, abs=1e-6)
+    # the same inputs as globs (timestamps.txt is beside the images, not in the glob: index/fps)
+    globbed = VideoSource(
+        str(left / "*.png"), str(right / "00[0-4].png"), SourceOptions(realtime=False, fps=10)
+    )
+    first = globbed.read()
+    assert first is not None and (int(first.left[0, 0]), int(first.right[0, 0])) == (0, 100)
 
 
 def test_video_loop_keeps_time_and_frame_numbers_increasing(tmp_path: Path) -> None:

@@ -165,6 +165,8 @@ class StreamService:
                     continue
                 t0 = time.perf_counter()
                 tick = processor.process(frame, source.kind)
+                if source.kind == "camera":  # grab time on this machine's monotonic clock
+                    tick.extra_timings_ms["frame_age"] = (time.monotonic() - frame.t_s) * 1e3
                 stats = source.stats
                 tick.stream = {
                     "spec": source.spec,
