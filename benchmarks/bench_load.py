@@ -8,7 +8,10 @@ step-time p99 from ``/history``) in four cases:
 * ``ws50``: 50 telemetry WebSocket clients (receiving, not parsing);
 * ``up16``: 16 uploaders posting ``sample_data/pair_1000mm/{left,right}.png`` in a loop, as
   fast as answered (429 when ``AAR_MAX_CONCURRENT_UPLOADS`` are running: counted, no back-off);
-* ``both``: the two together.
+* ``both``: the two together;
+* ``page``: one browser (Debian chromium, headless, software WebGL) on the operators' page,
+  which embeds the viser 3-D scene;
+* ``full``: the page + 50 telemetry clients + 4 uploaders (issue 10's acceptance load).
 
 for the two modes:
 
@@ -43,9 +46,10 @@ from typing import Any
 
 REPO = Path(__file__).resolve().parents[1]
 PAIR = REPO / "sample_data" / "pair_1000mm"
-CASES = ("idle", "ws50", "up16", "both")
+CASES = ("idle", "ws50", "up16", "both", "page", "full")
 N_WS = 50
-N_UP = 16
+N_UP = {"up16": 16, "both": 16, "full": 4}
+CHROMIUM = "/usr/bin/chromium"
 MODE_ENV = {
     "process": {"AAR_SIM_IN_PROCESS": "false", "AAR_UPLOADS_IN_PROCESS": "false"},
     "thread": {"AAR_SIM_IN_PROCESS": "true", "AAR_UPLOADS_IN_PROCESS": "true"},
@@ -167,6 +171,19 @@ async def uploader(url: str, stop: asyncio.Event, statuses: Counter[int], files:
                 statuses[-1] += 1  # connection closed early (a refused body), counted apart
 
 
+async def open_page(port: int) -> tuple[Any, Any, Any]:
+    """Debian chromium (headless, software WebGL) on the operators' page (3-D view embedded)."""
+    from playwright.async_api import async_playwright
+
+    pw = await async_playwright().start()
+    br = await pw.chromium.launch(
+        executable_path=CHROMIUM, args=["--headless", "--no-sandbox", "--disable-gpu"]
+    )
+    page = await br.new_page(viewport={"width": 1400, "height": 900})
+    await page.goto(f"http://127.0.0.1:{port}/", wait_until="load")
+    return pw, br, page
+
+
 async def run_case(server: Server, case: str, seconds: float, ramp_s: float) -> dict[str, Any]:
     port = server.port
     stop = asyncio.Event()
@@ -177,12 +194,18 @@ async def run_case(server: Server, case: str, seconds: float, ramp_s: float) -> 
         "right": ("right.png", (PAIR / "right.png").read_bytes(), "image/png"),
     }
     tasks: list[asyncio.Task[None]] = []
-    if case in ("ws50", "both"):
+    if case in ("ws50", "both", "full"):
         url = f"ws://127.0.0.1:{port}/api/v1/telemetry"
         tasks += [asyncio.create_task(ws_client(url, stop, ws_counts, i)) for i in range(N_WS)]
-    if case in ("up16", "both"):
+    if case in N_UP:
         url = f"http://127.0.0.1:{port}/api/v1/stereo"
-        tasks += [asyncio.create_task(uploader(url, stop, statuses, files)) for _ in range(N_UP)]
+        tasks += [
+            asyncio.create_task(uploader(url, stop, statuses, files)) for _ in range(N_UP[case])
+        ]
+    browser = None
+    if case in ("page", "full"):
+        browser = await open_page(port)
+        ramp_s = max(ramp_s, 6.0)  # the page and its 3-D view load and start rendering
     await asyncio.sleep(ramp_s)
     h0 = await asyncio.to_thread(health, port)
     t0 = time.monotonic()
@@ -192,6 +215,15 @@ async def run_case(server: Server, case: str, seconds: float, ramp_s: float) -> 
     elapsed = time.monotonic() - t0
     ws1, st1 = sum(ws_counts), Counter(statuses)
     p99 = await asyncio.to_thread(window_p99, port, elapsed)
+    page_ok = None
+    if browser is not None:
+        pw, br, page = browser
+        page_ok = await page.evaluate(
+            "() => document.querySelector('#viser-frame') !== null"
+            " && (document.querySelector('#t_s')?.textContent ?? '–') !== '–'"
+        )
+        await br.close()
+        await pw.stop()
     stop.set()
     await asyncio.gather(*tasks, return_exceptions=True)
     answered = st1 - st0
@@ -208,7 +240,10 @@ async def run_case(server: Server, case: str, seconds: float, ramp_s: float) -> 
         "busy_per_s": answered.get(429, 0) / elapsed,
         "closed_per_s": answered.get(-1, 0) / elapsed,
         "other": {k: v for k, v in answered.items() if k not in (200, 429, -1)},
-        "ws_per_client_hz": (ws1 - ws0) / elapsed / N_WS if case in ("ws50", "both") else None,
+        "ws_per_client_hz": (
+            (ws1 - ws0) / elapsed / N_WS if case in ("ws50", "both", "full") else None
+        ),
+        "page_live": page_ok,
     }
 
 
@@ -246,20 +281,20 @@ def table(rows: list[dict[str, Any]], hz: float) -> str:
     head = (
         "| upload slots | case | mode | tick rate (Hz) | ratio to nominal | dropped ticks "
         "| step p99 (ms) | sim p99 (ms) | uploads/s 200 | uploads/s 429 (+ closed) "
-        "| telemetry msgs/s per client |"
+        "| telemetry msgs/s per client | page live |"
     )
-    lines = [head, "|" + "---|" * 11]
+    lines = [head, "|" + "---|" * 12]
     order = {c: i for i, c in enumerate(CASES)}
     for r in sorted(rows, key=lambda r: (r["slots"], order[r["case"]], r["mode"])):
         ws = "–" if r["ws_per_client_hz"] is None else f"{r['ws_per_client_hz']:.1f}"
         sim = "–" if r["sim_p99"] != r["sim_p99"] else f"{r['sim_p99']:.1f}"
         ups = "– | –"
-        if r["case"] in ("up16", "both"):
+        if r["case"] in N_UP:
             ups = f"{r['ok_per_s']:.1f} | {r['busy_per_s']:.1f} (+ {r['closed_per_s']:.0f})"
         lines.append(
             f"| {r['slots']} | {r['case']} | {r['mode']} | {r['tick_hz']:.2f} "
             f"| {r['tick_hz'] / hz:.2f} | {r['dropped']} | {r['step_p99']:.1f} | {sim} "
-            f"| {ups} | {ws} |"
+            f"| {ups} | {ws} | {'–' if r['page_live'] is None else r['page_live']} |"
         )
     return "\n".join(lines)
 
