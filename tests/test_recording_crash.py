@@ -196,7 +196,8 @@ def test_time_limit_without_ticks(tmp_path: Path) -> None:
     while rec.active is not None and time.monotonic() - t0 < 5:
         time.sleep(0.02)
     elapsed = time.monotonic() - t0
-    assert rec.active is None and 0.9 <= elapsed <= 1.5, elapsed
+    # the watchdog wakes at the bound; 1 s of slack for a loaded CI machine (2 shared cores)
+    assert rec.active is None and 0.9 <= elapsed <= 2.0, elapsed
     meta = _meta(tmp_path, info.id)
     assert meta["status"] == "complete" and meta["stop_reason"] == "reached 1 s"
     assert meta["stopped_wall"] - meta["started_wall"] == pytest.approx(1.0, abs=0.5)
