@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 from typing import Any
 
@@ -109,6 +110,12 @@ class CameraIntrinsics:
         return {"K": self.K.tolist(), "dist": self.dist.tolist()}
 
 
+def _frozen(a: FloatArray) -> FloatArray:
+    """A read-only array (a cached matrix of the calibration is shared by every caller)."""
+    a.setflags(write=False)
+    return a
+
+
 @dataclass(frozen=True)
 class StereoCalibration:
     """A calibrated convergent stereo rig (paper §2). Left camera frame = world frame (mm)."""
@@ -187,24 +194,24 @@ class StereoCalibration:
         """Right camera optical centre in the left (world) frame, mm."""
         return -self.R.T @ self.T
 
-    @property
+    @cached_property
     def P_left(self) -> FloatArray:
         """H_l = A_l · M_l of eq. 4 (3×4), for undistorted pixel coordinates."""
-        return self.left.K @ np.hstack([np.eye(3), np.zeros((3, 1))])
+        return _frozen(self.left.K @ np.hstack([np.eye(3), np.zeros((3, 1))]))
 
-    @property
+    @cached_property
     def P_right(self) -> FloatArray:
         """H_r = A_r · M_r of eq. 5 (3×4), for undistorted pixel coordinates."""
-        return self.right.K @ np.hstack([self.R, self.T.reshape(3, 1)])
+        return _frozen(self.right.K @ np.hstack([self.R, self.T.reshape(3, 1)]))
 
-    @property
+    @cached_property
     def fundamental(self) -> FloatArray:
         """F with x_rᵀ F x_l = 0 for undistorted pixel coordinates."""
         t = self.T
         tx = np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]])
         E = tx @ self.R
         F = np.linalg.inv(self.right.K).T @ E @ np.linalg.inv(self.left.K)
-        return np.asarray(F / np.linalg.norm(F), dtype=np.float64)
+        return _frozen(np.asarray(F / np.linalg.norm(F), dtype=np.float64))
 
 
 def paper_calibration() -> StereoCalibration:
