@@ -6,18 +6,23 @@ Here, from the corners of :mod:`app.geometry.board_detect`:
 
 1. each camera is calibrated alone (``cv2.calibrateCamera``: Zhang's closed form + LM);
 2. **rig check** (:func:`rig_check`): every pair's two board poses imply a rig (R, T); the
-   pairs must agree on one. A pair whose right grid is the left one reversed is corrected;
-   a pair whose grids are offset by a column or a row (not the same physical corners), or
-   that agrees with no candidate, is rejected with the reason;
+   rig most pairs agree on is calibrated from them, and each pair's corners are then
+   triangulated with it under every index mapping (as detected, reversed, offset by ±1
+   column/row: :data:`MAPPINGS`) and fitted to the flat board (:func:`board_fit_mm`). A pair
+   whose right grid is the left one reversed is corrected; a pair whose grids are offset by a
+   column or row (not the same physical corners), or that fits no mapping, is rejected with
+   the reason — :func:`calibrate_checkerboard` first searches its images again with the
+   other detectors (:func:`redetect_rejected`) and keeps the pair if the new grids agree;
 3. the rig is refined jointly (``cv2.stereoCalibrateExtended``, intrinsics as initial guess);
 4. **robust view dropping** (:func:`robust_outlier`): while a view's RMS reprojection error
    ``e`` (px, both cameras) has a robust z-score ``0.6745 · (e − median) / MAD > 3.5``
-   (Iglewicz–Hoaglin) *and* ``e > 1.5 · median`` *and* ``e > median + 0.1 px``, the worst
-   such view is dropped and step 3 repeated — at most a quarter of the views, never below ``MIN_VIEWS``;
+   (Iglewicz–Hoaglin) *and* ``e > 2 · median`` *and* ``e > median + 0.1 px``, the worst
+   such view is dropped and step 3 repeated — at most a quarter of the views, never below
+   ``MIN_VIEWS``;
 5. optionally (``estimate_skew``) everything is refined once more *with* the skew γ
    (:func:`refine_with_skew`, sparse least squares), which OpenCV's model lacks;
 6. **held-out check** (:func:`held_out_check`): each view's board is triangulated with a
-   calibration made without it and its square size compared with the true one (mm).
+   calibration made without it (k-fold) and its square size compared with the true one (mm).
 
 Distortion models: ``"paper"`` estimates k1, k2 only (``CALIB_FIX_K3 | CALIB_ZERO_TANGENT_DIST``,
 the paper's eq. 7); ``"full"`` estimates OpenCV's five terms k1, k2, p1, p2, k3.
@@ -41,11 +46,15 @@ import numpy as np
 from numpy.typing import NDArray
 
 from app.geometry.board_detect import (
+    METHODS,
     Board,
     CheckerboardError,
+    CornerResult,
     PairDetection,
     check_image_sizes,
+    detect_corners_detail,
     detect_pairs,
+    match_orientation,
     suggest_board,
 )
 from app.geometry.calibration import CalibrationError, FloatArray, StereoCalibration
@@ -75,11 +84,13 @@ _TERM = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 200, 1e-10)
 _TERM_FOLD = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-8)
 RIG_TOL_SQUARES = 0.4  # rig check: |ΔT| tolerance, in squares (candidates are 1 square apart)
 RIG_TOL_DEG = 3.0  # rig check: rotation tolerance (deg)
+RIG_MAX_FIT_SQUARES = 0.1  # rig check: worst accepted board-fit RMS, in squares ...
+RIG_FIT_SPREAD = 5.0  # ... or this multiple of the median pair's fit (noisy corners)
 OUTLIER_Z = 3.5  # robust z-score threshold (Iglewicz & Hoaglin)
-OUTLIER_RATIO = 1.5  # ... and at least this multiple of the median view RMS
+OUTLIER_RATIO = 2.0  # ... and at least this multiple of the median view RMS
 OUTLIER_MIN_EXCESS_PX = 0.1  # ... and at least this much above the median (px)
 MAX_DROP_FRACTION = 0.25
-HELD_OUT_MAX_FOLDS = 4
+HELD_OUT_MAX_FOLDS = 3
 
 
 def _pose(rvec: Any, tvec: Any) -> tuple[FloatArray, FloatArray]:
@@ -93,6 +104,28 @@ def _angle_deg(R: FloatArray) -> float:
 
 
 @dataclass(frozen=True)
+class GridMapping:
+    """The right grid's corner (i, j) is physical corner (i+dx, j+dy), or (C−1−i+dx, R−1−j+dy)
+    when ``flip`` (the grid reversed, 180°); the left grid's corner (i, j) is (i, j)."""
+
+    flip: bool
+    dx: int
+    dy: int
+
+    @property
+    def shifted(self) -> bool:
+        return self.dx != 0 or self.dy != 0
+
+
+# as detected first, then the offsets by one column and/or row, then the same reversed
+MAPPINGS = tuple(
+    GridMapping(flip, dx, dy)
+    for flip in (False, True)
+    for dx, dy in itertools.product((0, -1, 1), (0, -1, 1))
+)
+
+
+@dataclass(frozen=True)
 class RigCandidate:
     """How the right grid's indices may map onto the left's: reversed (180°) and/or offset
     by ``dx`` columns / ``dy`` rows; with the rig (R, T: X_right = R·X_left + T, mm) it implies."""
@@ -102,6 +135,8 @@ class RigCandidate:
     dy: int
     R: FloatArray
     T: FloatArray
+    A: FloatArray  # right board frame → physical board frame: X = A·P_r + b (mm)
+    b: FloatArray
 
     @property
     def shifted(self) -> bool:
@@ -120,15 +155,15 @@ def rig_candidates(
     R_r, t_r = pose_r
     s = board.square_mm
     out = []
-    for flip in (False, True):
-        A = np.diag([-1.0, -1.0, 1.0]) if flip else np.eye(3)
-        for dx, dy in itertools.product((0, -1, 1), (0, -1, 1)):
-            if flip:
-                b = np.array([(board.cols - 1 + dx) * s, (board.rows - 1 + dy) * s, 0.0])
-            else:
-                b = np.array([dx * s, dy * s, 0.0])
-            RA = R_r @ A
-            out.append(RigCandidate(flip, dx, dy, RA @ R_l.T, t_r - RA @ (R_l.T @ t_l + b)))
+    for m in MAPPINGS:
+        A = np.diag([-1.0, -1.0, 1.0]) if m.flip else np.eye(3)
+        if m.flip:
+            b = np.array([(board.cols - 1 + m.dx) * s, (board.rows - 1 + m.dy) * s, 0.0])
+        else:
+            b = np.array([m.dx * s, m.dy * s, 0.0])
+        RA = R_r @ A
+        T = t_r - RA @ (R_l.T @ t_l + b)
+        out.append(RigCandidate(m.flip, m.dx, m.dy, RA @ R_l.T, T, A, b))
     return out
 
 
@@ -145,14 +180,15 @@ def _rig_distances(
 
 @dataclass
 class RigVerdict:
-    """Outcome of the rig check for one pair: ``action`` ok | flipped | rejected."""
+    """Outcome of the rig check for one pair: ``action`` ok | flipped | rejected, and the
+    board-fit RMS of the grids as detected (mm, :func:`board_fit_mm`)."""
 
     action: str
     reason: str | None
-    dT_mm: float  # |T_pair − T_consensus| of the chosen mapping (mm)
+    fit_mm: float
 
 
-def _offset_text(c: RigCandidate) -> str:
+def _offset_text(c: GridMapping) -> str:
     parts = []
     if c.dx:
         parts.append(f"{c.dx:+d} column{'s' if abs(c.dx) > 1 else ''}")
@@ -161,20 +197,132 @@ def _offset_text(c: RigCandidate) -> str:
     return " and ".join(parts) + (" (and reversed)" if c.flip else "")
 
 
+def _right_to_physical(
+    cand: GridMapping, board: Board
+) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+    """Indices (right corner k, left corner m) of the corners the two grids share when the
+    right grid's corner (i, j) is physical corner (i+dx, j+dy) — or (C−1−i+dx, R−1−j+dy)
+    when reversed; the left grid's corner m = j·C + i is physical corner (i, j)."""
+    C, Rw = board.cols, board.rows
+    jj, ii = np.mgrid[0:Rw, 0:C]
+    i, j = ii.ravel(), jj.ravel()
+    if cand.flip:
+        pi, pj = C - 1 - i + cand.dx, Rw - 1 - j + cand.dy
+    else:
+        pi, pj = i + cand.dx, j + cand.dy
+    ok = (pi >= 0) & (pi < C) & (pj >= 0) & (pj < Rw)
+    return np.flatnonzero(ok), (pj * C + pi)[ok]
+
+
+def board_fit_mm(
+    cand: GridMapping,
+    calib: StereoCalibration,
+    ideal: tuple[FloatArray, FloatArray],
+    board: Board,
+) -> float:
+    """How well one pair's corners, matched under an index mapping and triangulated with the
+    rig ``calib`` (eqs. 15–16), form the flat board: RMS (mm) of a rigid fit to the board's
+    corner positions. ``ideal``: the pair's undistorted left/right corners (px). A wrong
+    mapping scales and shears the triangulated board (a column's offset along the baseline
+    changes every disparity by one square), which no rigid motion undoes."""
+    return float(mapping_fits_of(calib, ideal, board, (cand,))[0])
+
+
+def mapping_fits_of(
+    calib: StereoCalibration,
+    ideal: tuple[FloatArray, FloatArray],
+    board: Board,
+    mappings: Sequence[GridMapping] = MAPPINGS,
+) -> FloatArray:
+    """:func:`board_fit_mm` for several mappings, with one triangulation call (mm)."""
+    idx = [_right_to_physical(m, board) for m in mappings]
+    k_r = np.concatenate([i[0] for i in idx])
+    m_l = np.concatenate([i[1] for i in idx])
+    X = triangulate_linear(calib.P_left, calib.P_right, ideal[0][m_l], ideal[1][k_r])
+    P = board.object_points().astype(np.float64)[m_l]
+    # Kabsch per mapping: min Σ|R·a − b|² = Σ|a|² + Σ|b|² − 2(σ1 + σ2 + sign(det H)·σ3)
+    lens = np.array([len(i[0]) for i in idx])
+    starts = np.concatenate([[0], np.cumsum(lens)[:-1]])
+    a = P - np.repeat(np.add.reduceat(P, starts, axis=0) / lens[:, None], lens, axis=0)
+    b = X - np.repeat(np.add.reduceat(X, starts, axis=0) / lens[:, None], lens, axis=0)
+    H = np.add.reduceat(a[:, :, None] * b[:, None, :], starts, axis=0)
+    sv = np.linalg.svd(H, compute_uv=False)
+    sign = np.sign(np.linalg.det(H))
+    ss = np.add.reduceat(np.sum(a * a, axis=1) + np.sum(b * b, axis=1), starts)
+    err = ss - 2.0 * (sv[:, 0] + sv[:, 1] + sign * sv[:, 2])
+    return np.asarray(np.sqrt(np.maximum(err, 0.0) / lens), dtype=np.float64)
+
+
+def mapping_fits_mm(
+    calib: StereoCalibration, left: FloatArray, right: FloatArray, board: Board
+) -> FloatArray:
+    """:func:`board_fit_mm` of one pair under every mapping of :data:`MAPPINGS` (mm)."""
+    ideal = (
+        undistort_pixels(calib.left, np.asarray(left, dtype=np.float64).reshape(-1, 2)),
+        undistort_pixels(calib.right, np.asarray(right, dtype=np.float64).reshape(-1, 2)),
+    )
+    return mapping_fits_of(calib, ideal, board)
+
+
+def rig_tolerance_mm(fits_as_detected: Sequence[float], board: Board) -> float:
+    """Worst accepted board fit (mm): ``RIG_MAX_FIT_SQUARES`` squares, or ``RIG_FIT_SPREAD`` ×
+    the median fit of all pairs as detected when the corners are noisier than that."""
+    med = float(np.median(fits_as_detected)) if len(fits_as_detected) else 0.0
+    return max(RIG_MAX_FIT_SQUARES * board.square_mm, RIG_FIT_SPREAD * med)
+
+
+def pair_verdict(fit: FloatArray, tol_mm: float, board: Board) -> RigVerdict:
+    """Are one pair's grids the same corners in the same order? ``fit``: the pair's
+    :func:`mapping_fits_mm`. Another mapping than the one detected wins only if it fits at
+    least twice as well: reversed → ``flipped`` (to be corrected), offset by a column or row →
+    ``rejected``; a best fit worse than ``tol_mm`` → ``rejected`` (matches no mapping)."""
+    j = int(np.argmin(fit))
+    r0 = float(fit[0])  # MAPPINGS[0]: as detected
+    if j != 0 and fit[j] >= 0.5 * r0:
+        j = 0
+    m = MAPPINGS[j]
+    if fit[j] > tol_mm:
+        reason = (
+            "left/right grids inconsistent with the rig of the other pairs (the pair's "
+            f"triangulated board is off a flat {board.cols}x{board.rows} board by "
+            f"{fit[j]:.1f} mm RMS, tolerance {tol_mm:.1f} mm)"
+        )
+        return RigVerdict("rejected", reason, r0)
+    if m.shifted:
+        reason = (
+            "left and right grids are not the same corners: the right grid is offset by "
+            f"{_offset_text(m)} (rig check: the triangulated board is off the flat board "
+            f"by {r0:.1f} mm RMS as detected, {fit[j]:.2f} mm with the offset)"
+        )
+        return RigVerdict("rejected", reason, r0)
+    return RigVerdict("flipped" if m.flip else "ok", None, r0)
+
+
 def rig_check(
     poses_l: Sequence[tuple[FloatArray, FloatArray]],
     poses_r: Sequence[tuple[FloatArray, FloatArray]],
     board: Board,
-) -> tuple[list[RigVerdict], str | None]:
+    cams: tuple[tuple[FloatArray, FloatArray], tuple[FloatArray, FloatArray]],
+    corners: Sequence[tuple[FloatArray, FloatArray]],
+    image_size: tuple[int, int],
+    flags: int,
+) -> tuple[list[RigVerdict], str | None, tuple[list[int], _Stereo] | None]:
     """Do the pairs' two grids hold the same physical corners in the same order?
 
-    Each pair's board poses (from each camera's own calibration) imply a rig for each index
-    mapping (:func:`rig_candidates`). The consensus rig is the unshifted candidate supported by
-    the most pairs (a pair supports it when one of its candidates is within
-    ``RIG_TOL_SQUARES`` squares and ``RIG_TOL_DEG``); each pair then takes its nearest
-    candidate: unshifted → ok, reversed → ``flipped`` (to be corrected), offset by a column or
-    row or matching nothing → ``rejected`` with the reason. Returns the verdicts and a warning
-    (the check is inconclusive when fewer than half the pairs, or < 3, agree)."""
+    1. Consensus rig: each pair's board poses (from each camera's own calibration) imply a
+       rig for each index mapping (:func:`rig_candidates`); the consensus is the unshifted
+       candidate supported by the most pairs (one of a pair's candidates within
+       ``RIG_TOL_SQUARES`` squares and ``RIG_TOL_DEG``); the supporting pairs (reversed
+       grids turned round) are calibrated together (``stereoCalibrate``) for the rig.
+    2. Per pair, every mapping is scored by :func:`board_fit_mm` (corners triangulated with
+       the consensus rig and each camera's own intrinsics, rigid fit to the flat board); the
+       best one decides if it fits at least twice as well as the grids as detected: as
+       detected → ok; reversed → ``flipped`` (to be corrected); offset by a column or row →
+       ``rejected``; a best fit worse than :func:`rig_tolerance_mm` → ``rejected``.
+
+    Returns the verdicts, a warning (inconclusive when fewer than half the pairs, or fewer
+    than 3, agree on a rig: then no pair is changed) and the rig's calibration with the
+    indices of the pairs it used (None if none was made)."""
     s = board.square_mm
     cands = [rig_candidates(pl, pr, board) for pl, pr in zip(poses_l, poses_r, strict=True)]
     n = len(cands)
@@ -188,41 +336,49 @@ def rig_check(
         cost = float(np.sum(np.minimum(dmin, 1.0)))
         if best is None or (support, -cost) > (best[0], -best[1]):
             best = (support, cost, i, j)
-    ok = [RigVerdict("ok", None, float("nan")) for _ in range(n)]
     if best is None or best[0] < max(3, math.ceil(n / 2)):
-        return ok, (
+        return (
+            [RigVerdict("ok", None, float("nan")) for _ in range(n)],
             "rig check inconclusive: the pairs' board poses agree on no common rig "
-            f"({0 if best is None else best[0]} of {n} pairs agree); left/right grids unverified"
+            f"({0 if best is None else best[0]} of {n} pairs agree); left/right grids unverified",
+            None,
         )
     R_c = Rs[best[2], best[3]]
     d = _rig_distances(Rs, Ts, R_c, Ts[best[2], best[3]], s)
     near = d.argmin(axis=1)
     agree = d[np.arange(n), near] < 1.0
-    # consensus translation: median over the agreeing pairs' nearest candidates
-    T_c = np.median(Ts[np.arange(n), near][agree], axis=0)
-    d = _rig_distances(Rs, Ts, R_c, T_c, s)
-    verdicts = []
-    for i, cs in enumerate(cands):
-        j = int(d[i].argmin())
-        c = cs[j]
-        dT = float(np.linalg.norm(c.T - T_c))
-        dT0 = float(np.linalg.norm(cs[0].T - T_c))  # cs[0]: as detected (no flip, no offset)
-        if d[i, j] >= 1.0:
-            reason = (
-                "left/right grids inconsistent with the rig of the other pairs (implied "
-                f"baseline off by {dT0:.1f} mm, rotation by {_angle_deg(cs[0].R @ R_c.T):.1f} deg)"
-            )
-            verdicts.append(RigVerdict("rejected", reason, dT0))
-        elif c.shifted:
-            reason = (
-                "left and right grids are not the same corners: the right grid is offset by "
-                f"{_offset_text(c)} (rig check: as detected, the pair's baseline is off by "
-                f"{dT0:.1f} mm)"
-            )
-            verdicts.append(RigVerdict("rejected", reason, dT))
-        else:
-            verdicts.append(RigVerdict("flipped" if c.flip else "ok", None, dT))
-    return verdicts, None
+    # the rig itself: stereo calibration of the agreeing pairs (reversed grids turned round)
+    seed = [i for i in range(n) if agree[i] and not cands[i][near[i]].shifted]
+    img_l = [np.asarray(corners[i][0], dtype=np.float32).reshape(-1, 1, 2) for i in seed]
+    img_r = [
+        np.asarray(corners[i][1][::-1] if cands[i][near[i]].flip else corners[i][1])
+        .astype(np.float32)
+        .reshape(-1, 1, 2)
+        for i in seed
+    ]
+    try:
+        st = _stereo(
+            board.object_points().astype(np.float64),
+            img_l,
+            img_r,
+            cams[0][0],
+            cams[0][1],
+            cams[1][0],
+            cams[1][1],
+            image_size,
+            flags,
+        )
+        calib = _as_calibration(image_size, st.K_l, st.d_l, st.K_r, st.d_r, st.R, st.T)
+    except CheckerboardError as exc:
+        return (
+            [RigVerdict("ok", None, float("nan")) for _ in range(n)],
+            f"rig check inconclusive ({exc}); left/right grids unverified",
+            None,
+        )
+    fits = [mapping_fits_mm(calib, c[0], c[1], board) for c in corners]
+    tol = rig_tolerance_mm([float(f[0]) for f in fits], board)
+    flipped_seed = any(cands[i][near[i]].flip for i in seed)
+    return [pair_verdict(f, tol, board) for f in fits], None, (None if flipped_seed else (seed, st))
 
 
 def robust_outlier(errors: FloatArray) -> tuple[int, float] | None:
@@ -633,10 +789,23 @@ def calibrate_from_detections(
         raise _opencv_failed(exc) from None
     warnings: list[str] = []
     # 2. rig check: the two grids of a pair are the same corners in the same order
-    verdicts, inconclusive = rig_check(
+    verdicts, inconclusive, seed = rig_check(
         [_pose(r, t) for r, t in zip(rv_l, tv_l, strict=True)],
         [_pose(r, t) for r, t in zip(rv_r, tv_r, strict=True)],
         board,
+        (
+            (np.asarray(K_l0, dtype=np.float64), np.asarray(d_l0, dtype=np.float64)),
+            (np.asarray(K_r0, dtype=np.float64), np.asarray(d_r0, dtype=np.float64)),
+        ),
+        [
+            (
+                np.asarray(dets[k].left, dtype=np.float64),
+                np.asarray(dets[k].right, dtype=np.float64),
+            )
+            for k in both
+        ],
+        size,
+        flags,
     )
     if inconclusive:
         warnings.append(inconclusive)
@@ -663,11 +832,16 @@ def calibrate_from_detections(
     objd = obj.astype(np.float64)
     dropped: list[DroppedView] = []
     max_drops = int(MAX_DROP_FRACTION * len(used))
+    # the rig check's calibration is the first fit when it used exactly these pairs
+    reuse = seed is not None and [both[i] for i in seed[0]] == used and not flipped
     while True:
-        fit = _stereo(
-            objd, [pts(k, "left") for k in used], [pts(k, "right") for k in used],
-            K_l, d_l, K_r, d_r, size, flags,
-        )  # fmt: skip
+        if reuse and seed is not None:
+            fit, reuse = seed[1], False
+        else:
+            fit = _stereo(
+                objd, [pts(k, "left") for k in used], [pts(k, "right") for k in used],
+                K_l, d_l, K_r, d_r, size, flags,
+            )  # fmt: skip
         if not drop_outliers or len(dropped) >= max_drops or len(used) <= MIN_VIEWS:
             break
         err = np.sqrt(np.mean(fit.per_view**2, axis=1))
@@ -824,13 +998,73 @@ def calibrate_checkerboard(
             f"{cand[0]}x{cand[1]} board is visible in pair {names[0]} (--board counts inner corners)"
         )
 
-    return calibrate_from_detections(
-        detections,
-        board,
-        model,
-        max_stereo_rms_px,
-        hint,
-        estimate_skew=estimate_skew,
-        drop_outliers=drop_outliers,
-        held_out_folds=held_out_folds,
+    kwargs: dict[str, Any] = {
+        "estimate_skew": estimate_skew,
+        "drop_outliers": drop_outliers,
+        "held_out_folds": held_out_folds,
+    }
+    result = calibrate_from_detections(detections, board, model, max_stereo_rms_px, hint, **kwargs)
+    dets, fixed = redetect_rejected(result, lefts, rights, board)
+    if not fixed:
+        return result
+    again = calibrate_from_detections(dets, board, model, max_stereo_rms_px, hint, **kwargs)
+    again.report.warnings.append(
+        "rig check: grids re-detected with another detector, now consistent: " + "; ".join(fixed)
     )
+    return again
+
+
+def redetect_rejected(
+    result: CheckerboardCalibration,
+    lefts: Sequence[NDArray[Any]],
+    rights: Sequence[NDArray[Any]],
+    board: Board,
+) -> tuple[list[PairDetection], list[str]]:
+    """Correct pairs the rig check rejected: their images are searched again with the other
+    detectors (a detector can lock onto a grid offset by a column); the first combination of
+    grids (new left, new right, both) that :func:`pair_verdict` accepts under ``result``'s
+    rig replaces the pair. Returns the detections and one line per corrected pair."""
+    dets = list(result.detections)
+    fixed: list[str] = []
+    if not any(d.rejected is not None for d in dets):
+        return dets, fixed
+    kept = [dets[k] for k in result.used]
+    as_detected = [
+        mapping_fits_mm(result.calibration, np.asarray(d.left), np.asarray(d.right), board)[0]
+        for d in kept
+    ]
+    tol = rig_tolerance_mm([float(f) for f in as_detected], board)
+    for k, d in enumerate(dets):
+        if d.rejected is None or d.left is None or d.right is None:
+            continue
+        alt = []
+        for img, used in ((lefts[k], d.left_method), (rights[k], d.right_method)):
+            others = [m for m in METHODS if used is None or not used.startswith(m)]
+            alt.append(detect_corners_detail(img, board.pattern_size, others))
+        alt_l, alt_r = alt
+        combos: list[tuple[CornerResult | None, CornerResult | None]]
+        combos = [(alt_l, None)] if alt_l is not None else []
+        combos += [(None, alt_r)] if alt_r is not None else []
+        combos += [(alt_l, alt_r)] if alt_l is not None and alt_r is not None else []
+        for cl, cr in combos:
+            left = d.left if cl is None else cl.corners
+            right = d.right if cr is None else cr.corners
+            right = match_orientation(left, right)
+            fit = mapping_fits_mm(result.calibration, left, right, board)
+            verdict = pair_verdict(fit, tol, board)
+            if verdict.action == "rejected":
+                continue
+            if verdict.action == "flipped":
+                right = right[::-1].copy()
+            dets[k] = PairDetection(
+                d.name,
+                d.image_size,
+                left,
+                right,
+                d.left_method if cl is None else cl.method,
+                d.right_method if cr is None else cr.method,
+            )
+            sides = [f"{side} by {r.method}" for side, r in (("left", cl), ("right", cr)) if r]
+            fixed.append(f"pair {d.name} ({', '.join(sides)})")
+            break
+    return dets, fixed
