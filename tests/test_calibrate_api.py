@@ -105,3 +105,32 @@ def test_bad_form_values_are_422(client):
     assert r.status_code == 422
     r = client.post(URL, data={"board": "9x6"})  # no files at all
     assert r.status_code == 422
+
+
+BOUGUET = REPO.parent / "shared" / "data" / "real" / "bouguet_stereo"
+
+
+def test_real_photographs_report_fields_and_mismatched_pair(client):
+    """Bouguet's real pairs (JPEG); pair 06's right image is replaced by pair 07's (not taken
+    at the same instant): the rig check rejects it with the reason; the extended report
+    (dropped, coverage, held_out, detectors) is in the response."""
+    lefts = sorted(BOUGUET.glob("left*.jpg"))
+    rights = sorted(BOUGUET.glob("right*.jpg"))
+    rights[5] = rights[6]
+    files = [("left", (p.name, p.read_bytes(), "image/jpeg")) for p in lefts]
+    files += [
+        ("right", (f"right{lp.name[4:]}", rp.read_bytes(), "image/jpeg"))
+        for lp, rp in zip(lefts, rights, strict=True)
+    ]
+    r = client.post(URL, files=files, data={"board": "9x6", "square_mm": "30"})
+    assert r.status_code == 200, r.text
+    rep = r.json()["report"]
+    assert [x["name"] for x in rep["rejected"]] == ["06"]
+    assert rep["rejected"][0]["reason"].startswith("left/right grids inconsistent with the rig")
+    assert rep["views_used"] == 12 and rep["dropped"] == []
+    assert rep["detectors"] == {"classic": 26}
+    assert rep["held_out"]["rms_mm"] < 0.5
+    assert sum(map(sum, rep["coverage"]["left"])) == 12 * 54
+    left = rep["intrinsics"]["left"]
+    assert left["fx"] == pytest.approx(533.5, rel=1.5e-3)
+    assert rep["baseline_mm"] == pytest.approx(99.81, rel=1.5e-3)
