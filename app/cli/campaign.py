@@ -43,6 +43,7 @@ def run(args: argparse.Namespace) -> int:
             camera_hz=args.camera_hz,
             matcher=args.matcher,
             render_mode="windows" if args.roi else args.render,
+            imperfections=args.imperfections,
             station_keep_s=args.station_keep,
         )
         cfg.validate()

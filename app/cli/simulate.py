@@ -28,6 +28,13 @@ def add_docking_options(p: argparse.ArgumentParser) -> None:
         "full: render whole frames",
     )
     p.add_argument("--roi", action="store_true", help=argparse.SUPPRESS)  # = --render windows
+    p.add_argument(
+        "--imperfections",
+        default="none",
+        choices=["none", "standard", "harsh"],
+        help="flight imperfections preset (latency, dropped frames, plant ≠ design, "
+        "calibration and INS errors, tanker wake); see docs/models.md",
+    )
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -109,6 +116,7 @@ def run(args: argparse.Namespace) -> int:
             matcher=args.matcher,
             render_mode="windows" if args.roi else args.render,
             station_keep_s=args.station_keep,
+            imperfections=args.imperfections,
         )
         cfg.validate()
         if args.station_keep < 0:

@@ -10,20 +10,32 @@ tells the guidance how long, so it can command a back-off after a bounded time.
 
 from __future__ import annotations
 
+from collections import deque
+
 import numpy as np
 from numpy.typing import NDArray
 
 FloatArray = NDArray[np.float64]
 CHI2_3_999 = 16.266
+# (x, P, initialised, ever_initialised, coast_time_s, consecutive_rejections)
+_Snapshot = tuple[FloatArray, FloatArray, bool, bool, float, int]
 
 
 class DrogueFilter:
     def __init__(
-        self, accel_sigma: float = 2.5, gate: float = CHI2_3_999, reseed_after: int = 3
+        self,
+        accel_sigma: float = 2.5,
+        gate: float = CHI2_3_999,
+        reseed_after: int = 3,
+        history: int = 0,
     ) -> None:
         self.accel_sigma = accel_sigma
         self.gate = gate
         self.reseed_after = reseed_after
+        # states after each of the last ``history`` predictions, for delayed measurements
+        self.history = history
+        self._hist: deque[_Snapshot] = deque(maxlen=history + 1 if history else 1)
+        self._hist_dt: deque[float] = deque(maxlen=history + 1 if history else 1)
         self.consecutive_rejections = 0
         self.reseeds = 0
         self.x = np.zeros(6)
@@ -34,7 +46,23 @@ class DrogueFilter:
         self.rejected = 0
 
     def reset(self) -> None:
-        self.__init__(self.accel_sigma, self.gate, self.reseed_after)  # type: ignore[misc]
+        self.__init__(self.accel_sigma, self.gate, self.reseed_after, self.history)  # type: ignore[misc]
+
+    def _snapshot(self) -> _Snapshot:
+        return (
+            self.x.copy(),
+            self.P.copy(),
+            self.initialised,
+            self.ever_initialised,
+            self.coast_time_s,
+            self.consecutive_rejections,
+        )
+
+    def _restore(self, s: _Snapshot) -> None:
+        x, p, init, ever, coast, rej = s
+        self.x, self.P = x.copy(), p.copy()
+        self.initialised, self.ever_initialised = init, ever
+        self.coast_time_s, self.consecutive_rejections = coast, rej
 
     @property
     def position(self) -> FloatArray:
@@ -45,6 +73,33 @@ class DrogueFilter:
         return self.x[3:].copy()
 
     def predict(self, dt: float) -> None:
+        self._predict(dt)
+        if self.history:
+            self._hist.append(self._snapshot())
+            self._hist_dt.append(dt)
+
+    def update_delayed(self, z: FloatArray, r: FloatArray, age_ticks: int) -> bool:
+        """Fuse a measurement taken ``age_ticks`` predictions ago (its exposure time): the
+        state of then is restored, updated, and propagated again to now — exactly what a
+        filter that had the measurement in time would hold. Needs ``history >= age_ticks``
+        (older measurements are fused as if current)."""
+        if age_ticks <= 0 or age_ticks >= len(self._hist):
+            return self.update(z, r)
+        hist = list(self._hist)
+        dts = list(self._hist_dt)
+        self._restore(hist[-1 - age_ticks])
+        ok = self.update(z, r)
+        # replay the predictions since the exposure, rewriting their snapshots
+        keep = len(hist) - age_ticks
+        while len(self._hist) > keep:
+            self._hist.pop()
+            self._hist_dt.pop()
+        self._hist[-1] = self._snapshot()
+        for dt in dts[keep:]:
+            self.predict(dt)
+        return ok
+
+    def _predict(self, dt: float) -> None:
         if not self.initialised:
             self.coast_time_s += dt
             return

@@ -72,6 +72,13 @@ class StereoCameraSensor:
         self.full_renders = 0
         self.window_renders = 0
 
+    def set_nav_calibration(self, calibration: StereoCalibration) -> None:
+        """The calibration the tracker uses (a perturbed one: calibration error); a new
+        tracker when it changes."""
+        if calibration is not self.nav_calibration:
+            self.nav_calibration = calibration
+            self.tracker = StereoTracker(calibration, self.tracker.config, exact_peak=False)
+
     def reset(self) -> None:
         """A new run: no lock, no LED history."""
         self.tracker.reset()

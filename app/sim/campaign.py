@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from app.sim.docking import DockingConfig, DockingSimulation
+from app.sim.imperfections import resolve
 
 CSV_FIELDS = (
     "seed",
@@ -31,6 +32,8 @@ CSV_FIELDS = (
     "max_control_saturation",
     "sim_time_s",
     "wall_time_s",
+    "frames_dropped",
+    "frames_duplicated",
 )
 
 
@@ -42,6 +45,8 @@ def run_one(config: DockingConfig, seed: int) -> dict[str, Any]:
     row: dict[str, Any] = {"seed": int(seed), **asdict(out)}
     row["sim_time_s"] = sim.t
     row["wall_time_s"] = time.perf_counter() - t0
+    row["frames_dropped"] = sim._channel.dropped
+    row["frames_duplicated"] = sim._channel.duplicated
     return row
 
 
@@ -90,6 +95,8 @@ def summarise(rows: list[dict[str, Any]], config: DockingConfig | None = None) -
             "closure_speed_mps": config.closure_speed_mps,
             "station_keep_s": config.station_keep_s,
         }
+        imp = resolve(config.imperfections)
+        summary["imperfections"] = {"preset": imp.name, "values": imp.to_dict()}
     return summary
 
 

@@ -52,9 +52,26 @@ from app.geometry.calibration import StereoCalibration
 from app.sim.camera_sensor import RENDER_MODES, StereoCameraSensor
 from app.sim.frames import euler_to_matrix, look_at_camera
 from app.sim.hose_drogue import HoseDrogue, HoseDrogueParams
+from app.sim.imperfections import (
+    FrameChannel,
+    ImperfectionDraw,
+    Imperfections,
+    InsErrors,
+    draw,
+    perturbed_calibration,
+    resolve,
+    wake_downwash,
+)
 from app.sim.led_ring import LedRing
 from app.sim.paths import load_default_calibration
-from app.sim.receiver import INPUT_NAMES, STATE_NAMES, Actuators, FlightCondition, LinearReceiver
+from app.sim.receiver import (
+    INPUT_NAMES,
+    STATE_NAMES,
+    Actuators,
+    FlightCondition,
+    LinearReceiver,
+    perturbed_params,
+)
 from app.sim.stereo_render import Rect, RenderSettings
 from app.sim.turbulence import LEVELS, DrydenTurbulence
 from app.vision.pipeline import PipelineConfig
@@ -106,11 +123,16 @@ class DockingConfig:
     # tracks (bit-identical there; full frames to acquire) — the fast closed loop
     render_mode: str = "full"
     roi_tracking: bool = False  # deprecated alias of render_mode="windows"
+    # flight imperfections (app.sim.imperfections): a preset name or an Imperfections
+    imperfections: str | Imperfections = "none"
+    # fuse delayed camera measurements at their exposure time (False: as if current; ablation)
+    latency_compensation: bool = True
     roi_margin_px: int = 48  # unused (the tracker sizes its windows)
 
     def validate(self) -> None:
         if self.turbulence not in LEVELS:
             raise ValueError(f"turbulence must be one of {LEVELS}, got {self.turbulence!r}")
+        resolve(self.imperfections)
         if self.render_mode not in RENDER_MODES:
             raise ValueError(f"render_mode must be one of {RENDER_MODES}, got {self.render_mode!r}")
         if self.matcher not in ("epipolar", "paper"):
@@ -165,6 +187,10 @@ class DockingTick:
     # render_mode="windows": the rectangles (x0, y0, x1, y1) rendered in the left/right image
     # (pixels elsewhere are 0); None for a full render
     image_windows_px: tuple[list[Rect], list[Rect]] | None = None
+    # the camera frame this tick: "ok", "drop", "duplicate" (imperfections) or None (no frame)
+    frame_status: str | None = None
+    # exposure time (s) of the drogue measurement fused this tick (latency: earlier than t_s)
+    measurement_exposure_t_s: float | None = None
 
 
 @dataclass
@@ -224,7 +250,11 @@ LQR_Q_INT = np.array([3.0, 300.0, 300.0])
 # |x̂ − x*| bounds: only the position error is bounded (a reference jump then closes at a bounded
 # rate); velocities, rates and angles keep their full feedback, which supplies the damping
 LQR_ERROR_CLIP = np.array([np.inf] * 9 + [0.6, 0.6, 0.6])
-LQR_R = np.array([300.0, 4000.0, 4000.0, 4000.0])  # throttle, aileron, elevator, rudder
+DISPARITY_PER_EXTRA_PX = 0.02  # ring-fit tolerance (disparity σ) per px of calibration doubt
+OBSERVER_MODEL_Q = np.array([1e-2] * 6 + [0.0] * 6)  # per tick: (m/s)², (rad/s)² on u v w p q r
+# surfaces ×100 over the first tuning (4000): the inner loop slowed to keep ≥ 3 ticks (60 ms)
+# of input-delay margin with up to 100 ms of actuator lag (app.control.margins, tests)
+LQR_R = np.array([300.0, 4.0e5, 4.0e5, 4.0e5])  # throttle, aileron, elevator, rudder
 
 
 @lru_cache(maxsize=8)
@@ -243,7 +273,10 @@ def _build_models(
     for row, idx in enumerate(MEASURED_STATES):
         c_meas[row, idx] = 1.0
     meas_sigma = np.array([0.002, 0.002, 0.002, 0.002, 0.002, 0.002, 0.01, 0.01, 0.01])
-    q0 = ed @ ed.T * 4.0 + np.eye(12) * 1e-6
+    # process noise: the gusts (E_d E_dᵀ·4) plus model uncertainty on the velocities and rates
+    # (the flown aircraft is not the design model: app.sim.imperfections), so the observer
+    # leans on the INS rather than on the model's prediction
+    q0 = ed @ ed.T * 4.0 + np.diag(OBSERVER_MODEL_Q) + np.eye(12) * 1e-6
     obs = StateObserver(ad, bd, c_meas, q0, np.diag(meas_sigma**2))
     return _Models(rec, ad, bd, ed, c_tip, tip0, ctrl.kp, ctrl.ki, obs.gain, c_meas, meas_sigma)
 
@@ -279,6 +312,11 @@ class DockingSimulation:
         cfg = self.config
         if self._calibration is None:
             self._calibration = load_default_calibration()
+        # the navigation knows how uncertain its calibration is: the epipolar gate and the
+        # reprojection bound widen by 1.5 × (f·rotation error + 2 × principal-point error)
+        imp = resolve(cfg.imperfections)
+        f_px = float(self._calibration.left.fx)
+        extra_px = 1.5 * (f_px * math.radians(imp.calib_rot_deg) + 2.0 * imp.calib_pp_px)
         self._camera = StereoCameraSensor(
             self._calibration,
             RenderSettings(
@@ -298,6 +336,9 @@ class DockingSimulation:
                 led_count=cfg.led_count,
                 led_diameter_mm=cfg.led_diameter_mm,
                 matcher=cfg.matcher,  # type: ignore[arg-type]
+                epipolar_tol_px=2.0 + extra_px,
+                max_reprojection_px=1.5 + 0.5 * extra_px,
+                disparity_sigma_px=0.05 + DISPARITY_PER_EXTRA_PX * extra_px,
             ),
             mode=self.effective_render_mode,
         )
@@ -313,6 +354,21 @@ class DockingSimulation:
         rng = np.random.default_rng([cfg.seed, 1])
         self._rng_sensor = np.random.default_rng([cfg.seed, 2])
         self._frame_seed = np.random.default_rng([cfg.seed, 3])
+        # imperfections: this run's values (own random streams; "none" changes nothing)
+        imp = self.imperfections = resolve(cfg.imperfections)
+        self.imp_draw: ImperfectionDraw = draw(imp, cfg.seed)
+        self._channel = FrameChannel(imp, cfg.seed)
+        self._imperfect = imp.active
+        self._ins = InsErrors(imp, self.imp_draw, cfg.seed, self.dt) if imp.active else None
+        self._latency_ticks = int(round(imp.latency_s / self.dt))
+        self._pending: list[tuple[int, int, FloatArray, FloatArray]] = []
+        # the last real frame (camera-frame drogue centre m, pose, images, LED truth)
+        self._last_cam: tuple[FloatArray | None, Any, Any, Any, FloatArray | None] | None = None
+        self._plant = self._plant_model(imp)
+        if self._camera is not None:
+            self._camera.set_nav_calibration(
+                perturbed_calibration(self._camera.render_calibration, imp, self.imp_draw)
+            )
         self.turb = DrydenTurbulence(
             cfg.turbulence, cfg.airspeed_mps, self.dt, cfg.altitude_m, seed=cfg.seed
         )
@@ -321,7 +377,7 @@ class DockingSimulation:
                 air_density=cfg.air_density,
                 airspeed_mps=cfg.airspeed_mps,
                 drogue_radius_m=cfg.ring_radius_m,
-                bow_force_n=cfg.bow_wave_force_n,
+                bow_force_n=cfg.bow_wave_force_n * self.imp_draw.bow_scale,
             )
         )
         # receiver at trim, probe tip start_gap behind the drogue's rest position (+ random offset)
@@ -341,13 +397,21 @@ class DockingSimulation:
             error_clip=LQR_ERROR_CLIP,
             output_error_clip=0.3,
         )
-        self.act = Actuators(m.receiver.u_trim, m.receiver.limits, self.dt)
+        self.act = Actuators(
+            m.receiver.u_trim,
+            m.receiver.limits,
+            self.dt,
+            lag_s=imp.actuator_lag_s,
+            rate_scale=imp.actuator_rate_scale,
+        )
         self.u_applied = np.zeros(4)
-        self.filter = DrogueFilter()
+        self.filter = DrogueFilter(history=self._latency_ticks + 1)
         self.tip_tracker = AlphaBetaTracker(self.dt)
         self.guidance = ReferenceGenerator(
             GuidanceConfig(closure_speed_mps=cfg.closure_speed_mps), cfg.start_gap_m
         )
+        if self._imperfect:
+            self._settle_on_plant_trim()
         delay_s = max(cfg.start_gap_m, 1.0) / cfg.airspeed_mps
         self._gust_delay = [np.zeros(3)] * max(int(round(delay_s / self.dt)), 1)
         self.t = 0.0
@@ -368,6 +432,41 @@ class DockingSimulation:
         self._prev_drogue = self.drogue.position_m.copy()
         self._prev_normal = self.drogue.normal()
 
+    def _plant_model(
+        self, imp: Imperfections
+    ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+        """(A_d, B_d, E_d, c) of the simulated receiver in the design model's coordinates:
+        ``x⁺ = A_d x + B_d δ + E_d g + c``. The design model itself unless the plant is
+        perturbed; then the perturbed aircraft, trimmed and linearised on its own (its trim
+        differs: ``c`` carries the offset between the trims)."""
+        m = self.models
+        if imp.aero_frac == 0 and imp.mass_frac == 0:
+            return m.ad, m.bd, m.ed, np.zeros(12)
+        d = self.imp_draw
+        rec = LinearReceiver(
+            params=perturbed_params(m.receiver.params, d.aero_scale, d.mass_scale, d.inertia_scale),
+            condition=m.receiver.condition,
+        )
+        ad, bd, ed = rec.discretise(self.dt)
+        dx = m.receiver.x_trim - rec.x_trim  # design − plant trim (positions: 0)
+        du = m.receiver.u_trim - rec.u_trim
+        return ad, bd, ed, np.asarray(ad @ dx + bd @ du - dx)
+
+    def _settle_on_plant_trim(self, seconds: float = 10.0) -> None:
+        """A perturbed aircraft does not fly level at the design trim: before the approach it
+        holds its start point under the design controller in the steady wake, without gusts
+        (true state fed back), until it sits at its own trim — integrators charged — as a
+        receiver would on the pre-contact position. Then the observer starts from there."""
+        ad, bd, ed, c_off = self._plant
+        x_ref = np.zeros(12)
+        x_ref[9:12] = self.x[9:12]
+        for _ in range(int(round(seconds / self.dt))):
+            self.act.apply(self.lqr.control(self.x, x_ref, x_ref[9:12]))
+            air = wake_downwash(self.imp_draw, self.x[9:12])
+            self.x = ad @ self.x + bd @ self.act.effective_dev() + ed @ air + c_off
+        self.u_applied = self.act.position - self.act.trim
+        self.obs.reset(self.x)
+
     # ------------------------------------------------------------------ geometry
     def _rot(self, x: FloatArray) -> FloatArray:
         return euler_to_matrix(x[6], self.x_trim[7] + x[7], x[8])
@@ -383,26 +482,36 @@ class DockingSimulation:
 
     # ------------------------------------------------------------------ sensing
     def _camera_measurement(
-        self, x_hat: FloatArray
+        self, x_hat: FloatArray, duplicate: bool = False
     ) -> tuple[FloatArray | None, FloatArray | None, Any, Any, Any, FloatArray | None]:
-        """Render + tracker. Returns (z_T, R_T, pose, left, right, led_truth_cam_mm)."""
+        """Render + tracker. Returns (z_T, R_T, pose, left, right, led_truth_cam_mm).
+
+        ``duplicate``: the camera delivers its previous frame again (an imperfection): the same
+        measurement, taken as new (converted with the current own-pose estimate)."""
         assert self._camera is not None and self._calibration is not None
-        r_tc, cam_t = self._camera_pose(self.x)
-        c_cam_m = r_tc.T @ (self.drogue.position_m - cam_t)
-        n_cam = r_tc.T @ self.drogue.normal()
-        frame = self._camera.capture(
-            c_cam_m * 1000.0, n_cam, seed=int(self._frame_seed.integers(2**31))
-        )
-        self._image_windows = frame.windows
-        pose = frame.pose
-        left, right, leds = frame.left, frame.right, np.asarray(frame.led_truth_cam_mm, float)
-        if not pose.lock or pose.drogue is None:
+        if duplicate and self._last_cam is not None:
+            meas, pose, left, right, leds = self._last_cam
+        else:
+            r_tc, cam_t = self._camera_pose(self.x)
+            c_cam_m = r_tc.T @ (self.drogue.position_m - cam_t)
+            n_cam = r_tc.T @ self.drogue.normal()
+            frame = self._camera.capture(
+                c_cam_m * 1000.0, n_cam, seed=int(self._frame_seed.integers(2**31))
+            )
+            self._image_windows = frame.windows
+            pose = frame.pose
+            left, right = frame.left, frame.right
+            leds = np.asarray(frame.led_truth_cam_mm, float)
+            meas = None
+            if pose.lock and pose.drogue is not None:
+                meas = np.asarray(pose.drogue.center_mm, float) / 1000.0
+            self._last_cam = (meas, pose, left, right, leds)  # type: ignore[assignment]
+        if meas is None:
             return None, None, pose, left, right, leds
-        meas_cam_m = np.asarray(pose.drogue.center_mm, float) / 1000.0
         r_tc_hat, cam_hat = self._camera_pose(x_hat)
-        z_t = cam_hat + r_tc_hat @ meas_cam_m
-        depth = max(float(meas_cam_m[2]), 0.5)
-        calib = self._calibration
+        z_t = cam_hat + r_tc_hat @ meas
+        depth = max(float(meas[2]), 0.5)
+        calib = self._camera.nav_calibration
         f_px = float(calib.left.fx)
         base_m = float(calib.baseline_mm) / 1000.0
         sig_d = 0.15  # px, effective disparity noise of the ring-centre fit (conservative)
@@ -417,6 +526,8 @@ class DockingSimulation:
         y = m.c_meas @ self.x
         if self.config.ins_noise:
             y = y + self._rng_sensor.normal(0.0, 1.0, len(y)) * m.meas_sigma
+        if self._ins is not None:
+            y = y + self._ins.error()
         return np.asarray(y)
 
     # ------------------------------------------------------------------ step
@@ -438,16 +549,38 @@ class DockingSimulation:
         pose = left = right = leds = None
         self._image_windows = None
         frame_due = self.t + 1e-9 >= self._next_frame_t
+        status: str | None = None
         if frame_due:
             self._next_frame_t += self._camera_period
-            if cfg.vision:
-                z_t, r_t, pose, left, right, leds = self._camera_measurement(x_hat)
+            status = self._channel.next()
+            if status == "drop":
+                self._last_reason = "frame dropped"
+            elif cfg.vision:
+                z_t, r_t, pose, left, right, leds = self._camera_measurement(
+                    x_hat, duplicate=status == "duplicate"
+                )
                 self._last_reason = None if z_t is not None else (pose.reason or "no lock")
             else:
                 z_t = self.drogue.position_m.copy()
+                if status == "duplicate" and self._last_cam is not None:
+                    z_t = np.asarray(self._last_cam[0])
+                self._last_cam = (z_t.copy(), None, None, None, None)
                 r_t = np.eye(3) * 1e-6
                 self._last_reason = None
-            if z_t is not None and r_t is not None and not self.filter.update(z_t, r_t):
+            if z_t is not None and r_t is not None:
+                # available latency later, stamped with this tick (the exposure)
+                self._pending.append((self.k + self._latency_ticks, self.k, z_t, r_t))
+        z_t = None
+        exposure_t: float | None = None
+        while self._pending and self._pending[0][0] <= self.k:
+            _, k_exp, z_arr, r_arr = self._pending.pop(0)
+            age = self.k - k_exp
+            if cfg.latency_compensation:
+                ok = self.filter.update_delayed(z_arr, r_arr, age)
+            else:
+                ok = self.filter.update(z_arr, r_arr)
+            z_t, exposure_t = z_arr, k_exp * dt
+            if not ok:
                 self._last_reason = "gated"
         lock = self.filter.initialised and self.filter.coast_time_s <= cfg.coast_limit_s
         lock_reason = None if lock else (self._last_reason or "coast limit")
@@ -478,13 +611,18 @@ class DockingSimulation:
         x_ref[8] = ref_vel[1] / cfg.airspeed_mps
         x_ref[7] = -ref_vel[2] / cfg.airspeed_mps
         u_cmd = self.lqr.control(x_hat, x_ref, ref - m.tip0_b)
-        self.u_applied = self.act.apply(u_cmd)
+        self.u_applied = self.act.apply(u_cmd)  # servo positions (what the observer is told)
         self.max_sat = max(self.max_sat, self.act.saturation())
-        # 5. propagate plant, gusts, drogue
+        # 5. propagate plant (the design model, or the perturbed aircraft), gusts, drogue
         gust = self.turb.step()
         self._gust_delay.append(gust)
         gust_rec = self._gust_delay.pop(0)
-        self.x = m.ad @ self.x + m.bd @ self.u_applied + m.ed @ gust_rec
+        ad, bd, ed, c_off = self._plant
+        if self._imperfect:  # wake, lagged actuators, perturbed plant and its trim offset
+            air = gust_rec + wake_downwash(self.imp_draw, self.x[9:12])
+            self.x = ad @ self.x + bd @ self.act.effective_dev() + ed @ air + c_off
+        else:
+            self.x = ad @ self.x + bd @ self.u_applied + ed @ gust_rec
         self.t += dt
         self.k += 1
         tip = self.probe_tip()
@@ -546,6 +684,8 @@ class DockingSimulation:
             miss_m=miss_now,
             rel_position_m=d_pos - tip,
             image_windows_px=self._image_windows,
+            frame_status=status,
+            measurement_exposure_t_s=exposure_t,
         )
 
     def _abort(self) -> None:

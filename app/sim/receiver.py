@@ -23,7 +23,7 @@ Actuator limits (ours, typical of small-UAV servos): surfaces ±25° at 60 °/s;
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -264,27 +264,64 @@ class LinearReceiver:
 
 
 class Actuators:
-    """Rate- and position-limited actuators; ``apply`` returns the achieved deviation from trim."""
+    """Rate- and position-limited actuators; ``apply`` returns the achieved deviation from trim.
 
-    def __init__(self, trim: FloatArray, limits: ActuatorLimits, dt: float) -> None:
+    ``lag_s`` > 0 adds a first-order lag between the servo position (``position``, what a
+    servo-position sensor reports) and the deflection the air sees (``effective``): an
+    unmodelled actuator lag for the plant ≠ design imperfection (:mod:`app.sim.imperfections`).
+    """
+
+    def __init__(
+        self,
+        trim: FloatArray,
+        limits: ActuatorLimits,
+        dt: float,
+        lag_s: float = 0.0,
+        rate_scale: float = 1.0,
+    ) -> None:
         self.trim = np.asarray(trim, float)
         self.lo = np.asarray(limits.lower, float)
         self.hi = np.asarray(limits.upper, float)
-        self.rate = np.asarray(limits.rate, float)
+        self.rate = np.asarray(limits.rate, float) * rate_scale
         self.dt = dt
+        self.lag_alpha = 1.0 - float(np.exp(-dt / lag_s)) if lag_s > 0 else 1.0
         self.reset()
 
     def reset(self) -> None:
         self.position = self.trim.copy()
+        self.effective = self.trim.copy()
 
     def apply(self, command_dev: FloatArray) -> FloatArray:
+        """Servo position after this tick (deviation from trim)."""
         target = np.clip(self.trim + np.asarray(command_dev, float), self.lo, self.hi)
         step = np.clip(target - self.position, -self.rate * self.dt, self.rate * self.dt)
         self.position = self.position + step
+        if self.lag_alpha == 1.0:
+            self.effective = self.position
+        else:
+            self.effective = self.effective + self.lag_alpha * (self.position - self.effective)
         return self.position - self.trim
+
+    def effective_dev(self) -> FloatArray:
+        """Deflection the air sees (deviation from trim): the servo position, lagged."""
+        return np.asarray(self.effective - self.trim)
 
     def saturation(self) -> float:
         """Largest fraction of the available travel from trim in use (0..1)."""
         dev = self.position - self.trim
         room = np.where(dev >= 0, self.hi - self.trim, self.trim - self.lo)
         return float(np.max(np.abs(dev) / np.maximum(room, 1e-9)))
+
+
+def perturbed_params(
+    base: AerosondeParams,
+    aero_scale: dict[str, float],
+    mass_scale: float,
+    inertia_scale: tuple[float, float, float, float],
+) -> AerosondeParams:
+    """The parameter set with derivatives, mass and inertias scaled (plant ≠ design)."""
+    changes = {k: getattr(base, k) * s for k, s in aero_scale.items()}
+    changes["mass"] = base.mass * mass_scale
+    for k, s in zip(("jx", "jy", "jz", "jxz"), inertia_scale, strict=True):
+        changes[k] = getattr(base, k) * s
+    return replace(base, **changes)
