@@ -429,20 +429,6 @@ def _project_skew(cam: FloatArray, n_dist: int, X: FloatArray) -> FloatArray:
     return np.stack([fx * xd + g * yd + u0, fy * yd + v0], axis=-1)
 
 
-@dataclass
-class _SkewFit:
-    K_l: FloatArray
-    d_l: FloatArray
-    K_r: FloatArray
-    d_r: FloatArray
-    R: FloatArray
-    T: FloatArray
-    per_view: FloatArray  # (N, 2) RMS px, left/right
-    rms: float
-    rms_l: float
-    rms_r: float
-
-
 def refine_with_skew(
     obj: FloatArray,
     img_l: Sequence[FloatArray],
@@ -456,7 +442,7 @@ def refine_with_skew(
     rvecs: Sequence[FloatArray],
     tvecs: Sequence[FloatArray],
     model: str,
-) -> _SkewFit:
+) -> _Stereo:
     """Joint refinement of both cameras *with* the skew γ of eq. 2, the rig (R, T) and every
     board pose, by sparse least squares (scipy), started from OpenCV's skew-free result.
 
@@ -543,23 +529,25 @@ def refine_with_skew(
 
     Kl, dl = unpack(x[:nc])
     Kr, dr = unpack(x[nc : 2 * nc])
-    return _SkewFit(
+    poses = x[o_views:].reshape(n_views, 6)
+    return _Stereo(
+        rms=float(np.sqrt(np.mean(sq))),
         K_l=Kl,
         d_l=dl,
         K_r=Kr,
         d_r=dr,
         R=_rodrigues_many(x[o_rig : o_rig + 3][None])[0],
         T=x[o_rig + 3 : o_rig + 6].copy(),
+        rvecs=[p[:3].reshape(3, 1) for p in poses],
+        tvecs=[p[3:].reshape(3, 1) for p in poses],
         per_view=per_view,
-        rms=float(np.sqrt(np.mean(sq))),
-        rms_l=float(np.sqrt(np.mean(sq[:, 0]))),
-        rms_r=float(np.sqrt(np.mean(sq[:, 1]))),
     )
 
 
 @dataclass
 class _Stereo:
-    """One ``stereoCalibrateExtended`` result (px, mm)."""
+    """One joint stereo fit (``stereoCalibrateExtended`` or :func:`refine_with_skew`): RMS
+    (px), intrinsics, rig (mm), board poses and per-view RMS (px)."""
 
     rms: float
     K_l: FloatArray
@@ -571,6 +559,15 @@ class _Stereo:
     rvecs: list[FloatArray]
     tvecs: list[FloatArray]
     per_view: FloatArray  # (n, 2) RMS px
+
+    @property
+    def rms_l(self) -> float:
+        """Left camera's RMS (px) over all views (equal point counts per view)."""
+        return float(np.sqrt(np.mean(self.per_view[:, 0] ** 2)))
+
+    @property
+    def rms_r(self) -> float:
+        return float(np.sqrt(np.mean(self.per_view[:, 1] ** 2)))
 
 
 def _opencv_failed(exc: cv2.error) -> CheckerboardError:
