@@ -216,6 +216,7 @@ def report_png_bytes(
 
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
+    from matplotlib.patches import Rectangle
 
     rep = result.report
     w, h = rep.image_size
@@ -241,7 +242,28 @@ def report_png_bytes(
             p = d.left if side == "left" else d.right
             if p is not None:
                 ax.plot(p[:, 0], p[:, 1], ".", ms=3, alpha=0.6)
-        ax.set_title(f"{side}: corners of view {ex.name if ex else '-'} (+), all views (dots)")
+        if rep.coverage is not None:  # the coverage grid; empty cells shaded red
+            rows, cols = rep.coverage.grid
+            counts = np.asarray(rep.coverage.left if side == "left" else rep.coverage.right)
+            for i in range(rows):
+                for j in range(cols):
+                    empty = bool(counts[i, j] == 0)
+                    ax.add_patch(
+                        Rectangle(
+                            (j * w / cols, i * h / rows),
+                            w / cols,
+                            h / rows,
+                            fill=empty,
+                            facecolor="tab:red",
+                            edgecolor="yellow",
+                            alpha=0.25 if empty else 0.5,
+                            lw=0.6,
+                        )
+                    )
+        ax.set_title(
+            f"{side}: view {ex.name if ex else '-'} (+), all views (dots), empty cells red",
+            fontsize=9,
+        )
         ax.set_aspect("equal")
     names = [v.name for v in rep.views]
     x = np.arange(len(names))
