@@ -5,18 +5,21 @@ const API = "/api/v1";
 const $ = (id) => document.getElementById(id);
 const LED_COLORS = ["#e63c3c", "#f0aa28", "#3cc85a", "#328cf0", "#be50e6"];
 const CHART_WINDOW_S = 10;
-// The page redraws its numbers and chart at most this often, on a timer of its own: a 3-D view
-// rendering in software (no GPU) shares this page's main thread, and redrawing on every
-// telemetry message (30 Hz) queued them up until the numbers lagged seconds behind.
+// The telemetry WebSocket lives in a worker (static/telemetry_worker.js), off this page's main
+// thread, which a 3-D view drawn in software (no GPU) keeps busy: the page pulls the newest
+// state from it at most RENDER_HZ times a second, one request at a time, so messages never
+// queue up here (they did: with the 3-D view embedded the numbers lagged seconds behind).
 const RENDER_HZ = 10;
 const STALE_S = 2.0; // telemetry older than this: "lagging" in the connection badge
 let serviceConfig = null;
 let latest = null;
-let dirty = false;
+let shownSeq = -1; // the worker's message count at the last redraw
+let pulling = false; // a snapshot request is in flight
 let simRunning = null; // from /healthz: false → the banner says STOPPED
 let lastMiss = null; // {miss, captured, run}: the last plane crossing's miss (set on one tick)
-let chartRun = null;
-const series = []; // {t, y, z, lat} of the current run only
+let series = []; // {t, y, z, lat} of the current run only (from the worker)
+let connState = "connecting";
+let telemetry = null; // the worker
 
 function authHeaders() {
   const tok = $("token").value.trim();
@@ -49,30 +52,25 @@ const fmt = (v, d = 2) => (v === null || v === undefined || Number.isNaN(v) ? "�
 // ---- telemetry ---------------------------------------------------------------------------
 function connectTelemetry() {
   const proto = location.protocol === "https:" ? "wss://" : "ws://";
-  const ws = new WebSocket(proto + location.host + API + "/telemetry");
-  ws.onopen = () => { $("conn").textContent = "live"; $("conn").dataset.state = "live"; };
-  ws.onclose = () => {
-    $("conn").textContent = "reconnecting…"; $("conn").dataset.state = "closed";
-    setTimeout(connectTelemetry, 1000);
+  telemetry = new Worker("/static/telemetry_worker.js");
+  telemetry.onmessage = (ev) => {
+    pulling = false;
+    const snap = ev.data;
+    connState = snap.conn;
+    if (snap.series !== null) series = snap.series;
+    const changed = snap.seq !== shownSeq;
+    shownSeq = snap.seq;
+    latest = snap.latest;
+    lastMiss = snap.lastMiss;
+    render(changed);
   };
-  ws.onmessage = (ev) => {
-    // cheap: keep the latest record and the chart series; drawing happens on the timer
-    const rec = JSON.parse(ev.data);
-    latest = rec;
-    if (rec.source === "sim") {
-      if (rec.miss_m !== null && rec.miss_m !== undefined) lastMiss = { miss: rec.miss_m, captured: rec.captured, run: rec.run };
-      if (rec.run !== chartRun || (series.length && rec.t_s < series[series.length - 1].t)) {
-        series.length = 0; // a new run: its own line, never joined to the last run's
-        chartRun = rec.run;
-      }
-      if (rec.rel_position_m) {
-        const r = rec.rel_position_m;
-        series.push({ t: rec.t_s, y: r[1], z: r[2], lat: Math.hypot(r[1], r[2]) });
-        while (series.length && series[0].t < rec.t_s - CHART_WINDOW_S) series.shift();
-      }
-    }
-    dirty = true;
-  };
+  telemetry.postMessage({ type: "connect", url: proto + location.host + API + "/telemetry" });
+}
+
+function pullTelemetry() {
+  if (telemetry === null || pulling) return; // one request in flight: nothing queues up
+  pulling = true;
+  telemetry.postMessage({ type: "snapshot", since: shownSeq });
 }
 
 function renderBanner() {
@@ -91,17 +89,23 @@ function renderBanner() {
 }
 
 function renderLag() {
-  if (!latest || $("conn").dataset.state !== "live") return;
+  const conn = $("conn");
+  conn.dataset.state = connState;
+  if (connState !== "live") {
+    conn.textContent = connState === "closed" ? "reconnecting…" : "connecting…";
+    conn.className = "conn";
+    return;
+  }
+  if (!latest) { conn.textContent = "live"; return; }
   const lag = Date.now() / 1000 - latest.wall_time;
   const stale = simRunning !== false && latest.source === "sim" && lag > STALE_S;
-  $("conn").textContent = stale ? "lagging " + lag.toFixed(1) + " s" : "live";
-  $("conn").className = "conn" + (stale ? " warn" : "");
+  conn.textContent = stale ? "lagging " + lag.toFixed(1) + " s" : "live";
+  conn.className = "conn" + (stale ? " warn" : "");
 }
 
-function render() {
+function render(changed) {
   renderLag();
-  if (!dirty) return;
-  dirty = false;
+  if (!changed) return;
   const rec = latest;
   if (!rec) return;
   renderBanner();
@@ -356,7 +360,7 @@ async function init() {
     fillSimForm(await api("GET", "/sim/config"));
   } catch (e) { simMsg(e.message, true); }
   connectTelemetry();
-  setInterval(render, 1000 / RENDER_HZ);
+  setInterval(pullTelemetry, 1000 / RENDER_HZ);
   pollHealth(); setInterval(pollHealth, 1000);
   refreshRecordings(); setInterval(refreshRecordings, 5000);
 }
