@@ -226,6 +226,19 @@ def test_reversed_right_grid_is_corrected(detections, result):
     np.testing.assert_allclose(res.calibration.T, result.calibration.T, rtol=1e-6, atol=1e-6)
 
 
+def test_rig_check_inconclusive_when_no_pairs_agree(detections):
+    """Every right grid paired with the next pair's (no pair taken at one instant): the pairs
+    agree on no rig; the check says so instead of rejecting, and the RMS warning fires."""
+    dets = [
+        replace(d, right=detections[(i + 1) % len(detections)].right)
+        for i, d in enumerate(detections)
+    ]
+    res = calibrate_from_detections(dets, BOARD, "paper")
+    assert res.report.warnings[0].startswith("rig check inconclusive")
+    assert not res.report.rejected
+    assert any(w.startswith("stereo RMS") for w in res.report.warnings)
+
+
 def test_outlier_view_is_dropped_with_its_reason(detections):
     """Six corners of one left grid moved by 3 px (a bad detection): that view is dropped by
     the robust z-score rule and the result is the calibration without it."""
