@@ -8,7 +8,7 @@ Here, from the corners of :mod:`app.geometry.board_detect`:
 2. **rig check** (:func:`rig_check`): every pair's two board poses imply a rig (R, T); the
    rig most pairs agree on is calibrated from them, and each pair's corners are then
    triangulated with it under every index mapping (as detected, reversed, offset by ±1
-   column/row: :data:`MAPPINGS`) and fitted to the flat board (:func:`board_fit_mm`). A pair
+   column/row: :data:`MAPPINGS`) and fitted to the flat board (:func:`mapping_fits_mm`). A pair
    whose right grid is the left one reversed is corrected; a pair whose grids are offset by a
    column or row (not the same physical corners), or that fits no mapping, is rejected with
    the reason — :func:`calibrate_checkerboard` first searches its images again with the
@@ -98,11 +98,6 @@ def _pose(rvec: Any, tvec: Any) -> tuple[FloatArray, FloatArray]:
     return np.asarray(R, dtype=np.float64), np.asarray(tvec, dtype=np.float64).ravel()
 
 
-def _angle_deg(R: FloatArray) -> float:
-    c = (float(np.trace(R)) - 1.0) / 2.0
-    return math.degrees(math.acos(max(-1.0, min(1.0, c))))
-
-
 @dataclass(frozen=True)
 class GridMapping:
     """The right grid's corner (i, j) is physical corner (i+dx, j+dy), or (C−1−i+dx, R−1−j+dy)
@@ -135,8 +130,6 @@ class RigCandidate:
     dy: int
     R: FloatArray
     T: FloatArray
-    A: FloatArray  # right board frame → physical board frame: X = A·P_r + b (mm)
-    b: FloatArray
 
     @property
     def shifted(self) -> bool:
@@ -163,7 +156,7 @@ def rig_candidates(
             b = np.array([m.dx * s, m.dy * s, 0.0])
         RA = R_r @ A
         T = t_r - RA @ (R_l.T @ t_l + b)
-        out.append(RigCandidate(m.flip, m.dx, m.dy, RA @ R_l.T, T, A, b))
+        out.append(RigCandidate(m.flip, m.dx, m.dy, RA @ R_l.T, T))
     return out
 
 
@@ -181,7 +174,7 @@ def _rig_distances(
 @dataclass
 class RigVerdict:
     """Outcome of the rig check for one pair: ``action`` ok | flipped | rejected, and the
-    board-fit RMS of the grids as detected (mm, :func:`board_fit_mm`)."""
+    board-fit RMS of the grids as detected (mm, :func:`mapping_fits_mm`)."""
 
     action: str
     reason: str | None
@@ -214,31 +207,24 @@ def _right_to_physical(
     return np.flatnonzero(ok), (pj * C + pi)[ok]
 
 
-def board_fit_mm(
-    cand: GridMapping,
+def mapping_fits_mm(
     calib: StereoCalibration,
-    ideal: tuple[FloatArray, FloatArray],
-    board: Board,
-) -> float:
-    """How well one pair's corners, matched under an index mapping and triangulated with the
-    rig ``calib`` (eqs. 15–16), form the flat board: RMS (mm) of a rigid fit to the board's
-    corner positions. ``ideal``: the pair's undistorted left/right corners (px). A wrong
-    mapping scales and shears the triangulated board (a column's offset along the baseline
-    changes every disparity by one square), which no rigid motion undoes."""
-    return float(mapping_fits_of(calib, ideal, board, (cand,))[0])
-
-
-def mapping_fits_of(
-    calib: StereoCalibration,
-    ideal: tuple[FloatArray, FloatArray],
+    left: FloatArray,
+    right: FloatArray,
     board: Board,
     mappings: Sequence[GridMapping] = MAPPINGS,
 ) -> FloatArray:
-    """:func:`board_fit_mm` for several mappings, with one triangulation call (mm)."""
+    """How well one pair's corners, matched under each index mapping and triangulated with
+    the rig ``calib`` (eqs. 15–16 on undistorted corners), form the flat board: RMS (mm) of
+    a rigid fit (Kabsch) to the board's corner positions, one value per mapping. A wrong
+    mapping scales and shears the triangulated board (a column's offset along the baseline
+    changes every disparity by one square), which no rigid motion undoes."""
+    xl = undistort_pixels(calib.left, np.asarray(left, dtype=np.float64).reshape(-1, 2))
+    xr = undistort_pixels(calib.right, np.asarray(right, dtype=np.float64).reshape(-1, 2))
     idx = [_right_to_physical(m, board) for m in mappings]
     k_r = np.concatenate([i[0] for i in idx])
     m_l = np.concatenate([i[1] for i in idx])
-    X = triangulate_linear(calib.P_left, calib.P_right, ideal[0][m_l], ideal[1][k_r])
+    X = triangulate_linear(calib.P_left, calib.P_right, xl[m_l], xr[k_r])
     P = board.object_points().astype(np.float64)[m_l]
     # Kabsch per mapping: min Σ|R·a − b|² = Σ|a|² + Σ|b|² − 2(σ1 + σ2 + sign(det H)·σ3)
     lens = np.array([len(i[0]) for i in idx])
@@ -251,17 +237,6 @@ def mapping_fits_of(
     ss = np.add.reduceat(np.sum(a * a, axis=1) + np.sum(b * b, axis=1), starts)
     err = ss - 2.0 * (sv[:, 0] + sv[:, 1] + sign * sv[:, 2])
     return np.asarray(np.sqrt(np.maximum(err, 0.0) / lens), dtype=np.float64)
-
-
-def mapping_fits_mm(
-    calib: StereoCalibration, left: FloatArray, right: FloatArray, board: Board
-) -> FloatArray:
-    """:func:`board_fit_mm` of one pair under every mapping of :data:`MAPPINGS` (mm)."""
-    ideal = (
-        undistort_pixels(calib.left, np.asarray(left, dtype=np.float64).reshape(-1, 2)),
-        undistort_pixels(calib.right, np.asarray(right, dtype=np.float64).reshape(-1, 2)),
-    )
-    return mapping_fits_of(calib, ideal, board)
 
 
 def rig_tolerance_mm(fits_as_detected: Sequence[float], board: Board) -> float:
@@ -314,7 +289,7 @@ def rig_check(
        candidate supported by the most pairs (one of a pair's candidates within
        ``RIG_TOL_SQUARES`` squares and ``RIG_TOL_DEG``); the supporting pairs (reversed
        grids turned round) are calibrated together (``stereoCalibrate``) for the rig.
-    2. Per pair, every mapping is scored by :func:`board_fit_mm` (corners triangulated with
+    2. Per pair, every mapping is scored by :func:`mapping_fits_mm` (corners triangulated with
        the consensus rig and each camera's own intrinsics, rigid fit to the flat board); the
        best one decides if it fits at least twice as well as the grids as detected: as
        detected → ok; reversed → ``flipped`` (to be corrected); offset by a column or row →
