@@ -364,10 +364,10 @@ def _blob_patches(
             sy = py[:, None] + off_y
             np.multiply(sy, sy, out=sy)
             d = np.sqrt(np.add(sx, sy, out=sx), out=sx)  # px distance from the centre
-            with np.errstate(divide="ignore", invalid="ignore"):
-                sd = np.divide(d, u, out=sy)
-                np.subtract(sd, d, out=sd)  # signed distance to the edge along the ray, px
-            sd[u <= 1e-12] = np.inf
+            ok = u > 1e-12  # (u = 0 only at the centre itself: inside, coverage 1)
+            sd = np.full_like(u, np.inf)
+            np.divide(d, u, out=sd, where=ok)
+            np.subtract(sd, d, out=sd, where=ok)  # signed distance to the edge along the ray, px
             np.multiply(sd, s, out=sd)
             np.add(sd, 0.5, out=sd)
             np.clip(sd, 0.0, 1.0, out=sd)
@@ -421,14 +421,23 @@ def _overlaps(box: Rect, rects: list[Rect]) -> bool:
     return any(x0 < rb and ra < x1 and y0 < sb and sa < y1 for ra, sa, rb, sb in rects)
 
 
-def _region_mask(ya: int, yb: int, xa: int, xb: int, rects: list[Rect]) -> NDArray[np.bool_] | None:
-    """Which pixels of the region [ya, yb) × [xa, xb) lie in a window; None: all of them."""
+def _region_mask(
+    ya: int, yb: int, xa: int, xb: int, rects: list[Rect]
+) -> NDArray[np.bool_] | Rect | None:
+    """Which pixels of the region [ya, yb) × [xa, xb) lie in a window: None (all of them),
+    one rectangle (x0, y0, x1, y1) relative to the region (the usual case: the region meets
+    one window), or a boolean mask."""
+    hits = []
     for x0, y0, x1, y1 in rects:
-        if x0 <= xa and xb <= x1 and y0 <= ya and yb <= y1:
-            return None
+        if x0 < xb and xa < x1 and y0 < yb and ya < y1:
+            if x0 <= xa and xb <= x1 and y0 <= ya and yb <= y1:
+                return None
+            hits.append((max(x0, xa) - xa, max(y0, ya) - ya, min(x1, xb) - xa, min(y1, yb) - ya))
+    if len(hits) == 1:
+        return hits[0]
     mask = np.zeros((yb - ya, xb - xa), dtype=bool)
-    for x0, y0, x1, y1 in rects:
-        mask[max(y0 - ya, 0) : max(y1 - ya, 0), max(x0 - xa, 0) : max(x1 - xa, 0)] = True
+    for x0, y0, x1, y1 in hits:
+        mask[y0:y1, x0:x1] = True
     return mask
 
 
@@ -469,7 +478,10 @@ def _compose(
             m = None if rects is None else _region_mask(ya, yb, xa, xb, rects)
             if m is None:
                 base[ya:yb, xa:xb] = new
-            else:  # a patch reaching out of the windows: write only its window pixels
+            elif isinstance(m, tuple):  # the part of the patch inside its one window
+                rx0, ry0, rx1, ry1 = m
+                base[ya + ry0 : ya + ry1, xa + rx0 : xa + rx1] = new[ry0:ry1, rx0:rx1]
+            else:  # a patch reaching several windows: write only its window pixels
                 np.copyto(base[ya:yb, xa:xb], new, where=m[:, :, None] if color else m)
         return base
     img = np.full(shape, settings.background, dtype=np.float32)
