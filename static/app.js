@@ -122,7 +122,8 @@ function render(changed) {
   for (const k of ["throttle", "aileron", "elevator", "rudder"]) $("c-" + k).textContent = c ? fmt(c[k], 4) : "–";
   $("nleds").textContent = rec.pose ? rec.pose.leds.length : "–";
   // the miss is set on the one tick that crosses the drogue plane: show the last crossing's
-  $("miss").textContent = lastMiss ? fmt(lastMiss.miss, 3) + " (run " + lastMiss.run + (lastMiss.captured ? ", captured)" : ")") : "–";
+  $("miss").textContent = lastMiss ? fmt(lastMiss.miss, 3) + (lastMiss.captured ? " ✓" : " ✗") : "–";
+  $("miss").title = lastMiss ? "last drogue-plane crossing: run " + lastMiss.run + (lastMiss.captured ? ", captured" : ", missed") : "";
   $("step-ms").textContent = fmt(rec.timings_ms.step, 1);
   $("vision-ms").textContent = fmt(rec.timings_ms.total, 1);
   drawChart();

@@ -212,6 +212,10 @@ def test_operators_page_end_to_end(service) -> None:
                 " return n; }",
             )
             assert px > 100
+            page.wait_for_timeout(1500)
+            page.screenshot(path=str(ARTIFACTS / "operators_page.png"), full_page=True)
+            if os.environ.get("AAR_UPDATE_SCREENSHOT"):
+                page.screenshot(path=str(REPO / "docs" / "screenshot.png"), full_page=True)
             # 3b. a failed upload clears the previous result: no stale table, image or summary
             bad = ARTIFACTS / "not_an_image.png"
             bad.write_bytes(b"this is not a PNG")
@@ -235,10 +239,6 @@ def test_operators_page_end_to_end(service) -> None:
                 "['LOCK', 'NO LOCK'].includes(document.getElementById('lock').textContent)",
                 timeout=20_000,
             )
-            page.wait_for_timeout(1500)
-            page.screenshot(path=str(ARTIFACTS / "operators_page.png"), full_page=True)
-            if os.environ.get("AAR_UPDATE_SCREENSHOT"):
-                page.screenshot(path=str(REPO / "docs" / "screenshot.png"), full_page=True)
             # 4. record a few seconds from the page, then replay the .viser file offline in
             #    the locally served viser client
             page.click("#rec-start")
