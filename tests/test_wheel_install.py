@@ -189,3 +189,33 @@ def test_dockerfile_agrees_with_the_package() -> None:
         assert target == (REPO_ROOT / link).resolve(), target
     ignored = (REPO_ROOT / ".dockerignore").read_text().split()
     assert "sample_data/pair_1000mm" not in ignored and "static" not in ignored
+
+
+def test_page_assets_and_defaults_come_from_the_package(tmp_path, monkeypatch) -> None:
+    """The page, its worker, the favicon and the calibration are the package's; recordings go
+    under XDG_DATA_HOME, not into the working directory."""
+    from fastapi.testclient import TestClient
+
+    from app.server.main import create_app
+    from app.server.settings import Settings
+    from app.sim import paths
+
+    monkeypatch.setenv("XDG_DATA_HOME", str(tmp_path / "xdg"))
+    monkeypatch.chdir(tmp_path)
+    settings = Settings(viser_enabled=False, sim_autostart=False)  # type: ignore[call-arg]
+    assert settings.recordings_dir == tmp_path / "xdg" / "aar-dock" / "recordings"
+    assert settings.static_dir == paths.static_dir() and settings.calibration.is_file()
+    assert paths.data_root().parent == Path(__import__("app").__file__).parent
+    with TestClient(create_app(settings)) as c:
+        page = c.get("/")
+        assert page.status_code == 200 and "/static/app.js" in page.text
+        icon = c.get("/favicon.ico")
+        assert icon.status_code == 200 and icon.headers["content-type"] == "image/svg+xml"
+        worker = c.get("/static/telemetry_worker.js")
+        assert worker.status_code == 200 and "new WebSocket" in worker.text
+        rec = c.post("/api/v1/recording/start")
+        assert rec.status_code == 200, rec.text
+        assert c.post("/api/v1/recording/stop").status_code == 200
+    # the recording went to XDG_DATA_HOME; nothing was written into the working directory
+    assert any((tmp_path / "xdg" / "aar-dock" / "recordings").iterdir())
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["xdg"]
