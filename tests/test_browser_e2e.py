@@ -264,6 +264,12 @@ def test_operators_page_end_to_end(service) -> None:
             shot = replay.screenshot(path=str(ARTIFACTS / "replay.png"))
             rimg = cv2.imdecode(np.frombuffer(shot, np.uint8), cv2.IMREAD_COLOR)
             assert float(rimg.std()) > 10.0
+            # 4b. the miss of the last drogue-plane crossing stays on screen (the record
+            #     carries it on one tick only; the page used to show "–" right after)
+            miss_shown = "/^\\d+\\.\\d{3} [✓✗]$/.test(document.getElementById('miss').textContent)"
+            page.wait_for_function(miss_shown, timeout=90_000)
+            page.wait_for_timeout(1500)  # later ticks have no miss: the value is kept
+            assert page.evaluate(miss_shown), page.inner_text("#miss")
             # 5. the API docs render offline (local Swagger UI assets)
             docs = browser.new_page()
             external: list[str] = []
