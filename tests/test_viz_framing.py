@@ -111,6 +111,12 @@ def test_charts_hold_one_run_and_status_keeps_the_last_miss() -> None:
         assert np.all(np.diff(t) > 0)
         gui.set_status(_record(2, 0.1), 30.0, 0)
         assert "miss 0.120 m (run 1, captured)" in gui.status.content
+        gui.set_stopped()
+        gui.set_stopped()  # once, however often the publisher notices
+        assert gui.status.content.count("**STOPPED**") == 1
+        assert gui.status.content.startswith("**STOPPED**")
+        gui.set_status(_record(2, 0.2), 30.0, 0)  # running again: the note goes
+        assert "STOPPED" not in gui.status.content
         gui.refresh_plots(0.305)
         assert np.array_equal(np.asarray(gui.plot_miss.data[0]), t)
         gui.close()

@@ -48,6 +48,7 @@ N_LEDS = LED_COUNT
 BUTTONS = ("start", "stop", "reset")
 LOCKED_NOTE = "**Read-only.** Enter the operator token (`AAR_TOKEN`) and press Unlock."
 UNLOCKED_NOTE = "**Operator controls unlocked** for this browser tab."
+STOPPED_NOTE = "**STOPPED** (the simulation is stopped: Start resumes it)"
 
 
 # x: seconds since the start of the current run (not a date: "time": False)
@@ -535,6 +536,12 @@ class DockingGui:
             t,
             *(self._arr(k) for k in ("throttle", "aileron", "elevator", "rudder")),
         )
+
+    def set_stopped(self) -> None:
+        """The simulation is stopped: say so above the last status (no record says it)."""
+        content = self.status.content
+        if not content.startswith(STOPPED_NOTE):
+            self.status.content = STOPPED_NOTE + "  \n" + content
 
     def set_status(self, record: Any, tick_rate_hz: float, dropped: int) -> None:
         lock = "**LOCK**" if record.lock else f"**NO LOCK** ({record.lock_reason or '?'})"

@@ -247,6 +247,9 @@ class VizService:
             self._event.clear()
             if self._stop.is_set():
                 break
+            loop = getattr(self.actions, "loop", None)
+            if loop is not None and not getattr(loop, "running", True) and self.gui is not None:
+                self.gui.set_stopped()  # no tick arrives to say so
             now = time.monotonic()
             wait = last_scene + self.scene_period - now
             if wait > 0:
