@@ -118,7 +118,10 @@ class DockingConfig:
     nose_body_m: tuple[float, float, float] = (1.0, 0.0, 0.0)
     camera_body_m: tuple[float, float, float] = (0.0, -0.35, -0.35)
     camera_aim_ahead_m: float = 0.0
-    abort_margin: float = 1.0
+    # break away in the last metre when the predicted miss exceeds abort_margin × capture
+    # radius: 1.5 (was 1.0) — the prediction extrapolates noisy velocities, and under the
+    # imperfections 1.0 broke away from approaches that would have captured (issue 13)
+    abort_margin: float = 1.5
     # "full": render whole frames; "windows": render only the tracker's windows while it
     # tracks (bit-identical there; full frames to acquire) — the fast closed loop
     render_mode: str = "full"
