@@ -107,8 +107,9 @@ def test_no_lock_without_leds_holds_the_gap_and_never_captures():
     assert all(t.drogue_measured_m is None for t in ticks)
     out = sim.outcome()
     assert not out.captured and out.aborts == 0
-    # the probe did not close on a drogue it cannot see
-    assert ticks[-1].rel_position_m[0] > 9.0
+    # the probe did not close on a drogue it cannot see: it flies the a-priori rest position
+    # only down to the search gap (5 m) and holds there
+    assert min(t.rel_position_m[0] for t in ticks) > 4.5
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])

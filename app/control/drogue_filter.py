@@ -28,12 +28,16 @@ class DrogueFilter:
         gate: float = CHI2_3_999,
         reseed_after: int = 3,
         history: int = 0,
+        hold_after_s: float = float("inf"),
     ) -> None:
         self.accel_sigma = accel_sigma
         self.gate = gate
         self.reseed_after = reseed_after
         # states after each of the last ``history`` predictions, for delayed measurements
         self.history = history
+        # coasting longer than this, the estimate stops extrapolating (velocity zeroed): a lost
+        # drogue is held where it was last seen instead of drifting away with a stale velocity
+        self.hold_after_s = hold_after_s
         self._hist: deque[_Snapshot] = deque(maxlen=history + 1 if history else 1)
         self._hist_dt: deque[float] = deque(maxlen=history + 1 if history else 1)
         self.consecutive_rejections = 0
@@ -46,7 +50,9 @@ class DrogueFilter:
         self.rejected = 0
 
     def reset(self) -> None:
-        self.__init__(self.accel_sigma, self.gate, self.reseed_after, self.history)  # type: ignore[misc]
+        self.__init__(  # type: ignore[misc]
+            self.accel_sigma, self.gate, self.reseed_after, self.history, self.hold_after_s
+        )
 
     def _snapshot(self) -> _Snapshot:
         return (
@@ -110,6 +116,8 @@ class DrogueFilter:
         self.x = f @ self.x
         self.P = f @ self.P @ f.T + q
         self.coast_time_s += dt
+        if self.coast_time_s > self.hold_after_s:
+            self.x[3:] = 0.0  # hold the last seen position (see hold_after_s)
 
     def update(self, z: FloatArray, r: FloatArray) -> bool:
         """Fuse a position measurement ``z`` (m) with covariance ``r``; False if gated out."""

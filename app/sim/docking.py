@@ -253,6 +253,7 @@ LQR_Q_INT = np.array([3.0, 300.0, 300.0])
 # |x̂ − x*| bounds: only the position error is bounded (a reference jump then closes at a bounded
 # rate); velocities, rates and angles keep their full feedback, which supplies the damping
 LQR_ERROR_CLIP = np.array([np.inf] * 9 + [0.6, 0.6, 0.6])
+SEARCH_GAP_M = 5.0  # closest gap flown on the a-priori drogue position before acquisition
 DISPARITY_PER_EXTRA_PX = 0.02  # ring-fit tolerance (disparity σ) per px of calibration doubt
 OBSERVER_MODEL_Q = np.array([1e-2] * 6 + [0.0] * 6)  # per tick: (m/s)², (rad/s)² on u v w p q r
 # surfaces ×100 over the first tuning (4000): the inner loop slowed to keep ≥ 3 ticks (60 ms)
@@ -408,7 +409,7 @@ class DockingSimulation:
             rate_scale=imp.actuator_rate_scale,
         )
         self.u_applied = np.zeros(4)
-        self.filter = DrogueFilter(history=self._latency_ticks + 1)
+        self.filter = DrogueFilter(history=self._latency_ticks + 1, hold_after_s=cfg.coast_limit_s)
         self.tip_tracker = AlphaBetaTracker(self.dt)
         self.guidance = ReferenceGenerator(
             GuidanceConfig(closure_speed_mps=cfg.closure_speed_mps), cfg.start_gap_m
@@ -605,7 +606,11 @@ class DockingSimulation:
                 reason = None  # never acquired: hold the gap (guidance) instead of aborting
             if reason is not None:
                 self._abort()
-        ref, ref_vel = g.update(dt, d_hat, d_vel, lock)
+        # never acquired (e.g. a calibration error too large for the ring fit at 13 m): close
+        # on the drogue's a-priori rest position to the search gap, where the ring is larger
+        # and its depth error ∝ Z² smaller, then hold there until it is acquired
+        searching = not self.filter.ever_initialised and g.gap_cmd > SEARCH_GAP_M
+        ref, ref_vel = g.update(dt, d_hat, d_vel, lock or searching)
         # 4. control (eq. 20)
         x_ref = np.zeros(12)
         x_ref[9:12] = ref - m.tip0_b
