@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from app.control.abort import predicted_miss_m, should_abort
 from app.control.drogue_filter import DrogueFilter
@@ -75,3 +76,27 @@ def test_filter_reseeds_after_consistent_rejections():
     assert results == [False, False, True]
     assert f.reseeds == 1
     assert np.allclose(f.position, jumped, atol=1e-6)
+
+
+def test_filter_holds_a_lost_drogue_after_the_coast_limit():
+    """Coasting past ``hold_after_s`` the estimate stops extrapolating its last velocity (a
+    lost drogue is held where last seen; the reference does not drift away with it)."""
+    f = DrogueFilter(hold_after_s=0.5)
+    r = np.eye(3) * 1e-4
+    for k in range(20):  # moving at 1 m/s along y
+        f.predict(0.02)
+        f.update(np.array([0.0, 0.02 * k, 0.0]), r)
+    assert f.velocity[1] > 0.5
+    for _ in range(25):  # 0.5 s: still extrapolating
+        f.predict(0.02)
+    moving = f.position[1]
+    for _ in range(100):
+        f.predict(0.02)
+    assert f.position[1] == pytest.approx(moving, abs=0.03)
+    assert np.all(f.velocity == 0.0)
+    free = DrogueFilter()  # without the hold it keeps going
+    free.x = np.array([0.0, 0.0, 0.0, 0.0, 1.0, 0.0])
+    free.initialised = True
+    for _ in range(100):
+        free.predict(0.02)
+    assert free.position[1] == pytest.approx(2.0)
