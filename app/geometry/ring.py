@@ -88,6 +88,17 @@ class RingPrior:
     gate_mm: float = 30.0
     gate_deg: float = 15.0
 
+    @classmethod
+    def at_range(cls, center_mm: FloatArray, normal: FloatArray, params: RingParams) -> RingPrior:
+        """A prior whose gates grow with the depth noise at its range: centre 6σ_Z(z) and
+        normal 6σ_Z(z)/R rad, at least the defaults (30 mm, 15°). Up to ≈ 3 m with the paper's
+        rig the defaults hold; at 10 m σ_Z ≈ 37 mm per frame, which a fixed 30 mm gate would
+        take for a jump of the ring."""
+        sz = float(params.sigma_z(float(center_mm[2])))
+        gate_mm = max(cls.gate_mm, 6.0 * sz)
+        gate_deg = max(cls.gate_deg, math.degrees(min(math.pi / 2, 6.0 * sz / params.radius_mm)))
+        return cls(np.asarray(center_mm), np.asarray(normal), gate_mm, gate_deg)
+
 
 @dataclass(frozen=True)
 class RingFit:

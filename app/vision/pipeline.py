@@ -327,8 +327,9 @@ class NavigationPipeline:
                 f"(size, stereo consistency, colour); need at least {cfg.min_leds}",
             )
         track = self._track
-        prior = None if track is None else RingPrior(track.center_mm, track.normal)
-        ring = find_ring(X[idx], self._ring_params(), prior)
+        params = self._ring_params()
+        prior = None if track is None else RingPrior.at_range(track.center_mm, track.normal, params)
+        ring = find_ring(X[idx], params, prior)
         self._stage_ms["pose"] = (time.perf_counter() - t2) * 1e3
         if not isinstance(ring, RingFit):
             return PoseResult(lock=False, reason=ring.reason)

@@ -620,7 +620,7 @@ class StereoTracker:
             raise _Fallback("the tracked LEDs are not on distinct, evenly spaced slots")
         if view_angle_deg(circle) > params.max_view_angle_deg:
             raise _Fallback("the ring is seen edge-on")
-        prior = RingPrior(st.center_mm, st.normal)
+        prior = RingPrior.at_range(st.center_mm, st.normal, params)
         if not agrees_with_prior(circle, prior):
             dc = float(np.linalg.norm(circle.center - prior.center_mm))
             raise _Fallback(f"the ring moved away from the last lock ({dc:.0f} mm)")
