@@ -213,6 +213,19 @@ def _error_reply(exc: BaseException) -> tuple[Any, ...]:
     return ("error", type(exc).__name__, str(exc), traceback.format_exc())
 
 
+WORKER_PRIORITY = -10  # nice value the worker asks for (granted where privileged)
+
+
+def _raise_priority() -> None:
+    """Ask for a higher CPU priority than the web server, the upload workers (nice +10) and a
+    browser on the same machine: the loop's deadline is the service's first duty. Granted
+    where the service may (root, CAP_SYS_NICE, a container); elsewhere it keeps the default."""
+    try:
+        os.setpriority(os.PRIO_PROCESS, 0, WORKER_PRIORITY)
+    except (OSError, AttributeError):
+        pass
+
+
 def _worker_main(
     conn: Connection,
     ring_name: str | None,
@@ -224,6 +237,7 @@ def _worker_main(
 ) -> None:
     """Entry point of the worker: serve ``build`` / ``step`` / ``ping`` / ``stop``."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
+    _raise_priority()
     ring = None
     if ring_name is not None:
         try:
