@@ -11,7 +11,8 @@ step-time p99 from ``/history``) in four cases:
 * ``both``: the two together;
 * ``page``: one browser (Debian chromium, headless, software WebGL) on the operators' page,
   which embeds the viser 3-D scene;
-* ``full``: the page + 50 telemetry clients + 4 uploaders (issue 10's acceptance load).
+* ``full``: the page + 50 telemetry clients + 4 uploaders (issue 10's acceptance load); these
+  uploaders honour the 429's ``Retry-After`` (in ``up16``/``both`` they retry at once: stress).
 
 for the two modes:
 
@@ -159,7 +160,11 @@ async def ws_client(url: str, stop: asyncio.Event, counts: list[int], i: int) ->
             counts[i] += 1
 
 
-async def uploader(url: str, stop: asyncio.Event, statuses: Counter[int], files: Any) -> None:
+async def uploader(
+    url: str, stop: asyncio.Event, statuses: Counter[int], files: Any, polite: bool = False
+) -> None:
+    """Post the pair in a loop, as fast as answered; ``polite``: wait the 429's Retry-After
+    before the next post (a well-behaved client) instead of retrying at once."""
     import httpx
 
     async with httpx.AsyncClient(timeout=30.0) as client:
@@ -167,6 +172,8 @@ async def uploader(url: str, stop: asyncio.Event, statuses: Counter[int], files:
             try:
                 r = await client.post(url, files=files)
                 statuses[r.status_code] += 1
+                if polite and r.status_code == 429:
+                    await asyncio.sleep(float(r.headers.get("retry-after", "1")))
             except httpx.HTTPError:
                 statuses[-1] += 1  # connection closed early (a refused body), counted apart
 
@@ -199,8 +206,10 @@ async def run_case(server: Server, case: str, seconds: float, ramp_s: float) -> 
         tasks += [asyncio.create_task(ws_client(url, stop, ws_counts, i)) for i in range(N_WS)]
     if case in N_UP:
         url = f"http://127.0.0.1:{port}/api/v1/stereo"
+        polite = case == "full"
         tasks += [
-            asyncio.create_task(uploader(url, stop, statuses, files)) for _ in range(N_UP[case])
+            asyncio.create_task(uploader(url, stop, statuses, files, polite))
+            for _ in range(N_UP[case])
         ]
     browser = None
     if case in ("page", "full"):
