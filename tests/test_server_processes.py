@@ -7,7 +7,7 @@ import asyncio
 import os
 import signal
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
+from waiting import wait_until
 
 from app.server import sim_process
 from app.server.main import create_app
@@ -30,13 +31,6 @@ def _settings(tmp_path: Path, **kw: Any) -> Settings:
     )
     base.update(kw)
     return Settings(**base)
-
-
-def _wait(cond: Callable[[], bool], timeout_s: float, what: str) -> None:
-    deadline = time.monotonic() + timeout_s
-    while not cond():
-        assert time.monotonic() < deadline, f"timed out waiting for {what}"
-        time.sleep(0.02)
 
 
 @pytest.fixture
@@ -56,7 +50,7 @@ def test_default_app_steps_the_simulation_in_a_worker_process(
     assert worker.ping() == worker.pid
     raws: list[Any] = []
     st.loop.subscribe(lambda record, raw: raws.append((record, raw)))
-    _wait(lambda: len(raws) >= 8, 10, "ticks from the worker")
+    wait_until(lambda: len(raws) >= 8, 10, "ticks from the worker")
     h = c.get("/api/v1/healthz").json()
     assert h["status"] == "ok" and h["sim_running"] and h["ticks"] >= 8 and h["errors"] == 0
     record, raw = raws[-1]
@@ -70,7 +64,7 @@ def test_default_app_steps_the_simulation_in_a_worker_process(
     assert int(left.max()) > 200  # the LEDs are in the picture
     # a slot overwritten long ago reads as None (the dashboard keeps its last image)
     _, old = raws[0]
-    _wait(lambda: len(raws) >= 8 + 2 * sim_process.RING_SLOTS, 10, "more ticks")
+    wait_until(lambda: len(raws) >= 8 + 2 * sim_process.RING_SLOTS, 10, "more ticks")
     if old._images is None:  # not read yet
         assert old.left_image is None
     # shutting the service down stops the worker and frees the shared memory
@@ -98,7 +92,7 @@ def test_refused_config_is_422_and_the_old_simulation_keeps_stepping(
 
     monkeypatch.setattr(sim_process, "docking_config", refused_for_seed_77)
     monkeypatch.setattr(DockingConfig, "validate", lambda self: None)  # only here, the parent
-    _wait(lambda: loop.ticks >= 3, 10, "first ticks")
+    wait_until(lambda: loop.ticks >= 3, 10, "first ticks")
     run0, config0, pid0 = loop.run, loop.config, st.sim_worker.pid
     t0 = loop.latest.t_s
     r = c.put("/api/v1/sim/config", json={"seed": 77})
@@ -107,28 +101,28 @@ def test_refused_config_is_422_and_the_old_simulation_keeps_stepping(
     assert "camera_hz" in r.json()["detail"]  # the worker's own ValueError
     assert loop.config == config0 and loop.run == run0 and st.sim_worker.pid == pid0
     n = loop.ticks
-    _wait(lambda: loop.ticks >= n + 5, 10, "ticks after the refusal")
+    wait_until(lambda: loop.ticks >= n + 5, 10, "ticks after the refusal")
     assert loop.latest.t_s > t0 and loop.latest.run == run0  # the same run goes on
     assert loop.errors == 0
     # an accepted one: a new run, in the same worker
     r = c.put("/api/v1/sim/config", json={"seed": 5})
     assert r.status_code == 200 and loop.run == run0 + 1 and st.sim_worker.pid == pid0
-    _wait(lambda: loop.latest.run == run0 + 1, 10, "ticks of the new run")
+    wait_until(lambda: loop.latest.run == run0 + 1, 10, "ticks of the new run")
     assert st.sim_worker.spawns == 1
 
 
 def test_killed_worker_is_replaced_and_ticks_resume(service: tuple[TestClient, Any]) -> None:
     c, st = service
     loop, worker = st.loop, st.sim_worker
-    _wait(lambda: loop.ticks >= 3, 10, "first ticks")
+    wait_until(lambda: loop.ticks >= 3, 10, "first ticks")
     pid0, run0 = worker.pid, loop.run
     os.kill(pid0, signal.SIGKILL)
-    _wait(lambda: loop.errors >= 1, 10, "the loss to be noticed")
-    _wait(lambda: loop.latest.run > run0, 15, "ticks from the new worker")
+    wait_until(lambda: loop.errors >= 1, 10, "the loss to be noticed")
+    wait_until(lambda: loop.latest.run > run0, 15, "ticks from the new worker")
     assert worker.pid is not None and worker.pid not in (pid0, os.getpid())
     assert worker.restarts == 1 and worker.spawns == 2
     n = loop.ticks
-    _wait(lambda: loop.ticks >= n + 5, 10, "steady ticks")
+    wait_until(lambda: loop.ticks >= n + 5, 10, "steady ticks")
     h = c.get("/api/v1/healthz").json()
     assert h["status"] == "ok" and h["sim_running"] and h["errors"] == 1
     assert "worker" in h["last_error"]
@@ -140,19 +134,19 @@ def test_a_hung_worker_times_out_and_is_replaced(tmp_path: Path) -> None:
     with TestClient(create_app(_settings(tmp_path, sim_step_timeout_s=1.0))) as c:
         st = c.app.state.aar  # type: ignore[attr-defined]
         loop, worker = st.loop, st.sim_worker
-        _wait(lambda: loop.ticks >= 3, 10, "first ticks")
+        wait_until(lambda: loop.ticks >= 3, 10, "first ticks")
         pid0, run0 = worker.pid, loop.run
         os.kill(pid0, signal.SIGSTOP)  # alive, but never answers
         t0 = time.monotonic()
         try:
-            _wait(lambda: loop.errors >= 1, 20, "the step timeout")
+            wait_until(lambda: loop.errors >= 1, 20, "the step timeout")
         finally:
             if worker.pid == pid0:  # pragma: no cover - not replaced: do not leave it stopped
                 os.kill(pid0, signal.SIGKILL)
         # the 1 s timeout + a respawn (≈ 1–2 s, more on a loaded machine), not a hang
         assert time.monotonic() - t0 < 12.0
         assert "no answer within 1 s" in (loop.last_error or "")
-        _wait(lambda: loop.latest.run > run0, 15, "ticks from the new worker")
+        wait_until(lambda: loop.latest.run > run0, 15, "ticks from the new worker")
         assert worker.pid != pid0 and worker.restarts == 1
         assert not Path(f"/proc/{pid0}").exists() or "Z" in Path(f"/proc/{pid0}/stat").read_text()
 

@@ -11,7 +11,7 @@ import socket
 import subprocess
 import sys
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -22,6 +22,7 @@ import pytest
 from fastapi.testclient import TestClient
 from starlette.websockets import WebSocketDisconnect
 from streams_sequence import cached_sequence, read_jsonl, write_avi, write_png_folders
+from waiting import wait_until
 
 from app.cli.main import main as cli_main
 from app.server.main import create_app
@@ -45,13 +46,6 @@ def _settings(tmp_path: Path, **kw: Any) -> Settings:
     return Settings(**base)
 
 
-def _wait(cond: Callable[[], bool], timeout_s: float, what: str) -> None:
-    deadline = time.monotonic() + timeout_s
-    while not cond():
-        assert time.monotonic() < deadline, f"timed out waiting for {what}"
-        time.sleep(0.05)
-
-
 def _records(c: TestClient, source: str) -> list[dict[str, Any]]:
     return [r for r in c.get("/api/v1/history?seconds=600").json() if r["source"] == source]
 
@@ -71,7 +65,7 @@ def test_serve_video_source_publishes_locked_video_records_with_guidance(
     source = f"video:{media['left_avi']},{media['right_avi']}"
     app = create_app(_settings(tmp_path, source=source, stream_realtime=False))
     with TestClient(app) as c:
-        _wait(lambda: c.get("/api/v1/stream").json()["state"] == "ended", 60, "end of video")
+        wait_until(lambda: c.get("/api/v1/stream").json()["state"] == "ended", 60, "end of video")
         status = c.get("/api/v1/stream").json()
         recs = _records(c, "video")
     assert status["kind"] == "video" and status["pairs"] == N and status["dropped_skew"] == 0
@@ -94,10 +88,10 @@ def test_frame_recording_replays_to_the_live_results(
     source = f"video:{media['left_png']},{media['right_png']}"
     app = create_app(_settings(tmp_path, source=source, stream_fps=15.0))  # paced, 15 fps
     with TestClient(app) as c:
-        _wait(lambda: c.get("/api/v1/stream").json()["frames"] >= 5, 30, "first frames")
+        wait_until(lambda: c.get("/api/v1/stream").json()["frames"] >= 5, 30, "first frames")
         r = c.post("/api/v1/recording/start?frames=true")
         assert r.status_code == 200, r.text
-        _wait(lambda: c.get("/api/v1/stream").json()["state"] == "ended", 60, "end of video")
+        wait_until(lambda: c.get("/api/v1/stream").json()["state"] == "ended", 60, "end of video")
         info = c.post("/api/v1/recording/stop").json()
         live = {r["stream"]["frame"]: r for r in _records(c, "video")}
         frames_dir = tmp_path / "rec" / info["frames_dir"]
@@ -108,7 +102,7 @@ def test_frame_recording_replays_to_the_live_results(
             "/api/v1/stream/source", json={"source": f"video:{frames_dir}", "realtime": False}
         )
         assert r.status_code == 200, r.text
-        _wait(lambda: c.get("/api/v1/stream").json()["state"] == "ended", 60, "end of replay")
+        wait_until(lambda: c.get("/api/v1/stream").json()["state"] == "ended", 60, "end of replay")
         served = [r for r in c.get("/api/v1/history?seconds=600").json() if r["source"] == "video"]
         served = served[len(live) :]
     # replay 2: aar-dock track on the recording (calibration from the recording)
@@ -164,7 +158,9 @@ def test_push_websocket_token_limits_and_locked_push_records(tmp_path: Path) -> 
                     _png(seq.lefts[i]), _png(seq.rights[i]), t_s=i / 30, seq=i, exposure_ms=1.5
                 )
                 ws.send_bytes(msg)
-                _wait(lambda i=i: c.get("/api/v1/stream").json()["frames"] > i, 20, f"pair {i}")
+                wait_until(
+                    lambda i=i: c.get("/api/v1/stream").json()["frames"] > i, 20, f"pair {i}"
+                )
             ws.send_text("stats")
             stats = json.loads(ws.receive_text())
             assert stats["received"] == 12 and stats["rejected"] >= 1
@@ -226,7 +222,7 @@ def test_push_cli_to_serve_cli(served_push: tuple[str, int], media: dict[str, Pa
     proc = subprocess.run(cmd + ["--token", "s3cret"], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr
     assert "pushed 20 pairs" in proc.stdout
-    _wait(
+    wait_until(
         lambda: (
             httpx.get(f"{base}/stream").json()["frames"]
             + httpx.get(f"{base}/stream").json()["dropped_backpressure"]
@@ -268,12 +264,12 @@ def test_one_source_at_a_time_sim_start_stops_the_stream(
     with TestClient(app) as c:
         st = c.app.state.aar  # type: ignore[attr-defined]
         assert not st.loop.running  # the stream replaced the simulation
-        _wait(lambda: c.get("/api/v1/stream").json()["frames"] >= 3, 30, "video frames")
+        wait_until(lambda: c.get("/api/v1/stream").json()["frames"] >= 3, 30, "video frames")
         assert c.post("/api/v1/sim/start").status_code == 200
         status = c.get("/api/v1/stream").json()
         assert (status["source"], status["state"]) == ("sim", "sim")
         n_video = len(_records(c, "video"))
-        _wait(lambda: len(_records(c, "sim")) >= 5, 30, "simulated ticks")
+        wait_until(lambda: len(_records(c, "sim")) >= 5, 30, "simulated ticks")
         assert len(_records(c, "video")) == n_video  # the stream thread is gone
         r = c.put("/api/v1/stream/source", json={"source": "camera:/no/such/device.avi"})
         assert r.status_code == 422 and "no such video file" in r.json()["detail"]

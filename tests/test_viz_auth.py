@@ -14,7 +14,7 @@ import math
 import socket
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from contextlib import contextmanager, suppress
 from pathlib import Path
 from types import SimpleNamespace
@@ -25,6 +25,7 @@ import pytest
 import viser
 import zstandard
 from fastapi.testclient import TestClient
+from waiting import wait_until
 from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import connect
 from websockets.typing import Origin, Subprotocol
@@ -42,15 +43,6 @@ def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return int(s.getsockname()[1])
-
-
-def _wait(pred: Callable[[], bool], timeout: float = 10.0, what: str = "condition") -> None:
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if pred():
-            return
-        time.sleep(0.02)
-    raise AssertionError(f"timed out waiting for {what}")
 
 
 class _Source:
@@ -155,7 +147,7 @@ class Wire:
                 ]
             return bool(found)
 
-        _wait(look, timeout, f"widget {label!r}")
+        wait_until(look, timeout, f"widget {label!r}")
         return found[-1]
 
     def uuid(self, label: str) -> str:
@@ -203,13 +195,15 @@ def _panel_id(gui: DockingGui, known: set[int] = frozenset()) -> int:  # type: i
         ids[:] = [i for i in gui._panels if i not in known]
         return bool(ids)
 
-    _wait(look, what="the client's panel")
+    wait_until(look, what="the client's panel")
     return ids[0]
 
 
 def _refusals(gui: DockingGui, before: int, n: int) -> None:
     """Barrier: the server has refused ``n`` more GUI messages (then give stragglers 0.2 s)."""
-    _wait(lambda: gui.rejected >= before + n, what=f"{n} refusals (got {gui.rejected - before})")
+    wait_until(
+        lambda: gui.rejected >= before + n, what=f"{n} refusals (got {gui.rejected - before})"
+    )
     time.sleep(0.2)
 
 
@@ -249,8 +243,8 @@ def test_with_token_a_client_watches_until_it_enters_the_operator_token(tmp_path
         assert panel is not None and panel.buttons["start"].disabled is True
         assert panel.clutter.value == cfg0.clutter and panel.noise.value == cfg0.noise_sigma
         # and the sender's own widgets are put back (viser's slider number box stays editable)
-        _wait(lambda: w.last("Clutter lights") == {"value": cfg0.clutter})
-        _wait(lambda: w.last("Turbulence") == {"value": cfg0.turbulence})
+        wait_until(lambda: w.last("Clutter lights") == {"value": cfg0.clutter})
+        wait_until(lambda: w.last("Turbulence") == {"value": cfg0.turbulence})
 
         # a wrong token unlocks nothing
         w.set("Operator token", "guess")
@@ -265,17 +259,19 @@ def test_with_token_a_client_watches_until_it_enters_the_operator_token(tmp_path
         # the right one unlocks this client's controls (and only this client's)
         w.set("Operator token", TOKEN)
         w.click("Unlock")
-        _wait(lambda: st.viz.policy.is_operator(cid), what="unlock")
-        _wait(lambda: {"disabled": False} in w.updates("Start"), what="Start enabled")
+        wait_until(lambda: st.viz.policy.is_operator(cid), what="unlock")
+        wait_until(lambda: {"disabled": False} in w.updates("Start"), what="Start enabled")
         assert panel.token.value == ""  # the field is cleared
         w.click("Start")
-        _wait(lambda: st.loop.running, what="start")
+        wait_until(lambda: st.loop.running, what="start")
         w.set("Clutter lights", 7)
         w.set("LED 2 off", True)
-        _wait(lambda: st.loop.config.clutter == 7 and st.loop.config.led_dropout == [2])
+        wait_until(lambda: st.loop.config.clutter == 7 and st.loop.config.led_dropout == [2])
         assert st.loop.run > run0
         # the other tab saw the change but still may not make one
-        _wait(lambda: {"value": 7} in bystander.updates("Clutter lights"), what="bystander sync")
+        wait_until(
+            lambda: {"value": 7} in bystander.updates("Clutter lights"), what="bystander sync"
+        )
         assert not st.viz.policy.may_control(other)
         before = gui.rejected
         bystander.click("Stop")
@@ -289,7 +285,7 @@ def test_with_token_a_client_watches_until_it_enters_the_operator_token(tmp_path
         _refusals(gui, before, 1)
         assert st.loop.config.noise_sigma == cfg0.noise_sigma
         assert panel.noise.value == cfg0.noise_sigma
-        _wait(lambda: w.last("Noise σ (DN)") == {"value": cfg0.noise_sigma})
+        wait_until(lambda: w.last("Noise σ (DN)") == {"value": cfg0.noise_sigma})
 
 
 def test_with_token_the_share_url_tunnel_needs_the_operator(tmp_path: Path) -> None:
@@ -304,9 +300,9 @@ def test_with_token_the_share_url_tunnel_needs_the_operator(tmp_path: Path) -> N
         assert calls == []
         w.set("Operator token", TOKEN)
         w.click("Unlock")
-        _wait(lambda: st.viz.policy.is_operator(cid), what="unlock")
+        wait_until(lambda: st.viz.policy.is_operator(cid), what="unlock")
         w.send({"type": "ShareUrlRequest"})
-        _wait(lambda: calls == [1], what="share request of the operator")
+        wait_until(lambda: calls == [1], what="share request of the operator")
 
 
 def test_without_token_valid_changes_apply_and_out_of_range_ones_are_refused(
@@ -320,10 +316,10 @@ def test_without_token_valid_changes_apply_and_out_of_range_ones_are_refused(
         assert panel is not None and panel.token is None
         assert w.widget("Start")["props"]["disabled"] is False
         w.click("Start")
-        _wait(lambda: st.loop.running, what="start")
+        wait_until(lambda: st.loop.running, what="start")
         w.set("Clutter lights", 5)
         w.set("Turbulence", "severe")
-        _wait(lambda: st.loop.config.clutter == 5 and st.loop.config.turbulence == "severe")
+        wait_until(lambda: st.loop.config.clutter == 5 and st.loop.config.turbulence == "severe")
         cfg = st.loop.config
         before = gui.rejected
         w.set("Noise σ (DN)", 45.0)  # SimConfig would take 45; the slider stops at 20
@@ -331,8 +327,8 @@ def test_without_token_valid_changes_apply_and_out_of_range_ones_are_refused(
         _refusals(gui, before, 2)
         assert st.loop.config == cfg
         assert panel.noise.value == cfg.noise_sigma and panel.clutter.value == 5
-        _wait(lambda: w.last("Noise σ (DN)") == {"value": cfg.noise_sigma})
-        _wait(lambda: w.last("Clutter lights") == {"value": 5})
+        wait_until(lambda: w.last("Noise σ (DN)") == {"value": cfg.noise_sigma})
+        wait_until(lambda: w.last("Clutter lights") == {"value": 5})
 
 
 JUNK: list[tuple[str, Any]] = [
@@ -385,7 +381,7 @@ def test_junk_from_the_wire_raises_nothing_and_changes_nothing(
         assert bad == [], [r.getMessage() for r in bad]
         # and the connection still works
         w.set("Clutter lights", 4)
-        _wait(lambda: st.loop.config.clutter == 4)
+        wait_until(lambda: st.loop.config.clutter == 4)
 
 
 def test_the_callbacks_themselves_refuse_junk_without_raising(tmp_path: Path) -> None:
@@ -440,7 +436,7 @@ def test_a_foreign_origin_is_refused_at_the_handshake(tmp_path: Path) -> None:
         with _wire(st) as ok, _wire(st, origin=None) as tool:
             ok.camera()
             tool.camera()
-            _wait(lambda: len(st.viz.gui._panels) == 2, what="two panels")
+            wait_until(lambda: len(st.viz.gui._panels) == 2, what="two panels")
             assert not ok.closed.is_set() and not tool.closed.is_set()
 
 
@@ -508,7 +504,7 @@ def test_in_a_real_browser_a_locked_tab_is_read_only_until_unlocked(tmp_path: Pa
             boxes = page.locator("input.mantine-NumberInput-input")
             assert boxes.count() == 3
             boxes.nth(2).fill("7")
-            _wait(lambda: boxes.nth(2).input_value() == "0", what="locked box put back")
+            wait_until(lambda: boxes.nth(2).input_value() == "0", what="locked box put back")
             assert st.loop.config.clutter == 0
             token = page.get_by_role("textbox").first
             token.fill("wrong")
@@ -517,13 +513,13 @@ def test_in_a_real_browser_a_locked_tab_is_read_only_until_unlocked(tmp_path: Pa
             assert start.is_disabled() and st.viz.policy._operators == set()
             token.fill(TOKEN)
             page.get_by_role("button", name="Unlock").click()
-            _wait(lambda: not start.is_disabled(), what="unlocked")
+            wait_until(lambda: not start.is_disabled(), what="unlocked")
             start.click()
-            _wait(lambda: st.loop.running, what="start from the browser")
+            wait_until(lambda: st.loop.running, what="start from the browser")
             boxes.nth(1).fill("45")  # noise: beyond the slider
-            _wait(lambda: boxes.nth(1).input_value() == "2", what="noise box put back")
+            wait_until(lambda: boxes.nth(1).input_value() == "2", what="noise box put back")
             boxes.nth(2).fill("6")
-            _wait(lambda: st.loop.config.clutter == 6, what="clutter from the browser")
+            wait_until(lambda: st.loop.config.clutter == 6, what="clutter from the browser")
             assert st.loop.config.noise_sigma == 2.0
         finally:
             browser.close()
