@@ -121,19 +121,12 @@ MAPPINGS = tuple(
 
 
 @dataclass(frozen=True)
-class RigCandidate:
-    """How the right grid's indices may map onto the left's: reversed (180°) and/or offset
-    by ``dx`` columns / ``dy`` rows; with the rig (R, T: X_right = R·X_left + T, mm) it implies."""
+class RigCandidate(GridMapping):
+    """A :class:`GridMapping` of the right grid onto the left's with the rig it implies
+    (R, T: X_right = R·X_left + T, mm)."""
 
-    flip: bool
-    dx: int
-    dy: int
     R: FloatArray
     T: FloatArray
-
-    @property
-    def shifted(self) -> bool:
-        return self.dx != 0 or self.dy != 0
 
 
 def rig_candidates(

@@ -46,6 +46,7 @@ from typing import Any
 
 import numpy as np
 
+from app.server.lazy_images import ImagePair, LazyImagePair
 from app.server.schemas import SimConfig
 from app.server.tick_loop import SourceRestarted, SourceUnavailable, docking_config
 
@@ -288,7 +289,7 @@ def _worker_main(
 
 
 # ---- the parent side --------------------------------------------------------------------------
-class ProcessTick:
+class ProcessTick(LazyImagePair):
     """A tick from the worker: the :class:`DockingTick`'s fields, images read on demand."""
 
     def __init__(
@@ -300,12 +301,11 @@ class ProcessTick:
         inline: tuple[np.ndarray, np.ndarray] | None,
         sim_ms: float,
     ) -> None:
+        super().__init__(inline)
         self._tick = tick
         self._ring = ring
         self._slot = slot
         self._stamp = stamp
-        self._images: tuple[np.ndarray | None, np.ndarray | None] | None = inline
-        self._lock = threading.Lock()
         self.extra_timings_ms = {"sim": sim_ms}
 
     def __getattr__(self, name: str) -> Any:
@@ -318,22 +318,11 @@ class ProcessTick:
         """The :class:`DockingTick` itself (its images are ``None``)."""
         return self._tick
 
-    def _pair(self) -> tuple[np.ndarray | None, np.ndarray | None]:
-        with self._lock:
-            if self._images is None:
-                got = None
-                if self._ring is not None and self._slot >= 0:
-                    got = self._ring.read(self._slot, self._stamp)
-                self._images = got if got is not None else (None, None)
-            return self._images
-
-    @property
-    def left_image(self) -> np.ndarray | None:
-        return self._pair()[0]
-
-    @property
-    def right_image(self) -> np.ndarray | None:
-        return self._pair()[1]
+    def _load(self) -> ImagePair:
+        got = None
+        if self._ring is not None and self._slot >= 0:
+            got = self._ring.read(self._slot, self._stamp)
+        return got if got is not None else (None, None)
 
 
 def _raise_remote(reply: tuple[Any, ...]) -> None:

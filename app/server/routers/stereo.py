@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import asyncio
 import logging
-import threading
 import time
 from dataclasses import dataclass
 from typing import Annotated, Any, Literal
@@ -26,6 +25,7 @@ from fastapi import APIRouter, Depends, File, Form, HTTPException, UploadFile, s
 
 from app.server.dependencies import AppState, StateDep, require_token
 from app.server.image_guard import ImageHeader, screen
+from app.server.lazy_images import ImagePair, LazyImagePair
 from app.server.schemas import Message, TickRecord
 from app.server.sim_process import calibration_to_wire
 from app.server.upload_pool import (
@@ -49,35 +49,24 @@ class UploadFrames:
     right_image: np.ndarray
 
 
-class LazyUploadFrames:
+class LazyUploadFrames(LazyImagePair):
     """An upload's images, decoded on first access (the 3-D scene, at its image rate)."""
 
     def __init__(self, left: bytes, right: bytes) -> None:
+        super().__init__()
         self._bytes: tuple[bytes, bytes] | None = (left, right)
-        self._images: tuple[np.ndarray | None, np.ndarray | None] | None = None
-        self._lock = threading.Lock()
 
-    def _pair(self) -> tuple[np.ndarray | None, np.ndarray | None]:
-        with self._lock:
-            if self._images is None:
-                assert self._bytes is not None
-                try:
-                    self._images = (
-                        decode_upload_image(self._bytes[0], "left"),
-                        decode_upload_image(self._bytes[1], "right"),
-                    )
-                except UploadError:  # pragma: no cover - the worker decoded them already
-                    self._images = (None, None)
-                self._bytes = None
-            return self._images
-
-    @property
-    def left_image(self) -> np.ndarray | None:
-        return self._pair()[0]
-
-    @property
-    def right_image(self) -> np.ndarray | None:
-        return self._pair()[1]
+    def _load(self) -> ImagePair:
+        assert self._bytes is not None
+        try:
+            images: ImagePair = (
+                decode_upload_image(self._bytes[0], "left"),
+                decode_upload_image(self._bytes[1], "right"),
+            )
+        except UploadError:  # pragma: no cover - the worker decoded them already
+            images = (None, None)
+        self._bytes = None
+        return images
 
 
 async def _read_limited(upload: UploadFile, limit: int, name: str) -> bytes:
