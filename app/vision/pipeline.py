@@ -114,6 +114,8 @@ class PipelineTrace:
     xyz_mm: np.ndarray | None = None
     ring: RingFit | None = None
     thresholds: tuple[int, int] = (0, 0)
+    # background level and noise σ (DN) of each image, as the eq. 10 threshold used them
+    backgrounds: tuple[tuple[float, float], tuple[float, float]] = ((0.0, 0.0), (0.0, 0.0))
     appearance_rejected: dict[int, list[str]] = field(default_factory=dict)  # match → reasons
     roll_deg: float | None = None
 
@@ -161,7 +163,7 @@ class NavigationPipeline:
         return PAPER_WINDOW_FACTOR if self.config.matcher == "paper" else OUR_WINDOW_FACTOR
 
     # ------------------------------------------------------------------ stages
-    def _features(self, image: np.ndarray) -> tuple[FeatureSet, int, float]:
+    def _features(self, image: np.ndarray) -> tuple[FeatureSet, int, tuple[float, float]]:
         cfg = self.config
         gray = to_gray(image)
         t0 = time.perf_counter()
@@ -181,7 +183,7 @@ class NavigationPipeline:
         self._stage_ms["preprocess"] += (t1 - t0) * 1e3
         self._stage_ms["extract"] += (t2 - t1) * 1e3
         self._stage_ms["describe"] += (t3 - t2) * 1e3
-        return FeatureSet(blobs=blobs, descriptors=desc, rejected=rejected), threshold, bg
+        return FeatureSet(blobs=blobs, descriptors=desc, rejected=rejected), threshold, stats
 
     def _ring_params(self) -> RingParams:
         cfg = self.config
@@ -207,8 +209,8 @@ class NavigationPipeline:
         self.trace = PipelineTrace()
         left, right = check_pair(self.calibration, left, right)
         try:
-            feats_l, thr_l, bg_l = self._features(left)
-            feats_r, thr_r, bg_r = self._features(right)
+            feats_l, thr_l, stats_l = self._features(left)
+            feats_r, thr_r, stats_r = self._features(right)
         except TooManyBlobs as exc:
             self._age_track()
             result = PoseResult(lock=False, reason=str(exc))
@@ -217,7 +219,8 @@ class NavigationPipeline:
             return result
         self.trace.left, self.trace.right = feats_l, feats_r
         self.trace.thresholds = (thr_l, thr_r)
-        result = self._solve(feats_l, feats_r, (bg_l, bg_r))
+        self.trace.backgrounds = (stats_l, stats_r)
+        result = self._solve(feats_l, feats_r, (stats_l[0], stats_r[0]))
         if not result.lock:
             self._age_track()
         self._stage_ms["total"] = (time.perf_counter() - t_start) * 1e3

@@ -79,7 +79,6 @@ from app.vision.pipeline import (
 )
 from app.vision.preprocess import (
     ImageError,
-    background_level,
     binarize,
     choose_threshold,
     median_filter,
@@ -181,11 +180,14 @@ class StereoTracker:
         self.last_mode: Mode = "lost"
         self.last_fallback: str | None = None
         self.stats = TrackerStats()
+        # the windows next_windows() planned for the next update (reused there, not redone)
+        self._planned: tuple[list[_Window], list[_Window]] | None = None
         self._params: RingParams = self.pipeline._ring_params()
 
     def reset(self) -> None:
         """Forget the lock and the pipeline's track (a new, unrelated sequence)."""
         self._state = None
+        self._planned = None
         self.pipeline.reset()
         self.stats = TrackerStats()
 
@@ -209,11 +211,12 @@ class StereoTracker:
         exactly the result of full images.
         """
         t0 = time.perf_counter()
+        planned, self._planned = self._planned, None
         left, right = check_pair(self.calibration, left, right)
         self.last_fallback = None
         if self._state is not None:
             try:
-                result = self._track_frame(left, right)
+                result = self._track_frame(left, right, planned)
             except _Fallback as exc:
                 self.last_fallback = str(exc)
                 self.stats.fallbacks += 1
@@ -236,7 +239,7 @@ class StereoTracker:
         if self._state is None:
             return None
         try:
-            win_l, win_r = self._plan(self._state)
+            self._planned = win_l, win_r = self._plan(self._state)
         except _Fallback:
             return None
         side = (win_l or win_r)[0].side
@@ -277,10 +280,7 @@ class StereoTracker:
             )
         self._state = _State(
             leds=leds,
-            background=(
-                background_level(to_gray(left)),
-                background_level(to_gray(right)),
-            ),
+            background=trace.backgrounds,
             thresholds=trace.thresholds,
             center_mm=track.center_mm.copy(),
             normal=track.normal.copy(),
@@ -391,14 +391,18 @@ class StereoTracker:
         return int(min(255, max(1, round(bg + max(0.25 * (peak - bg), 6.0 * sigma)))))
 
     def _extract(
-        self, left: np.ndarray, right: np.ndarray, st: _State
+        self,
+        left: np.ndarray,
+        right: np.ndarray,
+        st: _State,
+        planned: tuple[list[_Window], list[_Window]] | None = None,
     ) -> tuple[list[_Window], list[_Window], np.ndarray, list[Blob], tuple[int, int]]:
         """Crop every window of both images into one mosaic (left windows on the top row,
         right windows below, one zero column/row between windows) and extract the blobs
         there: one gray conversion, threshold, median and labelling for the whole frame pair.
         """
         cfg = self.config
-        win_l, win_r = self._plan(st)
+        win_l, win_r = planned if planned is not None else self._plan(st)
         side = win_l[0].side
         cols = max(len(win_l), len(win_r))
         if left.ndim != right.ndim or (left.ndim == 3 and left.shape[2] != right.shape[2]):
@@ -480,11 +484,16 @@ class StereoTracker:
             out[win.led_id] = b
         return out
 
-    def _track_frame(self, left: np.ndarray, right: np.ndarray) -> PoseResult:
+    def _track_frame(
+        self,
+        left: np.ndarray,
+        right: np.ndarray,
+        planned: tuple[list[_Window], list[_Window]] | None = None,
+    ) -> PoseResult:
         st = self._state
         assert st is not None
         cfg, cal = self.config, self.calibration
-        win_l, win_r, gray, blobs, (thr_l, thr_r) = self._extract(left, right, st)
+        win_l, win_r, gray, blobs, (thr_l, thr_r) = self._extract(left, right, st, planned)
         got_l = self._assign(win_l, blobs, "left")
         got_r = self._assign(win_r, blobs, "right")
         led_ids = sorted(i for i in got_l if i in got_r)
