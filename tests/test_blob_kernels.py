@@ -1,0 +1,69 @@
+"""The compiled eq. 11 centroids and label statistics equal an OpenCV-only formulation
+(``connectedComponentsWithStats``, ``dilate``, ``moments``, ``minMaxLoc``) on OpenCV-drawn
+scenes: the project's compiled loops are checked against code they do not share."""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+import pytest
+
+from app.vision.features import BlobGate, extract_blobs
+from app.vision.preprocess import background_level, binarize, choose_threshold, median_filter
+from tests.test_acquisition import _scene
+
+
+def _opencv_blobs(gray: np.ndarray, mask: np.ndarray, bg: float, gate: BlobGate):  # type: ignore[no-untyped-def]
+    """Eq. 11 with stock OpenCV calls only, one component at a time (the reference)."""
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    h_img, w_img = gray.shape
+    out = []
+    for i in range(1, n):
+        x, y, w, h, area = (int(v) for v in stats[i])
+        aspect = max(w, h) / max(1, min(w, h))
+        border = x == 0 or y == 0 or x + w >= w_img or y + h >= h_img
+        if (
+            area < gate.min_area_px
+            or area > gate.max_area_px
+            or aspect > gate.max_aspect
+            or area / (w * h) < gate.min_fill
+            or border
+        ):
+            continue
+        pad = max(2, int(round(0.5 * math.sqrt(area))))
+        x0, y0 = max(0, x - pad), max(0, y - pad)
+        x1, y1 = min(w_img, x + w + pad), min(h_img, y + h + pad)
+        lab = labels[y0:y1, x0:x1]
+        comp = (lab == i).astype(np.uint8)
+        support = cv2.dilate(comp, np.ones((2 * pad + 1, 2 * pad + 1), np.uint8))
+        support[(lab != 0) & (comp == 0)] = 0
+        window = gray[y0:y1, x0:x1].astype(np.float64)
+        weights = np.clip(window - bg, 0.0, None) * support
+        mom = cv2.moments(weights)
+        peak = cv2.minMaxLoc(gray[y0:y1, x0:x1], comp)[1]
+        u = mom["m10"] / mom["m00"] + x0
+        v = mom["m01"] / mom["m00"] + y0
+        out.append(((x, y, w, h), area, u, v, mom["m00"], float(peak)))
+    return sorted(out)
+
+
+@pytest.mark.parametrize("n", [1, 40, 300])
+@pytest.mark.parametrize("bg_offset", [0.0, 0.37])
+def test_compiled_centroids_equal_opencv_moments(n: int, bg_offset: float) -> None:
+    img = _scene(7 * n + 1, n)
+    stats = background_level(img)
+    thr = choose_threshold(img, "auto", stats)
+    bg = float(round(stats[0])) + bg_offset  # integer and fractional background levels
+    mask = median_filter(binarize(img, thr), 3)
+    gate = BlobGate()
+    got, _ = extract_blobs(img, mask, bg, gate)
+    ref = _opencv_blobs(img, mask, bg, gate)
+    assert len(ref) > 0 and len(got) == len(ref)
+    got_rows = sorted((b.bbox, b.area_px, *b.centroid_px, b.mass, b.peak) for b in got)
+    for g, r in zip(got_rows, ref, strict=True):
+        assert g[0] == r[0] and g[1] == r[1] and g[5] == r[5]
+        # centroids: the same sums in float64 (summation order differs: ≤ 1e-9 px)
+        assert abs(g[2] - r[2]) < 1e-9 and abs(g[3] - r[3]) < 1e-9
+        assert abs(g[4] - r[4]) <= 1e-12 * r[4]
