@@ -1,8 +1,10 @@
 """Plane and circle fitting in 3-D (paper §5.2, eqs. 17–18).
 
-The paper fits a sphere and a plane by least squares; we fit the plane by SVD (total least
-squares) and the circle inside it (algebraic fit, then Gauss–Newton on the geometric distance),
-which gives the drogue rim's centre, unit normal and radius directly, from 3 points upward.
+The paper fits a sphere and a plane by least squares; we fit the plane by total least squares
+(the smallest eigenvector of the points' scatter matrix) and the circle inside it (algebraic
+fit, then Gauss–Newton on the geometric distance), which gives the drogue rim's centre, unit
+normal and radius directly, from 3 points upward. The arithmetic runs in one compiled loop
+(numba, cached on disk).
 """
 
 from __future__ import annotations
@@ -11,6 +13,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from app.geometry.calibration import FloatArray
 
@@ -26,20 +29,6 @@ class Circle3D:
     radius: float  # mm
     rms: float  # RMS 3-D distance of the points from the circle, mm
     plane_rms: float  # RMS distance of the points from the plane, mm
-
-
-def fit_plane(points: FloatArray) -> tuple[FloatArray, FloatArray, float]:
-    """Total-least-squares plane: (centroid, unit normal, RMS distance) — eq. 18's role."""
-    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    if len(pts) < 3 or not np.all(np.isfinite(pts)):
-        raise FitError("a plane needs at least 3 finite points")
-    centroid = pts.mean(axis=0)
-    _, s, vt = np.linalg.svd(pts - centroid)
-    if s[1] < 1e-9 * max(1.0, s[0]):
-        raise FitError("points are collinear")
-    normal = vt[2]
-    rms = float(np.sqrt(np.mean(((pts - centroid) @ normal) ** 2)))
-    return centroid, normal, rms
 
 
 def _cross(a: FloatArray, b: FloatArray) -> FloatArray:
@@ -64,50 +53,117 @@ def plane_basis(
     return e1, _cross(e1, n)
 
 
-def fit_circle_2d(xy: FloatArray, iterations: int = 10) -> tuple[FloatArray, float]:
-    """Circle through 2-D points: Kåsa algebraic fit, then Gauss–Newton on geometric distance."""
-    x, y = xy[:, 0], xy[:, 1]
-    A = np.column_stack([2 * x, 2 * y, np.ones(len(x))])
-    b = x * x + y * y
-    sol, *_ = np.linalg.lstsq(A, b, rcond=None)
-    c = sol[:2].copy()
-    r = float(np.sqrt(max(sol[2] + c @ c, 0.0)))
-    if len(xy) > 3:
-        J = np.empty((len(xy), 3))
-        J[:, 2] = -1.0
-        for _ in range(iterations):
-            dx, dy = x - c[0], y - c[1]
-            dist = np.hypot(dx, dy)
-            if float(dist.min()) < 1e-12:
-                break
-            res = dist - r
-            J[:, 0] = -dx / dist
-            J[:, 1] = -dy / dist
-            try:  # normal equations (3×3): the same step as lstsq on a well-posed fit
-                step = np.linalg.solve(J.T @ J, -(J.T @ res))
-            except np.linalg.LinAlgError:
-                step, *_ = np.linalg.lstsq(J, -res, rcond=None)
-            c = c + step[:2]
-            r = r + float(step[2])
-            if float(np.abs(step).max()) < 1e-10:
-                break
-    return np.asarray(c, dtype=np.float64), abs(r)
+@njit(cache=True, nogil=True)
+def _circle_kernel(pts: np.ndarray, iterations: int) -> np.ndarray:  # pragma: no cover - compiled
+    """Plane (total least squares: the scatter matrix's smallest eigenvector, eq. 18's role)
+    and the circle in it (Kåsa algebraic fit, then Gauss–Newton on the geometric distance).
 
-
-def fit_circle_3d(points: FloatArray) -> Circle3D:
-    """Plane + in-plane circle through ≥ 3 points (mm). The normal's sign is arbitrary here."""
-    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    centroid, normal, plane_rms = fit_plane(pts)
-    e1, e2 = plane_basis(normal)
+    Returns 10 floats: centre (3, mm), unit normal (3), radius, RMS 3-D distance to the
+    circle, RMS distance to the plane (mm), status (0 ok, 1 collinear points).
+    """
+    n = pts.shape[0]
+    out = np.zeros(10)
+    centroid = np.zeros(3)
+    for p in range(n):
+        centroid += pts[p]
+    centroid /= n
     rel = pts - centroid
-    xy = np.column_stack([rel @ e1, rel @ e2])
-    c2, radius = fit_circle_2d(xy)
-    center = centroid + c2[0] * e1 + c2[1] * e2
-    # 3-D distance of each point from the circle: in-plane radial and out-of-plane parts.
-    off = rel @ normal
-    radial = np.hypot(xy[:, 0] - c2[0], xy[:, 1] - c2[1]) - radius
-    rms = float(np.sqrt(np.mean(radial**2 + off**2)))
-    return Circle3D(center=center, normal=normal, radius=radius, rms=rms, plane_rms=plane_rms)
+    scatter = rel.T @ rel
+    evals, evecs = np.linalg.eigh(scatter)  # ascending
+    s0, s1 = np.sqrt(max(evals[2], 0.0)), np.sqrt(max(evals[1], 0.0))
+    if s1 < 1e-9 * max(1.0, s0):
+        out[9] = 1.0
+        return out
+    normal = evecs[:, 0].copy()
+    normal /= np.sqrt(normal @ normal)
+    # in-plane axes: e1 = (0, −1, 0) projected on the plane (as plane_basis)
+    e1 = np.array([0.0, -1.0, 0.0]) + normal[1] * normal
+    if np.sqrt(e1 @ e1) < 1e-6:
+        e1 = np.array([1.0, 0.0, 0.0]) - normal[0] * normal
+    e1 /= np.sqrt(e1 @ e1)
+    e2 = np.array(
+        [
+            e1[1] * normal[2] - e1[2] * normal[1],
+            e1[2] * normal[0] - e1[0] * normal[2],
+            e1[0] * normal[1] - e1[1] * normal[0],
+        ]
+    )
+    x = rel @ e1
+    y = rel @ e2
+    # Kåsa: [2x 2y 1]·(cx, cy, c) = x² + y² by its normal equations
+    a = np.zeros((3, 3))
+    b = np.zeros(3)
+    for p in range(n):
+        row = (2.0 * x[p], 2.0 * y[p], 1.0)
+        rhs = x[p] * x[p] + y[p] * y[p]
+        for i in range(3):
+            b[i] += row[i] * rhs
+            for j in range(3):
+                a[i, j] += row[i] * row[j]
+    sol = np.linalg.solve(a, b)
+    cx, cy = sol[0], sol[1]
+    r = np.sqrt(max(sol[2] + cx * cx + cy * cy, 0.0))
+    if n > 3:
+        for _ in range(iterations):
+            jtj = np.zeros((3, 3))
+            jtr = np.zeros(3)
+            degenerate = False
+            for p in range(n):
+                dx, dy = x[p] - cx, y[p] - cy
+                dist = np.sqrt(dx * dx + dy * dy)
+                if dist < 1e-12:
+                    degenerate = True
+                    break
+                jrow = (-dx / dist, -dy / dist, -1.0)
+                res = dist - r
+                for i in range(3):
+                    jtr[i] -= jrow[i] * res
+                    for j in range(3):
+                        jtj[i, j] += jrow[i] * jrow[j]
+            if degenerate:
+                break
+            step = np.linalg.solve(jtj, jtr)
+            cx += step[0]
+            cy += step[1]
+            r += step[2]
+            if max(abs(step[0]), abs(step[1]), abs(step[2])) < 1e-10:
+                break
+    sq_plane = 0.0
+    sq_all = 0.0
+    for p in range(n):
+        off = rel[p] @ normal
+        radial = np.sqrt((x[p] - cx) ** 2 + (y[p] - cy) ** 2) - abs(r)
+        sq_plane += off * off
+        sq_all += radial * radial + off * off
+    out[0:3] = centroid + cx * e1 + cy * e2
+    out[3:6] = normal
+    out[6] = abs(r)
+    out[7] = np.sqrt(sq_all / n)
+    out[8] = np.sqrt(sq_plane / n)
+    return out
+
+
+def fit_circle_3d(points: FloatArray, iterations: int = 10) -> Circle3D:
+    """Plane + in-plane circle through ≥ 3 points (mm), eqs. 17–18's role (see the module
+    docstring). The normal's sign is arbitrary here."""
+    pts = np.ascontiguousarray(np.asarray(points, dtype=np.float64).reshape(-1, 3))
+    if len(pts) < 3 or not np.all(np.isfinite(pts)):
+        raise FitError("a plane needs at least 3 finite points")
+    try:
+        res = _circle_kernel(pts, int(iterations))
+    except np.linalg.LinAlgError as exc:  # a singular circle system: no circle
+        raise FitError(f"no circle through the points ({exc})") from None
+    if res[9] != 0.0:
+        raise FitError("points are collinear")
+    if not np.all(np.isfinite(res)):
+        raise FitError("no finite circle through the points")
+    return Circle3D(
+        center=res[0:3].copy(),
+        normal=res[3:6].copy(),
+        radius=float(res[6]),
+        rms=float(res[7]),
+        plane_rms=float(res[8]),
+    )
 
 
 def distance_to_circle(points: FloatArray, circle: Circle3D) -> FloatArray:
