@@ -10,7 +10,7 @@ import cv2
 import numpy as np
 import pytest
 
-from app.vision.features import BlobGate, extract_blobs
+from app.vision.features import BlobGate, _label_with_stats, extract_blobs
 from app.vision.preprocess import background_level, binarize, choose_threshold, median_filter
 from tests.test_acquisition import _scene
 
@@ -67,3 +67,24 @@ def test_compiled_centroids_equal_opencv_moments(n: int, bg_offset: float) -> No
         # centroids: the same sums in float64 (summation order differs: ≤ 1e-9 px)
         assert abs(g[2] - r[2]) < 1e-9 and abs(g[3] - r[3]) < 1e-9
         assert abs(g[4] - r[4]) <= 1e-12 * r[4]
+
+
+@pytest.mark.parametrize("n", [0, 1, 40, 300])
+def test_labelling_equals_opencv_connected_components(n: int) -> None:
+    """Algorithm 2 by union–find over the foreground: the same components (the label images
+    equal up to a renumbering: OpenCV's parallel labelling numbers them its own way) and the
+    same stats as ``cv2.connectedComponentsWithStats``."""
+    img = _scene(11 * n + 3, n)
+    stats = background_level(img)
+    mask = median_filter(binarize(img, choose_threshold(img, "auto", stats)), 3)
+    mask[::97, :] = 255  # long lines and a comb: components spanning many rows and merges
+    mask[:, ::131] = 255
+    n_ref, lab_ref, st_ref, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    n_got, lab_got, st_got = _label_with_stats(mask)
+    assert n_got == n_ref
+    assert np.array_equal(lab_got > 0, lab_ref > 0)
+    fg = lab_got > 0
+    pairs = np.unique(np.stack([lab_got[fg], lab_ref[fg]]), axis=1)
+    assert pairs.shape[1] == n_ref - 1  # one to one
+    assert len(np.unique(pairs[0])) == len(np.unique(pairs[1])) == n_ref - 1
+    assert np.array_equal(st_got[pairs[0]], st_ref[pairs[1]].astype(np.int64))

@@ -20,41 +20,6 @@ CAND_COLUMNS = 13
 
 
 @njit(cache=True, nogil=True)
-def label_stats(labels: np.ndarray, n: int) -> np.ndarray:  # pragma: no cover - compiled
-    """(n, 5) int64 rows (x, y, w, h, area) of labels 0..n−1 over a label image (row 0 unused),
-    the values of ``cv2.connectedComponentsWithStats`` for the foreground labels."""
-    h, w = labels.shape
-    big = np.int64(1) << 40
-    x0 = np.full(n, big, np.int64)
-    y0 = np.full(n, big, np.int64)
-    x1 = np.full(n, -1, np.int64)
-    y1 = np.full(n, -1, np.int64)
-    area = np.zeros(n, np.int64)
-    for y in range(h):
-        row = labels[y]
-        for x in range(w):
-            lab = row[x]
-            if lab > 0:
-                area[lab] += 1
-                if x < x0[lab]:
-                    x0[lab] = x
-                if x > x1[lab]:
-                    x1[lab] = x
-                if y < y0[lab]:
-                    y0[lab] = y
-                y1[lab] = y
-    out = np.zeros((n, 5), np.int64)
-    for k in range(1, n):
-        if area[k] > 0:
-            out[k, 0] = x0[k]
-            out[k, 1] = y0[k]
-            out[k, 2] = x1[k] - x0[k] + 1
-            out[k, 3] = y1[k] - y0[k] + 1
-            out[k, 4] = area[k]
-    return out
-
-
-@njit(cache=True, nogil=True)
 def centroid_table(
     gray: np.ndarray, labels: np.ndarray, cands: np.ndarray, background: float
 ) -> np.ndarray:  # pragma: no cover - compiled
@@ -85,22 +50,29 @@ def centroid_table(
             for i in range(ww):
                 if labels[ly + wy0 + j, lx + wx0 + i] == lab_id:
                     comp[j, i] = 1
+        # running counts over (2·pad+1) px: O(window) whatever the pad
         horiz = np.zeros((wh, ww), np.uint8)
         for j in range(wh):
+            count = 0
+            for i in range(min(pad, ww)):
+                count += comp[j, i]
             for i in range(ww):
-                if comp[j, i]:
-                    a = max(0, i - pad)
-                    b = min(ww, i + pad + 1)
-                    for q in range(a, b):
-                        horiz[j, q] = 1
+                if i + pad < ww:
+                    count += comp[j, i + pad]
+                if i - pad - 1 >= 0:
+                    count -= comp[j, i - pad - 1]
+                horiz[j, i] = count > 0
         support = np.zeros((wh, ww), np.uint8)
-        for j in range(wh):
-            for i in range(ww):
-                if horiz[j, i]:
-                    a = max(0, j - pad)
-                    b = min(wh, j + pad + 1)
-                    for q in range(a, b):
-                        support[q, i] = 1
+        for i in range(ww):
+            count = 0
+            for j in range(min(pad, wh)):
+                count += horiz[j, i]
+            for j in range(wh):
+                if j + pad < wh:
+                    count += horiz[j + pad, i]
+                if j - pad - 1 >= 0:
+                    count -= horiz[j - pad - 1, i]
+                support[j, i] = count > 0
         mass = 0.0
         m10 = 0.0
         m01 = 0.0
@@ -131,3 +103,75 @@ def centroid_table(
         out[c, 3] = peak
         _ = area
     return out
+
+
+@njit(cache=True, nogil=True)
+def _find(parent: np.ndarray, p: int) -> int:  # pragma: no cover - compiled
+    root = p
+    while parent[root] != root:
+        root = parent[root]
+    while parent[p] != root:  # path compression
+        nxt = parent[p]
+        parent[p] = root
+        p = nxt
+    return root
+
+
+@njit(cache=True, nogil=True)
+def label_pixels(xy: np.ndarray, labels: np.ndarray) -> np.ndarray:  # pragma: no cover
+    """8-connected components of the foreground pixels ``xy`` ((k, 2) x, y in row-major order,
+    as ``cv2.findNonZero`` lists them): writes labels 1..n−1 (numbered in raster order of each
+    component's first pixel) into the zeroed int32 image ``labels`` and returns the (n, 5)
+    int64 stats rows (x, y, w, h, area), row 0 unused — Algorithm 2's one-pass labelling by
+    union–find over the foreground only, O(foreground pixels)."""
+    k = xy.shape[0]
+    h, w = labels.shape
+    parent = np.arange(k)
+    for p in range(k):
+        labels[xy[p, 1], xy[p, 0]] = p + 1
+    for p in range(k):
+        x, y = xy[p, 0], xy[p, 1]
+        for dx, dy in ((-1, -1), (0, -1), (1, -1), (-1, 0)):  # the neighbours already seen
+            nx, ny = x + dx, y + dy
+            if nx < 0 or nx >= w or ny < 0:
+                continue
+            q = labels[ny, nx] - 1
+            if q < 0:
+                continue
+            a, b = _find(parent, p), _find(parent, q)
+            if a != b:  # the earlier pixel stays the root
+                if a < b:
+                    parent[b] = a
+                else:
+                    parent[a] = b
+    new = np.zeros(k, np.int64)
+    n = 1
+    for p in range(k):
+        r = _find(parent, p)
+        if new[r] == 0:
+            new[r] = n
+            n += 1
+    big = np.int64(1) << 40
+    st = np.zeros((n, 5), np.int64)
+    x1 = np.full(n, -1, np.int64)
+    y1 = np.full(n, -1, np.int64)
+    st[:, 0] = big
+    st[:, 1] = big
+    for p in range(k):
+        lab = new[_find(parent, p)]
+        x, y = xy[p, 0], xy[p, 1]
+        labels[y, x] = lab
+        st[lab, 4] += 1
+        if x < st[lab, 0]:
+            st[lab, 0] = x
+        if y < st[lab, 1]:
+            st[lab, 1] = y
+        if x > x1[lab]:
+            x1[lab] = x
+        if y > y1[lab]:
+            y1[lab] = y
+    st[0, 0] = st[0, 1] = 0
+    for lab in range(1, n):
+        st[lab, 2] = x1[lab] - st[lab, 0] + 1
+        st[lab, 3] = y1[lab] - st[lab, 1] + 1
+    return st
