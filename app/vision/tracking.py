@@ -67,7 +67,7 @@ from app.geometry.ring import (
 from app.geometry.triangulation import refine_reprojection, triangulate_linear
 from app.vision.appearance import appearance_reasons, blob_color_bgr, equivalent_radius_px
 from app.vision.features import TooManyBlobs, extract_blobs
-from app.vision.ihwt import SAMPLES_PER_SUBSQUARE, describe_points, integral_image_i32
+from app.vision.ihwt import SAMPLES_PER_SUBSQUARE, describe
 from app.vision.ihwt import window_side_px as ihwt_window_side_px
 from app.vision.pipeline import (
     NavigationPipeline,
@@ -513,11 +513,7 @@ class StereoTracker:
             # IHWT descriptors on the mosaic (each window holds its descriptor window)
             wf, mw = self.pipeline.window_factor, cfg.min_window_px
             mblobs = [got_l[i] for i in led_ids] + [got_r[i] for i in led_ids]
-            desc = describe_points(
-                integral_image_i32(gray),
-                np.array([b.centroid_px for b in mblobs]),
-                np.array([ihwt_window_side_px(b.area_px, wf, mw) for b in mblobs]),
-            )
+            desc = describe(gray, mblobs, wf, mw)
             desc_dist = np.sqrt(np.sum((desc[:n_led] - desc[n_led:]) ** 2, axis=1))
         else:
             desc_dist = np.full(n_led, -1.0)
