@@ -175,3 +175,68 @@ def label_pixels(xy: np.ndarray, labels: np.ndarray) -> np.ndarray:  # pragma: n
         st[lab, 2] = x1[lab] - st[lab, 0] + 1
         st[lab, 3] = y1[lab] - st[lab, 1] + 1
     return st
+
+
+@njit(cache=True, nogil=True)
+def hot_tile_boxes(
+    gray: np.ndarray, bands: np.ndarray, band_rows: int, threshold: int
+) -> np.ndarray:  # pragma: no cover - compiled
+    """Boxes (k, 4: x0, y0, x1, y1 half-open, px) holding every pixel ≥ ``threshold``: the
+    ``band_rows``-px square tiles whose maximum (from the band maxima ``bands``) reaches it,
+    grouped into 8-connected clusters (raster order of each cluster's first tile), each
+    cluster's box shrunk to its bright pixels."""
+    h, w = gray.shape
+    t = band_rows
+    nb = bands.shape[0]
+    nt = (w + t - 1) // t
+    hot = np.zeros((nb, nt), np.int64)  # 0: cold, −1: hot unvisited, k ≥ 1: cluster k
+    for by in range(nb):
+        for tx in range(nt):
+            m = 0
+            for x in range(tx * t, min(w, tx * t + t)):
+                if bands[by, x] > m:
+                    m = bands[by, x]
+            if m >= threshold:
+                hot[by, tx] = -1
+    boxes = np.zeros((nb * nt, 4), np.int64)
+    stack = np.empty((nb * nt, 2), np.int64)
+    k = 0
+    for by in range(nb):
+        for tx in range(nt):
+            if hot[by, tx] != -1:
+                continue
+            k += 1  # flood fill one cluster (8-connected tiles)
+            hot[by, tx] = k
+            top = 0
+            stack[0, 0], stack[0, 1] = by, tx
+            ty0, ty1, tx0, tx1 = by, by, tx, tx
+            while top >= 0:
+                cy, cx = stack[top, 0], stack[top, 1]
+                top -= 1
+                ty0, ty1 = min(ty0, cy), max(ty1, cy)
+                tx0, tx1 = min(tx0, cx), max(tx1, cx)
+                for dy in range(-1, 2):
+                    for dx in range(-1, 2):
+                        ny, nx = cy + dy, cx + dx
+                        if 0 <= ny < nb and 0 <= nx < nt and hot[ny, nx] == -1:
+                            hot[ny, nx] = k
+                            top += 1
+                            stack[top, 0], stack[top, 1] = ny, nx
+            # the cluster's tile box in px, shrunk to its pixels ≥ threshold
+            x0, y0 = tx0 * t, ty0 * t
+            x1, y1 = min(w, (tx1 + 1) * t), min(h, (ty1 + 1) * t)
+            bx0, by0, bx1, by1 = x1, y1, -1, -1
+            for y in range(y0, y1):
+                row = gray[y]
+                for x in range(x0, x1):
+                    if row[x] >= threshold:
+                        if x < bx0:
+                            bx0 = x
+                        if x > bx1:
+                            bx1 = x
+                        if y < by0:
+                            by0 = y
+                        by1 = y
+            boxes[k - 1, 0], boxes[k - 1, 1] = bx0, by0
+            boxes[k - 1, 2], boxes[k - 1, 3] = bx1 + 1, by1 + 1
+    return boxes[:k]

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from app.vision.blob_kernels import centroid_table, label_pixels
+from app.vision.blob_kernels import centroid_table, hot_tile_boxes, label_pixels
 from app.vision.preprocess import U8Image
 from app.vision.types import Blob, RejectedBlob
 
@@ -129,30 +129,11 @@ def bright_boxes(gray: U8Image, threshold: int, bands: np.ndarray | None = None)
     """Boxes (x0, y0, x1, y1, half-open, px) that together hold every pixel ≥ ``threshold``:
     the 16×16-px tiles whose maximum reaches the threshold (from :func:`band_maxima`), grouped
     into 8-connected clusters, each cluster's box shrunk to its bright pixels — no full-frame
-    threshold, median or labelling."""
+    threshold, median or labelling (one compiled pass over the tiles and the clusters)."""
     if bands is None:
         bands = band_maxima(gray)
-    h, w = gray.shape
-    nb, t = bands.shape[0], BAND_ROWS
-    full = w - w % t
-    tiles = bands[:, :full].reshape(nb, -1, t).max(axis=2)
-    if full < w:
-        tiles = np.hstack([tiles, bands[:, full:].max(axis=1, keepdims=True)])
-    hot = (tiles >= threshold).view(np.uint8)
-    if not hot.any():
-        return []
-    _, _, stats = _label_with_stats(hot)
-    boxes: list[Box] = []
-    for tx, ty, tw, th, _area in stats[1:].tolist():
-        x0, y0 = tx * t, ty * t
-        x1, y1 = min(w, (tx + tw) * t), min(h, (ty + th) * t)
-        sub = gray[y0:y1, x0:x1]
-        rows = np.flatnonzero(sub.max(axis=1) >= threshold)
-        cols = np.flatnonzero(sub.max(axis=0) >= threshold)
-        boxes.append(
-            (x0 + int(cols[0]), y0 + int(rows[0]), x0 + int(cols[-1]) + 1, y0 + int(rows[-1]) + 1)
-        )
-    return boxes
+    boxes = hot_tile_boxes(gray, np.ascontiguousarray(bands), BAND_ROWS, int(threshold))
+    return [(int(r[0]), int(r[1]), int(r[2]), int(r[3])) for r in boxes.tolist()]
 
 
 def _grow_and_merge(boxes: list[Box], width: int, height: int, ksize: int) -> list[Box]:
