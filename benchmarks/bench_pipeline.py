@@ -36,7 +36,7 @@ from app.geometry.triangulation import refine_reprojection, triangulate_linear
 from app.sim.led_ring import stereo_center_x_mm, tilted_normal
 from app.sim.paths import load_default_calibration
 from app.sim.stereo_render import RenderedPair, RenderSettings, render_pair
-from app.vision.ihwt import describe, integral_image
+from app.vision.ihwt import describe
 from app.vision.pipeline import NavigationPipeline
 from app.vision.result import PoseResult
 from app.vision.tracking import StereoTracker
@@ -177,7 +177,7 @@ def stage_tables(calib: StereoCalibration, pair: RenderedPair, repeats: int) -> 
     blobs, gray = trace.left.blobs, pair.left
     kps = [cv2.KeyPoint(b.centroid_px[0], b.centroid_px[1], 16.0) for b in blobs]
     sift = cv2.SIFT_create()
-    t_ihwt = timed(lambda: describe(gray, blobs, ii=integral_image(gray)), repeats)
+    t_ihwt = timed(lambda: describe(gray, blobs), repeats)
     t_sift = timed(lambda: sift.compute(gray, kps), repeats)
     ml = [m.left_index for m in trace.matches]
     mr = [m.right_index for m in trace.matches]

@@ -16,6 +16,7 @@ same LED at that depth:
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -39,7 +40,8 @@ class AppearanceConfig:
 
 
 def equivalent_radius_px(area_px: float) -> float:
-    return float(np.sqrt(max(area_px, 0.0) / np.pi))
+    """Radius (px) of the disc of this area."""
+    return math.sqrt(max(float(area_px), 0.0) / math.pi)
 
 
 def blob_color_bgr(image: NDArray[np.uint8], blob: Blob, threshold: int) -> tuple[float, ...]:

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import cv2
@@ -16,9 +15,6 @@ MAX_REJECTED_REPORTED = 100
 ROI_MARGIN_PX = 48  # > the largest centroid margin (0.5·sqrt(max_area_px) + dilation)
 
 Box = tuple[int, int, int, int]  # (x0, y0, x1, y1) px, half-open
-# a gated component: (label, x, y, w, h, area [image px], the label array, the region
-# (x0, y0, x1, y1) of its box in the label array, the box's origin (x, y) in the image)
-_Candidate = tuple[int, int, int, int, int, int, np.ndarray, Box, tuple[int, int]]
 
 
 @dataclass(frozen=True)
@@ -99,14 +95,12 @@ def extract_blobs(
     st[:, 0] += x0
     st[:, 1] += y0
     ok, rejected = _gate_components(st, (width, height), gate)
-    region = (0, 0, x1 - x0, y1 - y0)
-    cands: list[_Candidate] = [
-        (int(j) + 1, *r, labels, region, (x0, y0))
-        for j, r in zip(np.flatnonzero(ok), st[ok].tolist(), strict=True)
-    ]
-    if len(cands) > gate.max_blobs:
-        raise TooManyBlobs(len(cands), gate.max_blobs)
-    return _centroids(gray, cands, background), rejected
+    kept = np.flatnonzero(ok)
+    if len(kept) > gate.max_blobs:
+        raise TooManyBlobs(len(kept), gate.max_blobs)
+    boxes = np.array([[0, 0, x1 - x0, y1 - y0, x0, y0]], np.int64)
+    table = _candidate_table(kept + 1, st[kept], np.repeat(boxes, len(kept), axis=0))
+    return _centroids(gray, labels, table, background), rejected
 
 
 BAND_ROWS = 16  # rows per band of :func:`band_maxima` (2⁴: its tree of pair maxima)
@@ -230,15 +224,13 @@ def detect_blobs(
     st[:, 0] += bb[k_of, 0] - pb[k_of, 0]  # mosaic → image px
     st[:, 1] += bb[k_of, 1] - pb[k_of, 1]
     ok, rejected = _gate_components(st, (width, height), gate)
-    cands: list[_Candidate] = []
-    for j, k in zip(np.flatnonzero(ok).tolist(), k_of[ok].tolist(), strict=True):
-        x0, y0, x1, y1 = boxes[k]
-        px, py = places[k]
-        region = (px, py, px + x1 - x0, py + y1 - y0)
-        cands.append((j + 1, *st[j].tolist(), labels, region, (x0, y0)))
-    if len(cands) > gate.max_blobs:
-        raise TooManyBlobs(len(cands), gate.max_blobs)
-    return _centroids(gray, cands, background), rejected
+    kept = np.flatnonzero(ok)
+    if len(kept) > gate.max_blobs:
+        raise TooManyBlobs(len(kept), gate.max_blobs)
+    # each box's region in the label mosaic and its origin in the image
+    regions = np.column_stack([pb, pb + bb[:, 2:4] - bb[:, 0:2], bb[:, 0:2]])
+    table = _candidate_table(kept + 1, st[kept], regions[k_of[kept]])
+    return _centroids(gray, labels, table, background), rejected
 
 
 def _shelf_pack(boxes: list[Box]) -> tuple[list[tuple[int, int]], int, int]:
@@ -284,23 +276,25 @@ def _gate_components(
     return ok, rejected
 
 
-def _centroids(gray: U8Image, cands: list[_Candidate], background: float) -> list[Blob]:
-    """Eq. 11 centroid of each candidate component over its dilated support (px); the loop
-    over candidates is compiled (:func:`app.vision.blob_kernels.centroid_table`)."""
-    if not cands:
+def _candidate_table(labels: np.ndarray, stats: np.ndarray, boxes: np.ndarray) -> np.ndarray:
+    """Rows of :data:`app.vision.blob_kernels.CAND_COLUMNS`: label, (x, y, w, h, area) in
+    image px, the region (lx, ly, lx1, ly1) of its box in the label image and that box's
+    origin (ox, oy) in the image (``boxes`` rows), and the centroid margin
+    max(2, round(0.5·√area)) px."""
+    pad = np.maximum(2, np.round(0.5 * np.sqrt(stats[:, 4]))).astype(np.int64)
+    return np.column_stack([labels, stats[:, :5], boxes, pad]).astype(np.int64)
+
+
+def _centroids(
+    gray: U8Image, labels: np.ndarray, table: np.ndarray, background: float
+) -> list[Blob]:
+    """Eq. 11 centroid of each candidate row (:func:`_candidate_table`) over its dilated
+    support (px); the loop over candidates is compiled
+    (:func:`app.vision.blob_kernels.centroid_table`)."""
+    if len(table) == 0:
         return []
-    labels = cands[0][6]
-    table = np.array(
-        [
-            (i, x, y, w, h, area, *region, *origin, max(2, int(round(0.5 * math.sqrt(area)))))
-            for i, x, y, w, h, area, _, region, origin in cands
-        ],
-        dtype=np.int64,
-    )
-    if any(c[6] is not labels for c in cands):
-        raise ValueError("all candidates of one call must share one label image")
-    res = centroid_table(gray, labels, table, float(background)).tolist()
+    res = centroid_table(gray, labels, np.ascontiguousarray(table), float(background)).tolist()
     return [
-        Blob(centroid_px=(cu, cv), area_px=c[5], bbox=(c[1], c[2], c[3], c[4]), peak=pk, mass=m)
-        for c, (cu, cv, m, pk) in zip(cands, res, strict=True)
+        Blob((cu, cv), area, (x, y, w, h), pk, m)
+        for (_, x, y, w, h, area, *_rest), (cu, cv, m, pk) in zip(table.tolist(), res, strict=True)
     ]

@@ -644,4 +644,6 @@ def _shift(blob: Blob, offset: tuple[int, int]) -> Blob:
     dx, dy = offset
     x, y, w, h = blob.bbox
     u, v = blob.centroid_px
-    return replace(blob, centroid_px=(u + dx, v + dy), bbox=(x + dx, y + dy, w, h))
+    return Blob(
+        (u + dx, v + dy), blob.area_px, (x + dx, y + dy, w, h), blob.peak, blob.mass, blob.color_bgr
+    )
