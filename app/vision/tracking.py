@@ -69,6 +69,7 @@ from app.vision.appearance import appearance_reasons, blob_color_bgr, equivalent
 from app.vision.features import TooManyBlobs, extract_blobs
 from app.vision.ihwt import SAMPLES_PER_SUBSQUARE, describe
 from app.vision.ihwt import window_side_px as ihwt_window_side_px
+from app.vision.matching import epipolar_distances
 from app.vision.pipeline import (
     NavigationPipeline,
     PipelineConfig,
@@ -315,14 +316,15 @@ class StereoTracker:
         speeds = []
         vel_l, vel_r = [], []
         for led_id, led in st.leds.items():
-            vl = np.zeros(2) if led.prev_left is None else led.left - led.prev_left
-            vr = np.zeros(2) if led.prev_right is None else led.right - led.prev_right
+            if led.prev_left is None or led.prev_right is None:
+                vl = vr = np.zeros(2)
+                speed = UNKNOWN_MOTION_PX  # unknown velocity (first frame)
+            else:
+                vl, vr = led.left - led.prev_left, led.right - led.prev_right
+                # |velocity| widens the window
+                speed = max(math.hypot(vl[0], vl[1]), math.hypot(vr[0], vr[1]))
             vel_l.append(vl)
             vel_r.append(vr)
-            # |velocity| widens the window; unknown velocity (first frame): UNKNOWN_MOTION_PX
-            speed = float(max(np.hypot(*vl), np.hypot(*vr)))
-            if led.prev_left is None or led.prev_right is None:
-                speed = UNKNOWN_MOTION_PX
             speeds.append(speed)
             half = self._window_half(led.radius_px, speed)
             out.append(_Prediction(led_id, led.left + vl, led.right + vr, float(half), True))
@@ -522,19 +524,7 @@ class StereoTracker:
         pr = np.array([b.centroid_px for b in br])
         xl = undistort_pixels(cal.left, pl)
         xr = undistort_pixels(cal.right, pr)
-        hl = np.column_stack([xl, np.ones(len(xl))])
-        hr = np.column_stack([xr, np.ones(len(xr))])
-        F = self.pipeline._F
-        lines_r, lines_l = hl @ F.T, hr @ F
-        alg = np.sum(hr * lines_r, axis=1)
-        epi = (
-            0.5
-            * np.abs(alg)
-            * (
-                1.0 / np.hypot(lines_r[:, 0], lines_r[:, 1])
-                + 1.0 / np.hypot(lines_l[:, 0], lines_l[:, 1])
-            )
-        )
+        epi = np.diagonal(epipolar_distances(self.pipeline._F, xl, xr))  # pairs i ↔ i
         if np.any(epi > cfg.epipolar_tol_px):
             raise _Fallback("a tracked LED pair left the epipolar gate")
         X0 = triangulate_linear(cal.P_left, cal.P_right, xl, xr)
