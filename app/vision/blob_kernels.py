@@ -240,3 +240,26 @@ def hot_tile_boxes(
             boxes[k - 1, 0], boxes[k - 1, 1] = bx0, by0
             boxes[k - 1, 2], boxes[k - 1, 3] = bx1 + 1, by1 + 1
     return boxes[:k]
+
+
+@njit(cache=True, nogil=True)
+def pack_boxes(
+    gray: np.ndarray, boxes: np.ndarray, places: np.ndarray, ring: int, shape: tuple[int, int]
+) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled
+    """The mosaic of the image boxes (k, 4: x0, y0, x1, y1) at ``places`` (k, 2: x, y), each
+    with a ``ring``-px border replicated from its edge (``cv2.BORDER_REPLICATE``), and the
+    owner map (the box index of each mosaic pixel that is an image pixel, else −1)."""
+    mosaic = np.zeros(shape, np.uint8)
+    owner = np.full(shape, -1, np.int32)
+    for k in range(boxes.shape[0]):
+        x0, y0, x1, y1 = boxes[k, 0], boxes[k, 1], boxes[k, 2], boxes[k, 3]
+        px, py = places[k, 0], places[k, 1]
+        for j in range(-ring, y1 - y0 + ring):
+            sy = min(max(y0 + j, y0), y1 - 1)
+            for i in range(-ring, x1 - x0 + ring):
+                sx = min(max(x0 + i, x0), x1 - 1)
+                mosaic[py + j, px + i] = gray[sy, sx]
+        for j in range(y1 - y0):
+            for i in range(x1 - x0):
+                owner[py + j, px + i] = k
+    return mosaic, owner

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from app.vision.blob_kernels import centroid_table, hot_tile_boxes, label_pixels
+from app.vision.blob_kernels import centroid_table, hot_tile_boxes, label_pixels, pack_boxes
 from app.vision.preprocess import U8Image
 from app.vision.types import Blob, RejectedBlob
 
@@ -202,13 +202,8 @@ def detect_blobs(
     r = median_ksize // 2
     placed, mh, mw = _shelf_pack([(x0, y0, x1 + 2 * r, y1 + 2 * r) for x0, y0, x1, y1 in boxes])
     places = [(px + r, py + r) for px, py in placed]
-    mosaic = np.zeros((mh, mw), np.uint8)
-    owner = np.full((mh, mw), -1, np.int32)
-    for k, ((x0, y0, x1, y1), (px, py)) in enumerate(zip(boxes, places, strict=True)):
-        crop = gray[y0:y1, x0:x1]
-        ring = cv2.copyMakeBorder(crop, r, r, r, r, cv2.BORDER_REPLICATE) if r else crop
-        mosaic[py - r : py + y1 - y0 + r, px - r : px + x1 - x0 + r] = ring
-        owner[py : py + y1 - y0, px : px + x1 - x0] = k
+    pb, bb = np.array(places, np.int64), np.array(boxes, np.int64)
+    mosaic, owner = pack_boxes(gray, bb, pb, r, (mh, mw))
     _, binary = cv2.threshold(mosaic, threshold - 1, 255, cv2.THRESH_BINARY)
     mask = np.asarray(
         cv2.medianBlur(binary, median_ksize) if median_ksize > 1 else binary, dtype=np.uint8
@@ -220,7 +215,6 @@ def detect_blobs(
         return [], []
     st = st[1:, :5].astype(np.int64)
     k_of = owner[st[:, 1], st[:, 0]]  # the box holding each component (its bbox corner)
-    pb, bb = np.array(places, np.int64), np.array(boxes, np.int64)
     st[:, 0] += bb[k_of, 0] - pb[k_of, 0]  # mosaic → image px
     st[:, 1] += bb[k_of, 1] - pb[k_of, 1]
     ok, rejected = _gate_components(st, (width, height), gate)

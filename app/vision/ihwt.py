@@ -11,6 +11,7 @@ Each sub-square contributes (Σdx, Σ|dx|, Σdy, Σ|dy|) → a 64-D vector, norm
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import cv2
@@ -50,7 +51,7 @@ def box_sum(ii: FloatArray, x0: NDArray, y0: NDArray, x1: NDArray, y1: NDArray) 
 
 def window_side_px(area_px: float, window_factor: float = 8.0, min_window_px: int = 16) -> float:
     """Descriptor window side W (px) for a blob of this area (see the module docstring)."""
-    r_eq = float(np.sqrt(max(area_px, 1.0) / np.pi))
+    r_eq = math.sqrt(max(float(area_px), 1.0) / math.pi)
     return max(float(min_window_px), window_factor * r_eq)
 
 
