@@ -80,6 +80,13 @@ class CameraIntrinsics:
     def v0(self) -> float:
         return float(self.K[1, 2])
 
+    @cached_property
+    def K_inv(self) -> FloatArray:
+        """K⁻¹ (read-only, computed once)."""
+        inv = np.linalg.inv(self.K)
+        inv.setflags(write=False)
+        return inv
+
     @classmethod
     def from_dict(cls, data: Any, name: str) -> CameraIntrinsics:
         if not isinstance(data, dict):

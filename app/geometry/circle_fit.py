@@ -166,10 +166,28 @@ def fit_circle_3d(points: FloatArray, iterations: int = 10) -> Circle3D:
     )
 
 
+@njit(cache=True, nogil=True)
+def _distance_kernel(
+    points: np.ndarray, center: np.ndarray, normal: np.ndarray, radius: float
+) -> np.ndarray:  # pragma: no cover - compiled
+    out = np.empty(points.shape[0])
+    for p in range(points.shape[0]):
+        r0, r1, r2 = points[p, 0] - center[0], points[p, 1] - center[1], points[p, 2] - center[2]
+        off = r0 * normal[0] + r1 * normal[1] + r2 * normal[2]
+        i0, i1, i2 = r0 - off * normal[0], r1 - off * normal[1], r2 - off * normal[2]
+        radial = np.sqrt(i0 * i0 + i1 * i1 + i2 * i2) - radius
+        out[p] = np.sqrt(radial * radial + off * off)
+    return out
+
+
 def distance_to_circle(points: FloatArray, circle: Circle3D) -> FloatArray:
-    """3-D distance (mm) from each point to the circle."""
-    rel = np.asarray(points, dtype=np.float64).reshape(-1, 3) - circle.center
-    off = rel @ circle.normal
-    in_plane = rel - off[:, None] * circle.normal
-    radial = np.sqrt(np.einsum("ij,ij->i", in_plane, in_plane)) - circle.radius
-    return np.asarray(np.sqrt(radial**2 + off**2))
+    """3-D distance (mm) from each point to the circle (compiled loop)."""
+    pts = np.ascontiguousarray(np.asarray(points, dtype=np.float64).reshape(-1, 3))
+    return np.asarray(
+        _distance_kernel(
+            pts,
+            np.asarray(circle.center, dtype=np.float64),
+            np.asarray(circle.normal, dtype=np.float64),
+            float(circle.radius),
+        )
+    )

@@ -37,8 +37,8 @@ def undistort_pixels(cam: CameraIntrinsics, px: FloatArray) -> FloatArray:
     pts = _as_points(px, 2)
     if len(pts) == 0:
         return np.zeros((0, 2))
-    homog = np.column_stack([pts, np.ones(len(pts))])
-    norm_d = (np.linalg.solve(cam.K, homog.T).T)[:, :2]
+    k_inv, k = cam.K_inv, cam.K
+    norm_d = pts @ k_inv[:2, :2].T + k_inv[:2, 2]  # K⁻¹ (last row 0 0 1)
     norm = cv2.undistortPoints(
         norm_d.reshape(-1, 1, 2),
         _EYE,
@@ -48,8 +48,7 @@ def undistort_pixels(cam: CameraIntrinsics, px: FloatArray) -> FloatArray:
         None,
         (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-12),
     ).reshape(-1, 2)
-    homog_n = np.column_stack([norm, np.ones(len(norm))])
-    return np.asarray((cam.K @ homog_n.T).T[:, :2], dtype=np.float64)
+    return np.asarray(norm @ k[:2, :2].T + k[:2, 2], dtype=np.float64)
 
 
 def project_stereo(calib: StereoCalibration, xyz_mm: FloatArray) -> tuple[FloatArray, FloatArray]:
