@@ -83,7 +83,7 @@ class CameraIntrinsics:
     @cached_property
     def K_inv(self) -> FloatArray:
         """K⁻¹ (read-only, computed once)."""
-        inv = np.linalg.inv(self.K)
+        inv = np.asarray(np.linalg.inv(self.K), dtype=np.float64)
         inv.setflags(write=False)
         return inv
 
