@@ -9,7 +9,6 @@ normal and radius directly, from 3 points upward. The arithmetic runs in one com
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -31,26 +30,27 @@ class Circle3D:
     plane_rms: float  # RMS distance of the points from the plane, mm
 
 
-def _cross(a: FloatArray, b: FloatArray) -> FloatArray:
-    """a × b for 3-vectors (np.cross costs ~10× more on single vectors)."""
-    return np.array(
-        [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
-    )
-
-
-def plane_basis(
-    normal: FloatArray, up_hint: FloatArray | None = None
-) -> tuple[FloatArray, FloatArray]:
-    """Orthonormal in-plane axes (e1, e2). e1 is ``up_hint`` projected on the plane if given."""
-    n = normal / math.sqrt(float(normal @ normal))
-    hint = np.array([0.0, -1.0, 0.0]) if up_hint is None else np.asarray(up_hint, float)
-    e1 = hint - float(hint @ n) * n
-    length = math.sqrt(float(e1 @ e1))
-    if length < 1e-6:
+@njit(cache=True, nogil=True)
+def plane_axes(normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover
+    """Compiled core of :func:`plane_basis` (for other compiled loops)."""
+    n = normal / np.sqrt(normal @ normal)
+    # e1: the camera's up (0, −1, 0) projected on the plane; (1, 0, 0) if the plane faces up
+    e1 = np.array([0.0, -1.0, 0.0]) + n[1] * n
+    if np.sqrt(e1 @ e1) < 1e-6:
         e1 = np.array([1.0, 0.0, 0.0]) - n[0] * n
-        length = math.sqrt(float(e1 @ e1))
-    e1 = e1 / length
-    return e1, _cross(e1, n)
+    e1 = e1 / np.sqrt(e1 @ e1)
+    e2 = np.array(
+        [e1[1] * n[2] - e1[2] * n[1], e1[2] * n[0] - e1[0] * n[2], e1[0] * n[1] - e1[1] * n[0]]
+    )
+    return e1, e2
+
+
+def plane_basis(normal: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Orthonormal in-plane axes (e1, e2 = e1 × n) of the plane with this normal: e1 is the
+    camera's up direction (−y) projected on the plane (the slot-angle convention of
+    :mod:`app.geometry.led_ids`)."""
+    e1, e2 = plane_axes(np.asarray(normal, dtype=np.float64))
+    return np.asarray(e1), np.asarray(e2)
 
 
 @njit(cache=True, nogil=True)
@@ -76,18 +76,7 @@ def _circle_kernel(pts: np.ndarray, iterations: int) -> np.ndarray:  # pragma: n
         return out
     normal = evecs[:, 0].copy()
     normal /= np.sqrt(normal @ normal)
-    # in-plane axes: e1 = (0, −1, 0) projected on the plane (as plane_basis)
-    e1 = np.array([0.0, -1.0, 0.0]) + normal[1] * normal
-    if np.sqrt(e1 @ e1) < 1e-6:
-        e1 = np.array([1.0, 0.0, 0.0]) - normal[0] * normal
-    e1 /= np.sqrt(e1 @ e1)
-    e2 = np.array(
-        [
-            e1[1] * normal[2] - e1[2] * normal[1],
-            e1[2] * normal[0] - e1[0] * normal[2],
-            e1[0] * normal[1] - e1[1] * normal[0],
-        ]
-    )
+    e1, e2 = plane_axes(normal)  # in-plane axes (as plane_basis)
     x = rel @ e1
     y = rel @ e2
     # Kåsa: [2x 2y 1]·(cx, cy, c) = x² + y² by its normal equations

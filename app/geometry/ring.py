@@ -29,14 +29,15 @@ from dataclasses import dataclass
 from itertools import combinations
 
 import numpy as np
+from numba import njit
 
 from app.geometry.calibration import FloatArray
 from app.geometry.circle_fit import (
     Circle3D,
     FitError,
+    plane_axes,
     distance_to_circle,
     fit_circle_3d,
-    plane_basis,
 )
 
 MAX_SEEDS = 20_000  # refinement budget; seeds are ordered by fit quality (never reached in tests)
@@ -176,17 +177,31 @@ def prior_volume_mm3(params: RingParams, prior: RingPrior) -> float:
     return float((2.0 * (params.radius_mm + prior.gate_mm)) ** 3)
 
 
+@njit(cache=True, nogil=True)
+def _slot_angles(
+    points: np.ndarray, center: np.ndarray, normal: np.ndarray
+) -> np.ndarray:  # pragma: no cover - compiled
+    e_up, e_right = plane_axes(normal)
+    out = np.empty(points.shape[0])
+    for p in range(points.shape[0]):
+        rel = points[p] - center
+        out[p] = np.degrees(np.arctan2(rel @ e_right, rel @ e_up)) % 360.0
+    return out
+
+
 def slot_angles_deg(points: FloatArray, circle: Circle3D) -> FloatArray:
     """Angle of each point around the ring, clockwise from the top as seen by the cameras."""
-    e_up, e_right = plane_basis(circle.normal)
-    rel = np.asarray(points).reshape(-1, 3) - circle.center
-    return np.asarray(np.degrees(np.arctan2(rel @ e_right, rel @ e_up)) % 360.0)
+    pts = np.ascontiguousarray(np.asarray(points, dtype=np.float64).reshape(-1, 3))
+    center = np.asarray(circle.center, dtype=np.float64)
+    return np.asarray(_slot_angles(pts, center, np.asarray(circle.normal, dtype=np.float64)))
 
 
 def slot_offset_deg(angles_deg: FloatArray, count: int) -> float:
-    """Offset of the evenly spaced slot pattern that best fits ``angles_deg``, in [0, 360/N)."""
-    phase = np.radians(np.asarray(angles_deg) * count)  # one slot period → 2π
-    return float(np.degrees(np.angle(np.mean(np.exp(1j * phase)))) / count) % (360.0 / count)
+    """Offset of the evenly spaced slot pattern that best fits ``angles_deg``, in [0, 360/N):
+    the circular mean of the angles × N (one slot period → 2π), ÷ N."""
+    phase = np.radians(np.asarray(angles_deg, dtype=np.float64) * count)
+    mean = math.atan2(float(np.sin(phase).sum()), float(np.cos(phase).sum()))
+    return (math.degrees(mean) / count) % (360.0 / count)
 
 
 def slot_residuals(
