@@ -35,9 +35,9 @@ from app.geometry.calibration import FloatArray
 from app.geometry.circle_fit import (
     Circle3D,
     FitError,
-    plane_axes,
     distance_to_circle,
     fit_circle_3d,
+    plane_axes,
 )
 
 MAX_SEEDS = 20_000  # refinement budget; seeds are ordered by fit quality (never reached in tests)
