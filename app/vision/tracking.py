@@ -103,10 +103,10 @@ class _Fallback(Exception):
 class _Led:
     """One tracked LED: last centroids (px), the previous ones (velocity), blob radius."""
 
-    left: np.ndarray
-    right: np.ndarray
-    prev_left: np.ndarray | None
-    prev_right: np.ndarray | None
+    left: tuple[float, float]
+    right: tuple[float, float]
+    prev_left: tuple[float, float] | None
+    prev_right: tuple[float, float] | None
     radius_px: float
 
 
@@ -133,8 +133,8 @@ class TrackerStats:
 @dataclass(frozen=True)
 class _Prediction:
     led_id: int
-    left: np.ndarray  # predicted centroid (px)
-    right: np.ndarray
+    left: tuple[float, float]  # predicted centroid (px)
+    right: tuple[float, float]
     half: float  # window half-size (px)
     expected: bool  # in the last lock (else the search for a missing LED)
 
@@ -268,13 +268,13 @@ class StereoTracker:
             r = max(radius_l.get(led.left_px, 2.0), radius_r.get(led.right_px, 2.0))
             o = old.get(led.id)  # the velocity continues through an acquisition, not a jump
             if o is not None and (
-                np.hypot(*(o.left - led.left_px)) > 2.0 * UNKNOWN_MOTION_PX
-                or np.hypot(*(o.right - led.right_px)) > 2.0 * UNKNOWN_MOTION_PX
+                math.dist(o.left, led.left_px) > 2.0 * UNKNOWN_MOTION_PX
+                or math.dist(o.right, led.right_px) > 2.0 * UNKNOWN_MOTION_PX
             ):
                 o = None
             leds[led.id] = _Led(
-                np.array(led.left_px),
-                np.array(led.right_px),
+                led.left_px,
+                led.right_px,
                 None if o is None else o.left,
                 None if o is None else o.right,
                 r,
@@ -316,18 +316,20 @@ class StereoTracker:
         speeds = []
         vel_l, vel_r = [], []
         for led_id, led in st.leds.items():
+            (lu, lv), (ru, rv) = led.left, led.right
             if led.prev_left is None or led.prev_right is None:
-                vl = vr = np.zeros(2)
+                vl = vr = (0.0, 0.0)
                 speed = UNKNOWN_MOTION_PX  # unknown velocity (first frame)
             else:
-                vl, vr = led.left - led.prev_left, led.right - led.prev_right
-                # |velocity| widens the window
-                speed = max(math.hypot(vl[0], vl[1]), math.hypot(vr[0], vr[1]))
+                vl = (lu - led.prev_left[0], lv - led.prev_left[1])
+                vr = (ru - led.prev_right[0], rv - led.prev_right[1])
+                speed = max(math.hypot(*vl), math.hypot(*vr))  # |velocity| widens the window
             vel_l.append(vl)
             vel_r.append(vr)
             speeds.append(speed)
             half = self._window_half(led.radius_px, speed)
-            out.append(_Prediction(led_id, led.left + vl, led.right + vr, float(half), True))
+            left = (lu + vl[0], lv + vl[1])
+            out.append(_Prediction(led_id, left, (ru + vr[0], rv + vr[1]), float(half), True))
         n = self.config.led_count
         missing = [i for i in range(1, n + 1) if i not in st.leds]
         if missing:
@@ -343,21 +345,27 @@ class StereoTracker:
                 np.outer(np.cos(ang), e_up) + np.outer(np.sin(ang), e_right)
             )
             pl, pr = project_stereo(self.calibration, pts)
+            pl, pr = (pl + mean_l).tolist(), (pr + mean_r).tolist()
             r = max(led.radius_px for led in st.leds.values())
             half = self._window_half(r, max(speeds) + 4.0)
             for k, led_id in enumerate(missing):
-                out.append(_Prediction(led_id, pl[k] + mean_l, pr[k] + mean_r, float(half), False))
+                out.append(_Prediction(led_id, tuple(pl[k]), tuple(pr[k]), float(half), False))
         return out
 
     def _windows(
-        self, centres: list[np.ndarray], ids: list[int], expected: list[bool], side: int, row: int
+        self,
+        centres: list[tuple[float, float]],
+        ids: list[int],
+        expected: list[bool],
+        side: int,
+        row: int,
     ) -> list[_Window]:
         """Windows of one image (clipped windows of tracked LEDs → acquisition)."""
         w_img, h_img = self.calibration.image_size
         out: list[_Window] = []
         for led_id, c, exp in zip(ids, centres, expected, strict=True):
-            x0 = int(round(float(c[0]))) - side // 2
-            y0 = int(round(float(c[1]))) - side // 2
+            x0 = round(c[0]) - side // 2
+            y0 = round(c[1]) - side // 2
             if x0 < 1 or y0 < 1 or x0 + side > w_img - 1 or y0 + side > h_img - 1:
                 if exp:
                     raise _Fallback(f"the window of LED {led_id} leaves the image")
@@ -566,8 +574,8 @@ class StereoTracker:
             old = st.leds.get(i)
             r = max(equivalent_radius_px(bl[k].area_px), equivalent_radius_px(br[k].area_px))
             leds[i] = _Led(
-                pl[k].copy(),
-                pr[k].copy(),
+                (float(pl[k, 0]), float(pl[k, 1])),
+                (float(pr[k, 0]), float(pr[k, 1])),
                 None if old is None else old.left,
                 None if old is None else old.right,
                 r,
