@@ -118,6 +118,38 @@ def _find(parent: np.ndarray, p: int) -> int:  # pragma: no cover - compiled
 
 
 @njit(cache=True, nogil=True)
+def foreground_pixels(
+    flat: np.ndarray, words: np.ndarray, width: int
+) -> np.ndarray:  # pragma: no cover
+    """(k, 2) int64 (x, y) of the nonzero pixels of a C-contiguous image, in row-major order
+    (as ``cv2.findNonZero``): ``flat`` is the image as one uint8 row, ``words`` its first
+    8·⌊size/8⌋ bytes seen as uint64 (eight pixels tested at once)."""
+    count = 0
+    for i in range(words.shape[0]):
+        if words[i] != 0:
+            for b in range(8):
+                if flat[8 * i + b] != 0:
+                    count += 1
+    for i in range(8 * words.shape[0], flat.shape[0]):
+        if flat[i] != 0:
+            count += 1
+    out = np.empty((count, 2), np.int64)
+    k = 0
+    for i in range(words.shape[0]):
+        if words[i] != 0:
+            for b in range(8):
+                j = 8 * i + b
+                if flat[j] != 0:
+                    out[k, 0], out[k, 1] = j % width, j // width
+                    k += 1
+    for j in range(8 * words.shape[0], flat.shape[0]):
+        if flat[j] != 0:
+            out[k, 0], out[k, 1] = j % width, j // width
+            k += 1
+    return out
+
+
+@njit(cache=True, nogil=True)
 def label_pixels(xy: np.ndarray, labels: np.ndarray) -> np.ndarray:  # pragma: no cover
     """8-connected components of the foreground pixels ``xy`` ((k, 2) x, y in row-major order,
     as ``cv2.findNonZero`` lists them): writes labels 1..n−1 (numbered in raster order of each
@@ -144,21 +176,20 @@ def label_pixels(xy: np.ndarray, labels: np.ndarray) -> np.ndarray:  # pragma: n
                     parent[b] = a
                 else:
                     parent[a] = b
+    # final labels in raster order of each component's first pixel, and the stats
     new = np.zeros(k, np.int64)
+    big = np.int64(1) << 40
+    st = np.zeros((k + 1, 5), np.int64)
+    x1 = np.full(k + 1, -1, np.int64)
+    y1 = np.full(k + 1, -1, np.int64)
     n = 1
     for p in range(k):
         r = _find(parent, p)
-        if new[r] == 0:
-            new[r] = n
+        lab = new[r]
+        if lab == 0:
+            lab = new[r] = n
+            st[n, 0] = st[n, 1] = big
             n += 1
-    big = np.int64(1) << 40
-    st = np.zeros((n, 5), np.int64)
-    x1 = np.full(n, -1, np.int64)
-    y1 = np.full(n, -1, np.int64)
-    st[:, 0] = big
-    st[:, 1] = big
-    for p in range(k):
-        lab = new[_find(parent, p)]
         x, y = xy[p, 0], xy[p, 1]
         labels[y, x] = lab
         st[lab, 4] += 1
@@ -170,11 +201,10 @@ def label_pixels(xy: np.ndarray, labels: np.ndarray) -> np.ndarray:  # pragma: n
             x1[lab] = x
         if y > y1[lab]:
             y1[lab] = y
-    st[0, 0] = st[0, 1] = 0
     for lab in range(1, n):
         st[lab, 2] = x1[lab] - st[lab, 0] + 1
         st[lab, 3] = y1[lab] - st[lab, 1] + 1
-    return st
+    return st[:n].copy()
 
 
 @njit(cache=True, nogil=True)

@@ -7,7 +7,13 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from app.vision.blob_kernels import centroid_table, hot_tile_boxes, label_pixels, pack_boxes
+from app.vision.blob_kernels import (
+    centroid_table,
+    foreground_pixels,
+    hot_tile_boxes,
+    label_pixels,
+    pack_boxes,
+)
 from app.vision.preprocess import U8Image
 from app.vision.types import Blob, RejectedBlob
 
@@ -55,13 +61,15 @@ def _gate(area: int, w: int, h: int, gate: BlobGate) -> str | None:
 
 def _label_with_stats(mask: U8Image) -> tuple[int, np.ndarray, np.ndarray]:
     """Algorithm 2 (one-pass connected components, 8-connectivity) over the foreground pixels
-    only (``cv2.findNonZero``, then a compiled union–find): (n, int32 labels, (n, 5) int64
-    stats rows x, y, w, h, area) — the values of ``cv2.connectedComponentsWithStats``."""
+    only (compiled: a scan eight pixels at a time, then union–find): (n, int32 labels, (n, 5)
+    int64 stats rows x, y, w, h, area) — the values of ``cv2.connectedComponentsWithStats``."""
+    flat = np.ascontiguousarray(mask).reshape(-1)
+    words = flat[: flat.size - flat.size % 8].view(np.uint64)
+    xy = foreground_pixels(flat, words, mask.shape[1])
     labels = np.zeros(mask.shape, np.int32)
-    nz = cv2.findNonZero(mask)
-    if nz is None:
+    if len(xy) == 0:
         return 1, labels, np.zeros((1, 5), dtype=np.int64)
-    stats = label_pixels(nz.reshape(-1, 2), labels)
+    stats = label_pixels(xy, labels)
     return len(stats), labels, stats
 
 
