@@ -9,6 +9,7 @@ import cv2
 import numpy as np
 import pytest
 
+import app.vision.features as features_mod
 import app.vision.pipeline as pipeline_mod
 import app.vision.preprocess as preprocess_mod
 import app.vision.tracking as tracking_mod
@@ -127,8 +128,12 @@ def test_tracked_frames_do_no_full_frame_work(calib, monkeypatch) -> None:  # ty
     gray = preprocess_mod.to_gray
     for mod in (preprocess_mod, pipeline_mod, tracking_mod):
         monkeypatch.setattr(mod, "to_gray", spy("to_gray", gray))
-    for name in ("medianBlur", "threshold", "findNonZero", "cvtColor"):
+    for name in ("medianBlur", "threshold", "cvtColor"):
         monkeypatch.setattr(cv2, name, spy(name, getattr(cv2, name)))
+    # the labelling (Algorithm 2, compiled) and its input
+    monkeypatch.setattr(
+        features_mod, "_label_with_stats", spy("label", features_mod._label_with_stats)
+    )
     tracker = StereoTracker(calib)
     per_frame = []
     for pair in _frames(calib, 1000.0, 4, RenderSettings(color=True)):
@@ -139,7 +144,7 @@ def test_tracked_frames_do_no_full_frame_work(calib, monkeypatch) -> None:  # ty
     assert any(s == FULL for _, s in per_frame[0][1])  # the spies see acquisition's work
     for mode, calls in per_frame[1:]:
         assert mode == "tracked"
-        assert {n for n, _ in calls} >= {"to_gray", "medianBlur", "findNonZero"}
+        assert {n for n, _ in calls} >= {"to_gray", "medianBlur", "label"}
         assert all(s != FULL for _, s in calls), calls
         assert all(s[0] * s[1] < FULL[0] * FULL[1] / 5 for _, s in calls), calls
 

@@ -569,13 +569,14 @@ class StereoTracker:
         # the pipeline's track continues through tracked frames (ids after a fallback)
         self.pipeline._track = _Track(circle.center.copy(), circle.normal.copy(), roll)
         # --- state for the next frame
+        pl_f, pr_f, X_f = pl.tolist(), pr.tolist(), X.tolist()
         leds: dict[int, _Led] = {}
         for k, i in enumerate(led_ids):
             old = st.leds.get(i)
             r = max(equivalent_radius_px(bl[k].area_px), equivalent_radius_px(br[k].area_px))
             leds[i] = _Led(
-                (float(pl[k, 0]), float(pl[k, 1])),
-                (float(pr[k, 0]), float(pr[k, 1])),
+                (pl_f[k][0], pl_f[k][1]),
+                (pr_f[k][0], pr_f[k][1]),
                 None if old is None else old.left,
                 None if old is None else old.right,
                 r,
@@ -588,14 +589,16 @@ class StereoTracker:
         results = [
             LedResult(
                 id=i,
-                left_px=(float(pl[k, 0]), float(pl[k, 1])),
-                right_px=(float(pr[k, 0]), float(pr[k, 1])),
-                xyz_mm=(float(X[k, 0]), float(X[k, 1]), float(X[k, 2])),
-                descriptor_distance=float(desc_dist[k]),
-                epipolar_px=float(epi[k]),
-                reprojection_px=float(reproj[k]),
+                left_px=(pl_f[k][0], pl_f[k][1]),
+                right_px=(pr_f[k][0], pr_f[k][1]),
+                xyz_mm=(X_f[k][0], X_f[k][1], X_f[k][2]),
+                descriptor_distance=d,
+                epipolar_px=e,
+                reprojection_px=rp,
             )
-            for k, i in enumerate(led_ids)
+            for k, (i, d, e, rp) in enumerate(
+                zip(led_ids, desc_dist.tolist(), epi.tolist(), reproj.tolist(), strict=True)
+            )
         ]
         return PoseResult(lock=True, reason="tracked", leds=results, drogue=drogue_result(circle))
 
