@@ -27,6 +27,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from itertools import combinations
+from typing import Any
 
 import numpy as np
 from numba import njit
@@ -66,16 +67,25 @@ class RingParams:
     max_extra_on_ring: int = 2  # more on-circle points off the slots → wrong led_count
     fov_tan: tuple[float, float] | None = None  # (width/fx, height/fy): the cameras' field
 
-    def sigma_z(self, z_mm: FloatArray | float) -> FloatArray:
+    # each takes one range (float: a float back, in scalar arithmetic) or an array of ranges
+
+    def sigma_z(self, z_mm: Any) -> Any:
+        if isinstance(z_mm, float):
+            return self.depth_sigma_per_mm * (z_mm * z_mm)
         return np.asarray(self.depth_sigma_per_mm * np.square(z_mm), dtype=np.float64)
 
-    def inlier_tol(self, z_mm: FloatArray | float) -> FloatArray:
+    def inlier_tol(self, z_mm: Any) -> Any:
+        if isinstance(z_mm, float):
+            return max(self.inlier_tol_mm, 4.0 * self.sigma_z(z_mm))
         return np.maximum(self.inlier_tol_mm, 4.0 * self.sigma_z(z_mm))
 
-    def radius_tol(self, z_mm: FloatArray | float) -> FloatArray:
+    def radius_tol(self, z_mm: Any) -> Any:
         return self.radius_tol_frac * self.radius_mm + 2.0 * self.sigma_z(z_mm)
 
-    def angle_tol_deg_at(self, z_mm: FloatArray | float) -> FloatArray:
+    def angle_tol_deg_at(self, z_mm: Any) -> Any:
+        if isinstance(z_mm, float):
+            a = math.degrees(2.5 * self.sigma_z(z_mm) / self.radius_mm)
+            return min(max(a, self.angle_tol_deg), self.max_angle_tol_deg)
         a = np.degrees(2.5 * self.sigma_z(z_mm) / self.radius_mm)
         return np.clip(a, self.angle_tol_deg, self.max_angle_tol_deg)
 
@@ -161,14 +171,14 @@ def view_angle_deg(circle: Circle3D) -> float:
     90 = edge-on)."""
     c = circle.center
     view = -c / max(math.sqrt(float(c @ c)), 1e-9)
-    return math.degrees(math.acos(float(np.clip(circle.normal @ view, -1.0, 1.0))))
+    return math.degrees(math.acos(min(1.0, max(-1.0, float(circle.normal @ view)))))
 
 
 def agrees_with_prior(circle: Circle3D, prior: RingPrior) -> bool:
     """The circle is where the prior lock predicts it (centre and normal within the gates)."""
     d = circle.center - np.asarray(prior.center_mm)
     dc = math.sqrt(float(d @ d))
-    cosang = float(np.clip(circle.normal @ np.asarray(prior.normal), -1.0, 1.0))
+    cosang = min(1.0, max(-1.0, float(circle.normal @ np.asarray(prior.normal))))
     return dc <= prior.gate_mm and math.degrees(math.acos(cosang)) <= prior.gate_deg
 
 
