@@ -20,6 +20,33 @@ CAND_COLUMNS = 13
 
 
 @njit(cache=True, nogil=True)
+def gate_mask(
+    stats: np.ndarray,
+    width: int,
+    height: int,
+    min_area: int,
+    max_area: int,
+    max_aspect: float,
+    min_fill: float,
+) -> np.ndarray:  # pragma: no cover - compiled
+    """Which (x, y, w, h, area) rows (image px) pass the area, aspect (long/short side of the
+    box), fill (area/box) and image-border gate (``app.vision.features.BlobGate``)."""
+    ok = np.zeros(stats.shape[0], np.bool_)
+    for k in range(stats.shape[0]):
+        x, y, w, h, area = stats[k, 0], stats[k, 1], stats[k, 2], stats[k, 3], stats[k, 4]
+        aspect = max(w, h) / max(1, min(w, h))
+        fill = area / max(1, w * h)
+        border = x == 0 or y == 0 or x + w >= width or y + h >= height
+        ok[k] = (
+            min_area <= area <= max_area
+            and aspect <= max_aspect
+            and fill >= min_fill
+            and not border
+        )
+    return ok
+
+
+@njit(cache=True, nogil=True)
 def centroid_table(
     gray: np.ndarray, labels: np.ndarray, cands: np.ndarray, background: float
 ) -> np.ndarray:  # pragma: no cover - compiled

@@ -10,6 +10,7 @@ import numpy as np
 from app.vision.blob_kernels import (
     centroid_table,
     foreground_pixels,
+    gate_mask,
     hot_tile_boxes,
     label_pixels,
     pack_boxes,
@@ -259,16 +260,14 @@ def _gate_components(
     """Area/aspect/fill/border gate on (x, y, w, h, area) rows (image px): (kept mask, the
     first ``MAX_REJECTED_REPORTED`` rejected components with their reasons)."""
     width, height = size
-    xs, ys, ws, hs, areas = st[:, 0], st[:, 1], st[:, 2], st[:, 3], st[:, 4]
-    aspect = np.maximum(ws, hs) / np.maximum(1, np.minimum(ws, hs))
-    fill = areas / np.maximum(1, ws * hs)
-    border = (xs == 0) | (ys == 0) | (xs + ws >= width) | (ys + hs >= height)
-    ok = (
-        (areas >= gate.min_area_px)
-        & (areas <= gate.max_area_px)
-        & (aspect <= gate.max_aspect)
-        & (fill >= gate.min_fill)
-        & ~border
+    ok = gate_mask(
+        np.ascontiguousarray(st[:, :5], dtype=np.int64),
+        width,
+        height,
+        gate.min_area_px,
+        gate.max_area_px,
+        float(gate.max_aspect),
+        float(gate.min_fill),
     )
     rejected = []
     for x, y, w, h, area in st[~ok][:MAX_REJECTED_REPORTED].tolist():
