@@ -34,9 +34,11 @@ def test_receiver_trim_is_an_equilibrium_and_open_loop_has_unstable_or_neutral_m
 
 def test_discrete_integral_lqr_closed_loop_inside_unit_circle():
     m = _models()
-    ctrl = IntegralLqr(kp=m.lqr_kp, ki=m.lqr_ki, c=m.c_tip, dt=DT)
+    ctrl = IntegralLqr(
+        kp=m.lqr_kp, ki=m.lqr_ki, c=m.c_tip, dt=DT, ke=m.lqr_ke, design_lag_s=m.lqr_design_lag_s
+    )
     eig = np.linalg.eigvals(ctrl.closed_loop_matrix(m.ad, m.bd))
-    assert eig.shape == (15,)
+    assert eig.shape == (15 + (4 if m.lqr_ke is not None else 0),)
     assert np.max(np.abs(eig)) < 1.0
 
 

@@ -51,6 +51,8 @@ def _loop(**extra):  # type: ignore[no-untyped-def]
         obs_gain=m.obs_gain,
         kp=m.lqr_kp,
         ki=m.lqr_ki,
+        ke=m.lqr_ke,
+        design_lag_s=m.lqr_design_lag_s,
         c_tip=m.c_tip,
         dt=DT,
         **extra,

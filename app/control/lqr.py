@@ -30,6 +30,23 @@ def discrete_lqr(ad: FloatArray, bd: FloatArray, q: FloatArray, r: FloatArray) -
     return np.asarray(np.linalg.solve(r + bd.T @ p @ bd, bd.T @ p @ ad))
 
 
+def augment_lag(ad: FloatArray, bd: FloatArray, alpha: float) -> tuple[FloatArray, FloatArray]:
+    """Plant driven through a first-order servo lag ``e_k = e_{k−1} + α (u_k − e_{k−1})``,
+    ``x_{k+1} = A x_k + B e_k``: state ``[x_k, e_{k−1}]``, input ``u_k``."""
+    n, m = bd.shape
+    a_aug = np.zeros((n + m, n + m))
+    a_aug[:n, :n] = ad
+    a_aug[:n, n:] = (1.0 - alpha) * bd
+    a_aug[n:, n:] = (1.0 - alpha) * np.eye(m)
+    b_aug = np.vstack([alpha * bd, alpha * np.eye(m)])
+    return a_aug, b_aug
+
+
+def lag_alpha(dt: float, lag_s: float) -> float:
+    """Per-tick gain α = 1 − exp(−Δt/τ) of a first-order lag (1: no lag)."""
+    return 1.0 - float(np.exp(-dt / lag_s)) if lag_s > 0 else 1.0
+
+
 def augment_integral(
     ad: FloatArray, bd: FloatArray, c: FloatArray, dt: float
 ) -> tuple[FloatArray, FloatArray]:
@@ -46,7 +63,11 @@ def augment_integral(
 
 @dataclass
 class IntegralLqr:
-    """``u = −K_p (x̂ − x*) − K_i ζ`` with saturation-aware integrator (anti-windup by freezing)."""
+    """``u = −K_p (x̂ − x*) − K_e ê − K_i ζ`` with a bounded integrator.
+
+    ``ke`` (with ``design_lag_s`` > 0): the lag-aware design — the gain also acts on the
+    deflection ``ê`` that a servo lag of ``design_lag_s`` would have reached (a model state
+    the caller propagates with :meth:`lag_step`)."""
 
     kp: FloatArray
     ki: FloatArray
@@ -58,6 +79,8 @@ class IntegralLqr:
     # big start offset): the loop then closes the error at a bounded rate instead of saturating.
     error_clip: FloatArray | None = None
     output_error_clip: float = float("inf")
+    ke: FloatArray | None = None
+    design_lag_s: float = 0.0
 
     @classmethod
     def design(
@@ -69,21 +92,56 @@ class IntegralLqr:
         q_state: FloatArray,
         q_int: FloatArray,
         r: FloatArray,
+        design_lag_s: float = 0.0,
+        q_lag: float = 0.0,
     ) -> IntegralLqr:
+        """Eq. 20 gains on the plant augmented with the integral of ``C x``; with
+        ``design_lag_s`` > 0 the plant is first augmented with a servo lag of that time
+        constant (:func:`augment_lag`; its states weighted by ``q_lag``)."""
+        n, m = bd.shape
+        if design_lag_s > 0:
+            a_l, b_l = augment_lag(ad, bd, lag_alpha(dt, design_lag_s))
+            c_l = np.hstack([c, np.zeros((c.shape[0], m))])
+            a_aug, b_aug = augment_integral(a_l, b_l, c_l, dt)
+            q = np.diag(np.concatenate([q_state, np.full(m, q_lag), q_int]))
+            k = discrete_lqr(a_aug, b_aug, q, np.diag(r))
+            return cls(
+                kp=k[:, :n],
+                ki=k[:, n + m :],
+                c=c,
+                dt=dt,
+                ke=k[:, n : n + m],
+                design_lag_s=design_lag_s,
+            )
         a_aug, b_aug = augment_integral(ad, bd, c, dt)
         q = np.diag(np.concatenate([q_state, q_int]))
         k = discrete_lqr(a_aug, b_aug, q, np.diag(r))
-        n = ad.shape[0]
         return cls(kp=k[:, :n], ki=k[:, n:], c=c, dt=dt)
 
     def __post_init__(self) -> None:
-        self.zeta = np.zeros(self.c.shape[0])
+        self.reset()
 
     def reset(self) -> None:
         self.zeta = np.zeros(self.c.shape[0])
+        m = self.kp.shape[0]
+        self.e_hat = np.zeros(m)  # modelled servo deflection (deviation), lag-aware design
+
+    def lag_step(self, servo_dev: FloatArray) -> FloatArray:
+        """Advance the modelled deflection ``ê`` towards the servo position (deviation from
+        trim) by one tick of the design lag; return it (the servo position without a lag)."""
+        alpha = lag_alpha(self.dt, self.design_lag_s)
+        self.e_hat = self.e_hat + alpha * (np.asarray(servo_dev, float) - self.e_hat)
+        return self.e_hat
 
     def closed_loop_matrix(self, ad: FloatArray, bd: FloatArray) -> FloatArray:
-        """Augmented closed-loop transition matrix (for stability checks)."""
+        """Augmented closed-loop transition matrix, state feedback on ``[x, (e), ζ]`` (the
+        servo-lag states ``e`` with the lag-aware design), for stability checks."""
+        if self.ke is not None:
+            m = bd.shape[1]
+            a_l, b_l = augment_lag(ad, bd, lag_alpha(self.dt, self.design_lag_s))
+            c_l = np.hstack([self.c, np.zeros((self.c.shape[0], m))])
+            a_aug, b_aug = augment_integral(a_l, b_l, c_l, self.dt)
+            return a_aug - b_aug @ np.hstack([self.kp, self.ke, self.ki])
         a_aug, b_aug = augment_integral(ad, bd, self.c, self.dt)
         return a_aug - b_aug @ np.hstack([self.kp, self.ki])
 
@@ -93,6 +151,8 @@ class IntegralLqr:
         if self.error_clip is not None:
             dx = np.clip(dx, -self.error_clip, self.error_clip)
         u = -self.kp @ dx - self.ki @ self.zeta
+        if self.ke is not None:
+            u = u - self.ke @ self.e_hat
         err = np.clip(self.c @ x_hat - y_ref, -self.output_error_clip, self.output_error_clip)
         self.zeta = np.clip(self.zeta + self.dt * err, -self.integral_limit, self.integral_limit)
         return np.asarray(u)

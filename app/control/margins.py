@@ -36,8 +36,15 @@ def closed_loop_matrix(
     delay_ticks: int = 0,
     plant: tuple[FloatArray, FloatArray] | None = None,
     gain_scale: float = 1.0,
+    ke: FloatArray | None = None,
+    design_lag_s: float = 0.0,
 ) -> FloatArray:
-    """Transition matrix of [x, x̂_{k−1}, u_{k−1..k−1−delay}, ζ, e] (see the module docstring)."""
+    """Transition matrix of [x, x̂_{k−1}, u_{k−1..k−1−delay}, ζ, e, ê] (module docstring).
+
+    ``design_lag_s`` > 0: the controller models a servo lag of that time constant (the lag-aware
+    design, :meth:`app.control.lqr.IntegralLqr.design`): its modelled deflection
+    ``ê_k = ê_{k−1} + α_d (u_k − ê_{k−1})`` drives the observer's prediction and enters the
+    feedback through ``ke`` (``u_k = −K_p x̂_k − K_e ê_{k−1} − K_i ζ_k``)."""
     ap, bp = plant if plant is not None else (a, b)
     n, m = b.shape
     p = c_tip.shape[0]
@@ -49,7 +56,10 @@ def closed_loop_matrix(
     iu = [slice(2 * n + j * m, 2 * n + (j + 1) * m) for j in range(d + 1)]  # u_{k-1-j}
     iz = slice(2 * n + (d + 1) * m, 2 * n + (d + 1) * m + p)
     ie = slice(iz.stop, iz.stop + m)
-    size = ie.stop
+    lag_model = design_lag_s > 0
+    ieh = slice(ie.stop, ie.stop + (m if lag_model else 0))
+    alpha_d = 1.0 - float(np.exp(-dt / design_lag_s)) if lag_model else 1.0
+    size = ieh.stop
     eye_lc = np.eye(n) - obs_gain @ c_meas
     out = np.zeros((size, size))
     for col in range(size):
@@ -57,8 +67,12 @@ def closed_loop_matrix(
         s[col] = 1.0
         x, xh_prev, zeta, e_prev = s[ix], s[ih], s[iz], s[ie]
         u_hist = [s[sl] for sl in iu]
-        xh = eye_lc @ (a @ xh_prev + b @ u_hist[0]) + obs_gain @ (c_meas @ x)
-        u = -gain_scale * (kp @ xh + ki @ zeta)
+        e_hat = s[ieh] if lag_model else u_hist[0]  # what the observer believes acted
+        xh = eye_lc @ (a @ xh_prev + b @ e_hat) + obs_gain @ (c_meas @ x)
+        fb = kp @ xh + ki @ zeta
+        if lag_model and ke is not None:
+            fb = fb + ke @ e_hat
+        u = -gain_scale * fb
         applied = u if d == 0 else u_hist[d - 1]
         e = e_prev + alpha * (applied - e_prev)
         new = np.zeros(size)
@@ -69,6 +83,8 @@ def closed_loop_matrix(
             new[iu[j]] = u_hist[j - 1]
         new[iz] = zeta + dt * (c_tip @ xh)
         new[ie] = e
+        if lag_model:
+            new[ieh] = e_hat + alpha_d * (u - e_hat)
         out[:, col] = new
     return out
 
