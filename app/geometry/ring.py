@@ -25,6 +25,7 @@ plane (:func:`app.geometry.circle_fit.plane_basis`); ids are assigned from the s
 from __future__ import annotations
 
 import math
+import statistics
 from dataclasses import dataclass
 from itertools import combinations
 from typing import Any
@@ -151,15 +152,22 @@ def oriented(circle: Circle3D) -> Circle3D:
     return Circle3D(circle.center, n, circle.radius, circle.rms, circle.plane_rms)
 
 
+def _cross_rows(a: FloatArray, b: FloatArray) -> FloatArray:
+    """Row-wise a × b of (T, 3) arrays (``np.cross`` costs ~5× more on small arrays)."""
+    a0, a1, a2 = a[:, 0], a[:, 1], a[:, 2]
+    b0, b1, b2 = b[:, 0], b[:, 1], b[:, 2]
+    return np.column_stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0])
+
+
 def _circumcircles(p: FloatArray, triples: np.ndarray) -> tuple[FloatArray, FloatArray, FloatArray]:
     """Centre (T,3), unit normal (T,3), radius (T,) of the circle through each triple."""
     p1, p2, p3 = p[triples[:, 0]], p[triples[:, 1]], p[triples[:, 2]]
     a, b = p1 - p3, p2 - p3
-    axb = np.cross(a, b)
+    axb = _cross_rows(a, b)
     n2 = np.sum(axb * axb, axis=1)
     ok = n2 > 1e-9
     n2 = np.where(ok, n2, 1.0)
-    num = np.cross(np.sum(a * a, axis=1)[:, None] * b - np.sum(b * b, axis=1)[:, None] * a, axb)
+    num = _cross_rows(np.sum(a * a, axis=1)[:, None] * b - np.sum(b * b, axis=1)[:, None] * a, axb)
     center = p3 + num / (2.0 * n2[:, None])
     radius = np.where(ok, np.linalg.norm(center - p3, axis=1), np.inf)
     normal = axb / np.sqrt(n2)[:, None]
@@ -252,7 +260,7 @@ def _seed_triples(adj: np.ndarray) -> np.ndarray:
         js = np.flatnonzero(upper[i])
         if len(js) < 2:
             continue
-        sub = upper[np.ix_(js, js)]
+        sub = upper[js][:, js]
         a, b = np.nonzero(sub)
         if len(a):
             out.append(np.column_stack([np.full(len(a), i), js[a], js[b]]))
@@ -268,7 +276,7 @@ def _seed_slots(
     up = np.array([0.0, -1.0, 0.0])
     e_up = up[None, :] - (n @ up)[:, None] * n
     e_up /= np.maximum(np.linalg.norm(e_up, axis=1), 1e-12)[:, None]
-    e_right = np.cross(e_up, n)
+    e_right = _cross_rows(e_up, n)
     rel = p[triples] - center[:, None, :]
     ang = np.degrees(
         np.arctan2(np.einsum("tkj,tj->tk", rel, e_right), np.einsum("tkj,tj->tk", rel, e_up))
@@ -399,7 +407,7 @@ def _volume(p: FloatArray, params: RingParams) -> float:
     side = np.maximum(np.ptp(p, axis=0), floor)
     volume = float(np.prod(side))
     if params.fov_tan is not None:
-        z = float(np.median(p[:, 2]))
+        z = statistics.median(p[:, 2].tolist())
         width = max(params.fov_tan[0] * z, floor)
         height = max(params.fov_tan[1] * z, floor)
         volume = max(volume, width * height * float(side[2]))
