@@ -7,6 +7,14 @@ from app.geometry.calibration import StereoCalibration, paper_calibration
 from app.sim.paths import REPO_ROOT
 
 
+def pytest_sessionstart(session: pytest.Session) -> None:
+    """Compile the navigation core's compiled loops once, before any test or any process a
+    test spawns (they then load them from numba's on-disk cache)."""
+    from app.sim.warmup import compile_kernels
+
+    compile_kernels()
+
+
 @pytest.fixture(scope="session")
 def calib() -> StereoCalibration:
     return paper_calibration()
