@@ -28,6 +28,7 @@ import cv2  # noqa: E402
 
 from app.sim.campaign import run_campaign  # noqa: E402
 from app.sim.docking import DockingConfig, DockingSimulation  # noqa: E402
+from app.sim.warmup import compile_kernels  # noqa: E402
 
 cv2.setNumThreads(1)
 
@@ -90,6 +91,7 @@ def main() -> None:
     ap.add_argument("--runs", type=int, default=8, help="campaign runs per throughput measurement")
     ap.add_argument("--vision-runs", type=int, default=4)
     args = ap.parse_args()
+    print(f"(compiled loops ready in {compile_kernels():.1f} s; not timed)")
 
     base = DockingConfig(turbulence="light", seed=0, station_keep_s=1.0)
     cases = [

@@ -36,6 +36,7 @@ from app.geometry.triangulation import refine_reprojection, triangulate_linear
 from app.sim.led_ring import stereo_center_x_mm, tilted_normal
 from app.sim.paths import load_default_calibration
 from app.sim.stereo_render import RenderedPair, RenderSettings, render_pair
+from app.sim.warmup import compile_kernels
 from app.vision.ihwt import describe
 from app.vision.pipeline import NavigationPipeline
 from app.vision.result import PoseResult
@@ -205,6 +206,7 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--depth", type=float, default=1000.0, help="drogue range (mm)")
     args = ap.parse_args()
+    print(f"(compiled loops ready in {compile_kernels():.1f} s; not timed)")
     paper = load_default_calibration()
     sizes = [(1280, 1024), (1920, 1200)]
     scenes = [
