@@ -233,3 +233,34 @@ def test_ring_of_wrong_radius_is_rejected():
     ang = np.radians(72 * np.arange(5))
     pts = np.array([0, 0, 1000.0]) + 120 * np.column_stack([np.sin(ang), -np.cos(ang), np.zeros(5)])
     assert not isinstance(find_ring(pts, RingParams(radius_mm=75.0)), RingFit)
+
+
+def test_ring_measures_equal_the_separate_ring_functions() -> None:
+    """The tracker's one-call ring check gives what find_ring's separate functions give."""
+    from app.geometry.circle_fit import distance_to_circle, fit_circle_3d
+    from app.geometry.ring import (
+        oriented,
+        ring_measures,
+        slot_angles_deg,
+        slot_offset_deg,
+        slot_residuals,
+    )
+
+    rng = np.random.default_rng(4)
+    for _ in range(20):
+        ang = np.radians(rng.uniform(0, 360) + 72.0 * np.arange(5) + rng.normal(0, 2, 5))
+        centre = rng.uniform([-300, -300, 800], [300, 300, 9000])
+        pts = centre + 305.0 * np.column_stack([np.cos(ang), np.sin(ang), 0.2 * np.sin(ang)])
+        pts += rng.normal(0.0, 2.0, pts.shape)
+        got = ring_measures(pts, 5)
+        circle = oriented(fit_circle_3d(pts))
+        angles = slot_angles_deg(pts, circle)
+        offset = slot_offset_deg(angles, 5)
+        slots, resid = slot_residuals(angles, offset, 5)
+        assert np.allclose(got.circle.center, circle.center, atol=1e-9)
+        assert np.allclose(got.circle.normal, circle.normal, atol=1e-12)
+        assert float(got.circle.normal @ -got.circle.center) > 0  # faces the cameras
+        assert np.allclose(got.distance_mm, distance_to_circle(pts, circle), atol=1e-9)
+        assert abs(got.offset_deg - offset) < 1e-9 and np.array_equal(got.slots, slots)
+        assert np.allclose(got.resid_deg, resid, atol=1e-9)
+        assert len(set(slots.tolist())) == 5  # five distinct slots: the check can fail

@@ -9,7 +9,9 @@ normal and radius directly, from 3 points upward. The arithmetic runs in one com
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numba import njit
@@ -54,7 +56,7 @@ def plane_basis(normal: FloatArray) -> tuple[FloatArray, FloatArray]:
 
 
 @njit(cache=True, nogil=True)
-def _circle_kernel(pts: np.ndarray, iterations: int) -> np.ndarray:  # pragma: no cover - compiled
+def circle_kernel(pts: np.ndarray, iterations: int) -> np.ndarray:  # pragma: no cover - compiled
     """Plane (total least squares: the scatter matrix's smallest eigenvector, eq. 18's role)
     and the circle in it (Kåsa algebraic fit, then Gauss–Newton on the geometric distance).
 
@@ -132,31 +134,45 @@ def _circle_kernel(pts: np.ndarray, iterations: int) -> np.ndarray:  # pragma: n
     return out
 
 
-def fit_circle_3d(points: FloatArray, iterations: int = 10) -> Circle3D:
-    """Plane + in-plane circle through ≥ 3 points (mm), eqs. 17–18's role (see the module
-    docstring). The normal's sign is arbitrary here."""
+def circle_points(points: FloatArray) -> FloatArray:
+    """≥ 3 finite points as a C-contiguous (n, 3) float64 array, else ``FitError``."""
     pts = np.ascontiguousarray(np.asarray(points, dtype=np.float64).reshape(-1, 3))
     if len(pts) < 3 or not np.all(np.isfinite(pts)):
         raise FitError("a plane needs at least 3 finite points")
+    return pts
+
+
+def run_circle_fit(kernel: Callable[..., Any], *args: Any) -> tuple[Circle3D, Any]:
+    """Call a compiled fit whose result starts with :func:`circle_kernel`'s 10 floats and turn
+    them into a :class:`Circle3D` (``FitError`` when there is no circle); returns the circle
+    and the kernel's full result."""
     try:
-        res = _circle_kernel(pts, int(iterations))
+        out = kernel(*args)
     except np.linalg.LinAlgError as exc:  # a singular circle system: no circle
         raise FitError(f"no circle through the points ({exc})") from None
+    res = out[0] if isinstance(out, tuple) else out
     if res[9] != 0.0:
         raise FitError("points are collinear")
     if not np.all(np.isfinite(res)):
         raise FitError("no finite circle through the points")
-    return Circle3D(
+    circle = Circle3D(
         center=res[0:3].copy(),
         normal=res[3:6].copy(),
         radius=float(res[6]),
         rms=float(res[7]),
         plane_rms=float(res[8]),
     )
+    return circle, out
+
+
+def fit_circle_3d(points: FloatArray, iterations: int = 10) -> Circle3D:
+    """Plane + in-plane circle through ≥ 3 points (mm), eqs. 17–18's role (see the module
+    docstring). The normal's sign is arbitrary here."""
+    return run_circle_fit(circle_kernel, circle_points(points), int(iterations))[0]
 
 
 @njit(cache=True, nogil=True)
-def _distance_kernel(
+def distance_kernel(
     points: np.ndarray, center: np.ndarray, normal: np.ndarray, radius: float
 ) -> np.ndarray:  # pragma: no cover - compiled
     out = np.empty(points.shape[0])
@@ -173,7 +189,7 @@ def distance_to_circle(points: FloatArray, circle: Circle3D) -> FloatArray:
     """3-D distance (mm) from each point to the circle (compiled loop)."""
     pts = np.ascontiguousarray(np.asarray(points, dtype=np.float64).reshape(-1, 3))
     return np.asarray(
-        _distance_kernel(
+        distance_kernel(
             pts,
             np.asarray(circle.center, dtype=np.float64),
             np.asarray(circle.normal, dtype=np.float64),

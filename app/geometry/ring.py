@@ -37,9 +37,13 @@ from app.geometry.calibration import FloatArray
 from app.geometry.circle_fit import (
     Circle3D,
     FitError,
+    circle_kernel,
+    circle_points,
+    distance_kernel,
     distance_to_circle,
     fit_circle_3d,
     plane_axes,
+    run_circle_fit,
 )
 
 MAX_SEEDS = 20_000  # refinement budget; seeds are ordered by fit quality (never reached in tests)
@@ -214,22 +218,88 @@ def slot_angles_deg(points: FloatArray, circle: Circle3D) -> FloatArray:
     return np.asarray(_slot_angles(pts, center, np.asarray(circle.normal, dtype=np.float64)))
 
 
+@njit(cache=True, nogil=True)
+def _slot_offset(angles_deg: np.ndarray, count: int) -> float:  # pragma: no cover - compiled
+    ss, cs = 0.0, 0.0
+    for a in angles_deg:
+        phase = np.radians(a * count)  # one slot period → 2π
+        ss += np.sin(phase)
+        cs += np.cos(phase)
+    return (np.degrees(np.arctan2(ss, cs)) / count) % (360.0 / count)
+
+
+@njit(cache=True, nogil=True)
+def _slot_residuals(
+    angles_deg: np.ndarray, offset_deg: float, count: int
+) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled
+    spacing = 360.0 / count
+    slots = np.empty(angles_deg.shape[0], np.int64)
+    resid = np.empty(angles_deg.shape[0])
+    for i in range(angles_deg.shape[0]):
+        k = np.rint((angles_deg[i] - offset_deg) / spacing)
+        resid[i] = angles_deg[i] - offset_deg - k * spacing
+        slots[i] = int(k) % count
+    return slots, resid
+
+
 def slot_offset_deg(angles_deg: FloatArray, count: int) -> float:
     """Offset of the evenly spaced slot pattern that best fits ``angles_deg``, in [0, 360/N):
     the circular mean of the angles × N (one slot period → 2π), ÷ N."""
-    phase = np.radians(np.asarray(angles_deg, dtype=np.float64) * count)
-    mean = math.atan2(float(np.sin(phase).sum()), float(np.cos(phase).sum()))
-    return (math.degrees(mean) / count) % (360.0 / count)
+    return float(_slot_offset(np.ascontiguousarray(angles_deg, dtype=np.float64), int(count)))
 
 
 def slot_residuals(
     angles_deg: FloatArray, offset_deg: float, count: int
 ) -> tuple[np.ndarray, FloatArray]:
     """(slot index 0..N−1, signed residual deg) of each angle for the given slot offset."""
-    spacing = 360.0 / count
-    k = np.rint((np.asarray(angles_deg) - offset_deg) / spacing)
-    resid = np.asarray(angles_deg) - offset_deg - k * spacing
-    return np.mod(k, count).astype(np.int64), resid
+    slots, resid = _slot_residuals(
+        np.ascontiguousarray(angles_deg, dtype=np.float64), float(offset_deg), int(count)
+    )
+    return np.asarray(slots), np.asarray(resid)
+
+
+@njit(cache=True, nogil=True)
+def _ring_measures(
+    points: np.ndarray, count: int
+) -> tuple[
+    np.ndarray, np.ndarray, np.ndarray, float, np.ndarray, np.ndarray
+]:  # pragma: no cover - compiled
+    fit = circle_kernel(points, 10)
+    n = points.shape[0]
+    if fit[9] != 0.0:
+        empty = np.zeros(n)
+        return fit, empty, empty, 0.0, np.zeros(n, np.int64), empty
+    center, normal = fit[0:3], fit[3:6]
+    if normal @ (-center) < 0.0:  # towards the cameras (as ``oriented``)
+        fit[3:6] = -normal
+        normal = fit[3:6]
+    dist = distance_kernel(points, center, normal, fit[6])
+    angles = _slot_angles(points, center, normal)
+    offset = _slot_offset(angles, count)
+    slots, resid = _slot_residuals(angles, offset, count)
+    return fit, dist, angles, offset, slots, resid
+
+
+@dataclass(frozen=True)
+class RingMeasures:
+    """One ring fit through all the points and where each point sits on it."""
+
+    circle: Circle3D  # normal oriented towards the cameras
+    distance_mm: FloatArray  # 3-D distance of each point from the circle
+    angles_deg: FloatArray  # slot angle of each point (clockwise from the top)
+    offset_deg: float  # best slot offset, [0, 360/N)
+    slots: np.ndarray  # slot of each point, 0..N−1
+    resid_deg: FloatArray  # signed residual of each point from its slot
+
+
+def ring_measures(points: FloatArray, count: int) -> RingMeasures:
+    """:func:`~app.geometry.circle_fit.fit_circle_3d` (oriented), :func:`distance_to_circle`,
+    :func:`slot_angles_deg`, :func:`slot_offset_deg` and :func:`slot_residuals` of ≥ 3 finite
+    points in one compiled call (a tracked frame's ring check). Raises ``FitError``."""
+    circle, (_, dist, angles, offset, slots, resid) = run_circle_fit(
+        _ring_measures, circle_points(points), int(count)
+    )
+    return RingMeasures(circle, dist, angles, float(offset), slots, resid)
 
 
 def _compatible_pairs(p: FloatArray, params: RingParams) -> np.ndarray:
@@ -360,8 +430,10 @@ def log10_nfa(
     points: FloatArray,
     resid_deg: FloatArray,
     params: RingParams,
+    distance_mm: FloatArray | None = None,
 ) -> float:
-    """A-contrario number of false alarms (log10) of an m-point ring among n candidates.
+    """A-contrario number of false alarms (log10) of an m-point ring among n candidates
+    (``distance_mm``: the points' distances from the circle, if already known).
 
     Background model: n unrelated points uniform in ``volume_mm3``. An m-point fit is tested
     C(n, m)·N!/(N−m)! times (point sets × slot labellings). "As well as this fit" uses the
@@ -377,7 +449,7 @@ def log10_nfa(
         return math.inf
     z = float(circle.center[2])
     floor = max(0.3, 3.0 * float(params.sigma_z(z)))
-    dist = distance_to_circle(points, circle)
+    dist = distance_to_circle(points, circle) if distance_mm is None else distance_mm
     rho = max(
         floor,
         float(np.max(dist)) if len(dist) else 0.0,

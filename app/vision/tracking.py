@@ -46,8 +46,6 @@ from app.geometry.calibration import StereoCalibration
 from app.geometry.circle_fit import (
     Circle3D,
     FitError,
-    distance_to_circle,
-    fit_circle_3d,
     plane_basis,
 )
 from app.geometry.led_ids import led_ids_for_angles, roll_from_offset
@@ -57,11 +55,8 @@ from app.geometry.ring import (
     RingPrior,
     agrees_with_prior,
     log10_nfa,
-    oriented,
     prior_volume_mm3,
-    slot_angles_deg,
-    slot_offset_deg,
-    slot_residuals,
+    ring_measures,
     view_angle_deg,
 )
 from app.geometry.triangulation import refine_reprojection, triangulate_linear
@@ -608,21 +603,19 @@ class StereoTracker:
         cfg, params = self.config, self._params
         n = cfg.led_count
         try:
-            circle = oriented(fit_circle_3d(X))
+            ring = ring_measures(X, n)
         except FitError as exc:
             raise _Fallback(f"ring fit failed: {exc}") from None
+        circle, offset, slots, resid = ring.circle, ring.offset_deg, ring.slots, ring.resid_deg
         z = float(circle.center[2])
         itol, atol = float(params.inlier_tol(z)), float(params.angle_tol_deg_at(z))
         if abs(circle.radius - params.radius_mm) > float(params.radius_tol(z)):
             raise _Fallback(f"ring radius {circle.radius:.1f} mm out of tolerance")
         if circle.rms > itol:
             raise _Fallback(f"ring RMS {circle.rms:.2f} mm > {itol:.2f} mm")
-        if np.any(distance_to_circle(X, circle) > itol):
+        if ring.distance_mm.max() > itol:
             raise _Fallback("a tracked LED is off the ring")
-        angles = slot_angles_deg(X, circle)
-        offset = slot_offset_deg(angles, n)
-        slots, resid = slot_residuals(angles, offset, n)
-        if len(set(slots.tolist())) != len(slots) or np.any(np.abs(resid) > atol):
+        if len(set(slots.tolist())) != len(slots) or np.abs(resid).max() > atol:
             raise _Fallback("the tracked LEDs are not on distinct, evenly spaced slots")
         if view_angle_deg(circle) > params.max_view_angle_deg:
             raise _Fallback("the ring is seen edge-on")
@@ -630,7 +623,8 @@ class StereoTracker:
         if not agrees_with_prior(circle, prior):
             dc = float(np.linalg.norm(circle.center - prior.center_mm))
             raise _Fallback(f"the ring moved away from the last lock ({dc:.0f} mm)")
-        nfa = log10_nfa(len(X), prior_volume_mm3(params, prior), circle, X, resid, params)
+        volume = prior_volume_mm3(params, prior)
+        nfa = log10_nfa(len(X), volume, circle, X, resid, params, ring.distance_mm)
         if nfa > params.log10_nfa_max:
             raise _Fallback(f"not distinctive (NFA 10^{nfa:.1f})")
         near = float(np.linalg.norm(circle.center - st.center_mm)) <= 2.0 * cfg.ring_radius_mm
