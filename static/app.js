@@ -76,7 +76,9 @@ function pullTelemetry() {
 function renderBanner() {
   const rec = latest;
   const lock = $("lock");
-  if (simRunning === false && (!rec || rec.source === "sim")) {
+  // stopped: STOPPED over the last sim tick or the last upload (an upload in the 3 s before a
+  // finished run restarts would otherwise keep its lock on the banner for good)
+  if (simRunning === false && (!rec || rec.source === "sim" || rec.source === "upload")) {
     lock.textContent = "STOPPED";
     lock.className = "lock stopped";
     $("lock-reason").textContent = "simulation stopped (Start to resume)";
