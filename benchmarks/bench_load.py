@@ -1,8 +1,11 @@
 """Tick rate of the live service under load: telemetry clients and uploaders, both modes.
 
 Starts ``aar-dock serve`` (vision on, 30 Hz, viser on, free ports) in a child process, as
-deployed, and measures the tick rate over a window (``/healthz`` ticks and dropped deadlines;
-step-time p99 from ``/history``) in four cases:
+deployed, and measures the tick rate over a window (``/healthz`` ticks and dropped deadlines)
+and, from ``/history``, the p99 of the step latency (from a tick's deadline to its result
+being available: in process mode the worker's deadline to the worker releasing the tick), of
+the relay (the worker's deadline to the record being ready to publish in the web server's
+process) and of the worker's compute time per tick, in these cases:
 
 * ``idle``: no clients;
 * ``ws50``: 50 telemetry WebSocket clients (receiving, not parsing);
@@ -22,9 +25,13 @@ for the two modes:
 
 The clients run in this process (asyncio: ``websockets``, ``httpx``). Each mode runs with
 AAR_MAX_CONCURRENT_UPLOADS = 2 (the default: at most 2 uploads processed at once, the others
-429) and 16 (every uploader admitted). Prints a Markdown table.
+429) and 16 (every uploader admitted). Prints a Markdown table: with ``--repeat N`` the
+medians of N runs (the ``idle`` case of the same runs is the baseline); ``--detail`` prints
+every timing's p50/p99/max per case.
 
     .venv/bin/python benchmarks/bench_load.py [--seconds 10] [--hz 30] [--modes process,thread]
+    flock /tmp/aar_bench.lock .venv/bin/python benchmarks/bench_load.py --modes process \
+        --max-uploads 2 --cases idle,ws50,page,full --repeat 3
 """
 
 from __future__ import annotations
@@ -74,20 +81,24 @@ def health(port: int) -> dict[str, Any]:
     return out
 
 
-def window_p99(port: int, seconds: float) -> dict[str, float]:
-    """p99 of the sim ticks' ``step`` (the tick thread's wait for a step) and ``sim`` (the
-    worker process's own step time) timings over the last ``seconds`` (``/history``)."""
+def window_p99(port: int, seconds: float, detail: bool = False) -> dict[str, float]:
+    """p99 over the last ``seconds`` (``/history``) of the sim ticks' timings: ``step`` (from
+    the tick's deadline to its result being available), ``relay`` (from the deadline to the
+    record being ready to publish in the web server's process; process mode) and ``sim`` (the
+    worker process's own step time). ``detail``: print p50/p99/max of every timing."""
     import numpy as np
 
     records = json.loads(_get(port, f"history?seconds={seconds:.3f}"))
+    sims = [r["timings_ms"] for r in records if r["source"] == "sim"]
     out: dict[str, float] = {}
-    for stage in ("step", "sim"):
-        vals = [
-            r["timings_ms"][stage]
-            for r in records
-            if r["source"] == "sim" and stage in r["timings_ms"]
-        ]
+    for stage in sorted({k for t in sims for k in t} | {"step", "relay", "sim"}):
+        vals = [t[stage] for t in sims if stage in t]
         out[stage] = float(np.percentile(vals, 99)) if vals else float("nan")
+        if detail and vals:
+            print(
+                f"    {stage:12s} p50 {np.percentile(vals, 50):7.2f}  p99 {out[stage]:7.2f}"
+                f"  max {max(vals):7.2f} ms  (n={len(vals)})"
+            )
     return out
 
 
@@ -191,7 +202,9 @@ async def open_page(port: int) -> tuple[Any, Any, Any]:
     return pw, br, page
 
 
-async def run_case(server: Server, case: str, seconds: float, ramp_s: float) -> dict[str, Any]:
+async def run_case(
+    server: Server, case: str, seconds: float, ramp_s: float, detail: bool = False
+) -> dict[str, Any]:
     port = server.port
     stop = asyncio.Event()
     ws_counts = [0] * N_WS
@@ -223,7 +236,7 @@ async def run_case(server: Server, case: str, seconds: float, ramp_s: float) -> 
     h1 = await asyncio.to_thread(health, port)
     elapsed = time.monotonic() - t0
     ws1, st1 = sum(ws_counts), Counter(statuses)
-    p99 = await asyncio.to_thread(window_p99, port, elapsed)
+    p99 = await asyncio.to_thread(window_p99, port, elapsed, detail)
     page_ok = None
     if browser is not None:
         pw, br, page = browser
@@ -244,6 +257,7 @@ async def run_case(server: Server, case: str, seconds: float, ramp_s: float) -> 
         "dropped": h1["dropped_ticks"] - h0["dropped_ticks"],
         "errors": h1["errors"] - h0["errors"],
         "step_p99": p99["step"],
+        "relay_p99": p99["relay"],
         "sim_p99": p99["sim"],
         "ok_per_s": answered.get(200, 0) / elapsed,
         "busy_per_s": answered.get(429, 0) / elapsed,
@@ -257,7 +271,13 @@ async def run_case(server: Server, case: str, seconds: float, ramp_s: float) -> 
 
 
 def measure_mode(
-    mode: str, hz: float, seconds: float, ramp_s: float, max_uploads: int, cases: list[str]
+    mode: str,
+    hz: float,
+    seconds: float,
+    ramp_s: float,
+    max_uploads: int,
+    cases: list[str],
+    detail: bool = False,
 ) -> list[dict[str, Any]]:
     with tempfile.TemporaryDirectory(prefix="aar-bench-load-") as rec:
         server = Server(mode, hz, Path(rec), max_uploads)
@@ -266,12 +286,13 @@ def measure_mode(
             server.wait_ticking()
             time.sleep(4.0)  # warm-up (workers started, first runs built)
             for case in cases:
-                row = asyncio.run(run_case(server, case, seconds, ramp_s))
+                row = asyncio.run(run_case(server, case, seconds, ramp_s, detail))
                 rows.append(row)
                 print(
                     f"  slots {max_uploads:<3} {mode:<8}{case:<6} {row['tick_hz']:6.2f} Hz"
                     f"  dropped {row['dropped']:4d}  errors {row['errors']}"
-                    f"  step p99 {row['step_p99']:6.1f} ms  sim p99 {row['sim_p99']:6.1f} ms"
+                    f"  step p99 {row['step_p99']:6.1f} ms  relay p99 {row['relay_p99']:6.1f} ms"
+                    f"  sim p99 {row['sim_p99']:6.1f} ms"
                     f"  uploads/s: {row['ok_per_s']:.1f} ok, {row['busy_per_s']:.1f} 429,"
                     f" {row['closed_per_s']:.1f} closed {row['other'] or ''}",
                     flush=True,
@@ -286,24 +307,46 @@ def measure_mode(
     return rows
 
 
+def _median(rows: list[dict[str, Any]], key: str) -> float:
+    import numpy as np
+
+    vals = [float(r[key]) for r in rows if r[key] is not None]
+    return float(np.median(vals)) if vals else float("nan")
+
+
+def _ms(v: float) -> str:
+    return "–" if v != v else f"{v:.1f}"
+
+
 def table(rows: list[dict[str, Any]], hz: float) -> str:
+    """Medians over the repeated runs of each (slots, case, mode)."""
     head = (
-        "| upload slots | case | mode | tick rate (Hz) | ratio to nominal | dropped ticks "
-        "| step p99 (ms) | sim p99 (ms) | uploads/s 200 | uploads/s 429 (+ closed) "
-        "| telemetry msgs/s per client | page live |"
+        "| upload slots | case | mode | runs | tick rate (Hz) | ratio to nominal | dropped ticks "
+        "| step p99 (ms) | relay p99 (ms) | sim p99 (ms) | uploads/s 200 "
+        "| uploads/s 429 (+ closed) | telemetry msgs/s per client | page live |"
     )
-    lines = [head, "|" + "---|" * 12]
+    lines = [head, "|" + "---|" * 14]
     order = {c: i for i, c in enumerate(CASES)}
-    for r in sorted(rows, key=lambda r: (r["slots"], order[r["case"]], r["mode"])):
-        ws = "–" if r["ws_per_client_hz"] is None else f"{r['ws_per_client_hz']:.1f}"
-        sim = "–" if r["sim_p99"] != r["sim_p99"] else f"{r['sim_p99']:.1f}"
+    groups: dict[tuple[int, int, str], list[dict[str, Any]]] = {}
+    for r in rows:
+        groups.setdefault((r["slots"], order[r["case"]], r["mode"]), []).append(r)
+    for (slots, _, mode), rs in sorted(groups.items()):
+        case = rs[0]["case"]
+        m = {k: _median(rs, k) for k in rs[0] if k not in ("slots", "case", "mode", "other")}
+        ws = (
+            "–"
+            if m["ws_per_client_hz"] != m["ws_per_client_hz"]
+            else f"{m['ws_per_client_hz']:.1f}"
+        )
         ups = "– | –"
-        if r["case"] in N_UP:
-            ups = f"{r['ok_per_s']:.1f} | {r['busy_per_s']:.1f} (+ {r['closed_per_s']:.0f})"
+        if case in N_UP:
+            ups = f"{m['ok_per_s']:.1f} | {m['busy_per_s']:.1f} (+ {m['closed_per_s']:.0f})"
+        live = [r["page_live"] for r in rs]
         lines.append(
-            f"| {r['slots']} | {r['case']} | {r['mode']} | {r['tick_hz']:.2f} "
-            f"| {r['tick_hz'] / hz:.2f} | {r['dropped']} | {r['step_p99']:.1f} | {sim} "
-            f"| {ups} | {ws} | {'–' if r['page_live'] is None else r['page_live']} |"
+            f"| {slots} | {case} | {mode} | {len(rs)} | {m['tick_hz']:.2f} "
+            f"| {m['tick_hz'] / hz:.2f} | {m['dropped']:.0f} | {_ms(m['step_p99'])} "
+            f"| {_ms(m['relay_p99'])} | {_ms(m['sim_p99'])} "
+            f"| {ups} | {ws} | {'–' if live[0] is None else all(live)} |"
         )
     return "\n".join(lines)
 
@@ -320,20 +363,30 @@ def main() -> int:
         default="2,16",
         help="AAR_MAX_CONCURRENT_UPLOADS values (2: the default; 16: every uploader admitted)",
     )
+    ap.add_argument("--repeat", type=int, default=1, help="runs (the table shows medians)")
+    ap.add_argument("--detail", action="store_true", help="print every timing's p50/p99/max")
     args = ap.parse_args()
     cases = [c.strip() for c in args.cases.split(",")]
     rows: list[dict[str, Any]] = []
     print(f"cpus: {os.cpu_count()}, nominal {args.hz:g} Hz, {args.seconds:g} s per case")
-    for slots in (int(x) for x in args.max_uploads.split(",")):
-        for mode in args.modes.split(","):
-            rows += measure_mode(mode.strip(), args.hz, args.seconds, args.ramp, slots, cases)
+    for run in range(args.repeat):
+        if args.repeat > 1:
+            print(f"run {run + 1}/{args.repeat}", flush=True)
+        for slots in (int(x) for x in args.max_uploads.split(",")):
+            for mode in args.modes.split(","):
+                rows += measure_mode(
+                    mode.strip(), args.hz, args.seconds, args.ramp, slots, cases, args.detail
+                )
     print()
     print(table(rows, args.hz))
     print(
-        "\nstep: the tick thread's wait for a step (p99 over the window, /history); sim: the "
-        "worker process's own step time (process mode only). 429 (+ closed): uploads refused "
-        "with 429, plus those whose connection the server closed after its early 429 while "
-        "the client was still sending the body."
+        "\nMedians over the runs. step: p99 over the window (/history) of the time from a "
+        "tick's deadline to its result being available (process mode: the worker's deadline "
+        "to the worker releasing the tick; thread mode: the loop's deadline to step() "
+        "returning); relay: from the worker's deadline to the record being ready to publish "
+        "in the web server's process (process mode); sim: the worker's own compute time per "
+        "tick. 429 (+ closed): uploads refused with 429, plus those whose connection the "
+        "server closed after its early 429 while the client was still sending the body."
     )
     others = [(r["slots"], r["case"], r["mode"], r["other"]) for r in rows if r["other"]]
     if others:

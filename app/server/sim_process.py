@@ -1,21 +1,32 @@
-"""The docking simulation in a persistent worker process (off the web server's GIL).
+"""The docking simulation in a persistent worker process that keeps the tick schedule.
 
-The tick loop (:class:`app.server.tick_loop.TickLoop`) runs in the web server's process and
-shares its GIL with request handling; rendering the 1280×1024 pair and running the pipeline
-(10–20 ms of CPU per tick at 30 Hz) there slows both. Here one worker process (``spawn``
-context) builds and steps the :class:`app.sim.docking.DockingSimulation`; the parent holds a
-``StepSource`` proxy. ``process_source_factory()`` returns a ``TickLoop`` source factory.
+Rendering the 1280×1024 pair and running the pipeline take 5–20 ms of CPU per tick at 30 Hz;
+in the web server's process they would share its GIL with request handling. Here one worker
+process (``spawn`` context) builds and steps the :class:`app.sim.docking.DockingSimulation`
+*and keeps the fixed-rate schedule itself*: the web server's process no longer sits in the
+loop's critical path (its tick thread, which shares the GIL with 50 WebSocket clients, uploads'
+HTTP work and the 3-D scene, woke up to 30 ms late and waited up to 60 ms more for the GIL to
+read a reply that was ready: measured, see ``docs/service.md``). The parent holds a
+``StepSource`` proxy (``paced``); ``process_source_factory()`` returns a ``TickLoop`` source
+factory.
 
-What crosses the process boundary (one duplex pipe, one request/one reply at a time):
+What crosses the process boundary (one duplex pipe):
 
 * ``build``: the validated :class:`DockingConfig` (already checked in the parent, so a refused
   config raises there exactly as in-process) and the calibration as a dict (exact floats);
   the worker answers once the new simulation is built, or with the error (the previous
-  simulation is kept, so a refused config leaves the running source untouched);
-* ``step``: the reply is the :class:`DockingTick` without its images (≈ 3 kB pickled) and the
-  worker's step time. The worker computes the *next* tick right after replying (one tick of
-  look-ahead), so the render + pipeline overlap the parent's publication and sleep; a ``step``
-  request is then answered at once;
+  simulation and its schedule are kept, so a refused config leaves the running source
+  untouched);
+* ``run`` (sent by the first ``step()`` for a simulation, with the period and the first
+  deadline) starts the worker's schedule; from then on the worker sends, at each deadline and
+  unasked, the tick computed for it: the :class:`DockingTick` without its images (≈ 3 kB
+  pickled), the worker's compute time, the deadline, the release time and the deadlines it
+  missed (the same rule as the tick loop: a late tick skips the deadlines that passed).
+  Between deadlines it computes up to ``lookahead`` ticks ahead (default 2), so a tick is
+  normally ready before its deadline and an occasional slow one (a descheduled render) does
+  not make the next late. The parent's ``step()`` returns the next released tick; ``pause``
+  (``TickLoop.stop_sim``) ends the schedule, a new ``build`` too; a finished or failed
+  simulation ends it by itself;
 * camera images (2 × 1.3 MB per tick) never go through the pipe: the worker copies them into a
   ring of slots in :mod:`multiprocessing.shared_memory` (a seqlock-style stamp per slot), and
   the parent's tick reads them lazily, only when a subscriber asks for ``left_image`` /
@@ -24,14 +35,18 @@ What crosses the process boundary (one duplex pipe, one request/one reply at a t
   calibration with a larger image size) or without shared memory travel in the pipe, at
   ``image_hz`` at most.
 
-Failures: every wait on the pipe has a timeout (start-up, build, step); a worker that died
-(EOF, exit) or did not answer in time is killed and a new one spawned, the simulation rebuilt
-from its last config: the failed ``step()`` raises :class:`WorkerRestarted` (the tick loop
-counts an error and starts a new run). The tick thread never waits longer than a timeout.
+The worker asks for a real-time CPU priority (``SCHED_RR``, the lowest level) where it may
+(root, CAP_SYS_NICE), else nice −10, else keeps the default, silently.
+
+Failures: every wait on the pipe has a timeout (start-up, build, the next tick); a worker that
+died (EOF, exit) or did not answer in time is killed and a new one spawned, the simulation
+rebuilt from its last config: the failed ``step()`` raises :class:`WorkerRestarted` (the tick
+loop counts an error and starts a new run). The tick thread never waits longer than a timeout.
 """
 
 from __future__ import annotations
 
+import gc
 import logging
 import multiprocessing
 import os
@@ -40,6 +55,7 @@ import struct
 import threading
 import time
 import traceback
+from collections import deque
 from dataclasses import replace
 from multiprocessing.connection import Connection
 from typing import Any
@@ -48,13 +64,20 @@ import numpy as np
 
 from app.server.lazy_images import ImagePair, LazyImagePair
 from app.server.schemas import SimConfig
-from app.server.tick_loop import SourceRestarted, SourceUnavailable, docking_config
+from app.server.tick_loop import (
+    SourceRestarted,
+    SourceUnavailable,
+    docking_config,
+    raise_thread_priority,
+)
 
 log = logging.getLogger(__name__)
 
 SPAWN = multiprocessing.get_context("spawn")
 DEFAULT_IMAGE_SIZE = (1280, 1024)  # (w, h) when no calibration says otherwise
 RING_SLOTS = 8  # ≈ 0.23 s of ticks at 30 Hz before a slot is reused
+LOOKAHEAD = 2  # ticks the worker computes ahead of their deadlines
+POLL_SLACK_S = 0.002  # the pipe is polled until this long before a deadline, then a sleep
 _HDR = struct.Struct("<qqqqq")  # stamp, left h, left w, right h, right w
 _HDR_BYTES = 64
 
@@ -65,6 +88,10 @@ class SimWorkerError(SourceUnavailable):
 
 class WorkerRestarted(SourceRestarted):
     """The worker was lost during a step; a new one runs the same config from its start."""
+
+
+class StepCancelled(RuntimeError):
+    """The schedule a ``step()`` waited on was paused or its simulation replaced meanwhile."""
 
 
 class _Lost(Exception):
@@ -214,17 +241,35 @@ def _error_reply(exc: BaseException) -> tuple[Any, ...]:
     return ("error", type(exc).__name__, str(exc), traceback.format_exc())
 
 
-WORKER_PRIORITY = -10  # nice value the worker asks for (granted where privileged)
+WORKER_NICE = -10  # nice value the worker asks for where real-time scheduling is refused
 
 
-def _raise_priority() -> None:
-    """Ask for a higher CPU priority than the web server, the upload workers (nice +10) and a
-    browser on the same machine: the loop's deadline is the service's first duty. Granted
-    where the service may (root, CAP_SYS_NICE, a container); elsewhere it keeps the default."""
-    try:
-        os.setpriority(os.PRIO_PROCESS, 0, WORKER_PRIORITY)
-    except (OSError, AttributeError):
-        pass
+def _raise_priority() -> str:
+    """Ask for a CPU priority above the web server, the upload workers (nice +10) and a
+    browser on the same machine: the loop's deadline is the service's first duty.
+    ``SCHED_RR`` where permitted (root, CAP_SYS_NICE; the worker sleeps between ticks), else
+    nice −10, else the default, silently (:func:`app.server.tick_loop.raise_thread_priority`)."""
+    return raise_thread_priority(WORKER_NICE, realtime=True)
+
+
+class _Pace:
+    """The worker's fixed-rate schedule for one simulation (``sid``) and run request (``gen``).
+
+    Same rule as :class:`app.server.tick_loop.TickLoop`: deadlines ``period_s`` apart; a tick
+    released after the next deadline has passed skips the missed deadlines (counted)."""
+
+    def __init__(self, sid: int, gen: int, period_s: float, first_deadline: float) -> None:
+        self.sid = sid
+        self.gen = gen
+        self.period_s = period_s
+        self.next_t = first_deadline
+
+    def due(self, now: float) -> tuple[float, int]:
+        """The deadline served now and the deadlines missed before it (``now ≥ next_t``)."""
+        missed = int((now - self.next_t) / self.period_s + 1e-9)
+        deadline = self.next_t + missed * self.period_s
+        self.next_t = deadline + self.period_s
+        return deadline, missed
 
 
 def _worker_main(
@@ -234,11 +279,19 @@ def _worker_main(
     ring_capacity: int,
     epoch: int,
     image_period_s: float,
-    prefetch: bool,
+    lookahead: int,
 ) -> None:
-    """Entry point of the worker: serve ``build`` / ``step`` / ``ping`` / ``stop``."""
+    """Entry point of the worker: serve ``build`` / ``run`` / ``pause`` / ``ping`` / ``stop``.
+
+    ``run`` starts the worker's own fixed-rate schedule for a built simulation: at each
+    deadline it sends the next tick (``("tick", sid, gen, …, deadline, released, missed)``)
+    without being asked, and in between computes up to ``lookahead`` ticks ahead (their
+    images go to the ring when computed). Requests are read between ticks, never while a
+    deadline is due. A simulation that finished or raised ends its schedule (the parent asks
+    again); ``pause``, a new ``build`` or ``run`` replace it.
+    """
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
-    _raise_priority()
+    policy = _raise_priority()
     ring = None
     if ring_name is not None:
         try:
@@ -247,13 +300,45 @@ def _worker_main(
             ring = None
     from app.sim.docking import DockingSimulation
 
+    gc.collect()
+    gc.freeze()  # the modules out of the cyclic collector's sight (its pauses stay short)
     state = _WorkerState(ring, epoch, image_period_s)
     sim: Any = None
     sim_id = -1
-    pending: tuple[Any, ...] | None = None
-    conn.send(("ready", os.getpid()))
+    ahead: deque[tuple[Any, ...]] = deque()  # computed, not yet released (this sim)
+    pace: _Pace | None = None
+    conn.send(("ready", os.getpid(), policy))
+
+    def release(p: _Pace) -> bool:
+        """Send the tick for the deadline due now; ``False`` ends the schedule."""
+        deadline, missed = p.due(time.monotonic())
+        reply = ahead.popleft() if ahead else state.step(sim)  # late if not computed ahead
+        if reply[0] != "tick":
+            conn.send(("tickerror", p.sid, p.gen, *reply[1:]))
+            return False
+        conn.send(("tick", p.sid, p.gen, *reply[1:], deadline, time.monotonic(), missed))
+        return not reply[2]  # the simulation finished with this tick
+
     while True:
         try:
+            if pace is not None:
+                now = time.monotonic()
+                if now >= pace.next_t:
+                    if not release(pace):
+                        pace = None
+                    continue
+                if conn.poll(0):
+                    pass  # a request first
+                elif (
+                    len(ahead) < lookahead
+                    and not sim.done
+                    and not (ahead and ahead[-1][0] != "tick")  # a raise ends the look-ahead
+                ):
+                    ahead.append(state.step(sim))
+                    continue
+                elif not conn.poll(max(0.0, pace.next_t - now - POLL_SLACK_S)):
+                    time.sleep(max(0.0, pace.next_t - time.monotonic()))  # ms-rounded poll
+                    continue  # the deadline
             msg = conn.recv()
         except (EOFError, OSError):
             break  # the parent is gone
@@ -267,21 +352,21 @@ def _worker_main(
             try:
                 new = DockingSimulation(dcfg, calibration=calibration_from_wire(calib_wire))
             except Exception as exc:
-                conn.send(_error_reply(exc))  # the running simulation is kept
+                conn.send(_error_reply(exc))  # the running simulation (and schedule) is kept
                 continue
-            sim, sim_id, pending = new, new_id, None
+            sim, sim_id, pace = new, new_id, None
+            ahead.clear()
             conn.send(("built", new_id, bool(sim.done)))
-            if prefetch and not sim.done:
-                pending = state.step(sim)
-        elif op == "step":
-            if sim is None or msg[1] != sim_id:
-                conn.send(("error", "RuntimeError", "stale simulation source", ""))
-                continue
-            reply = pending if pending is not None else state.step(sim)
-            pending = None
-            conn.send(reply)
-            if prefetch and reply[0] == "tick" and not sim.done:
-                pending = state.step(sim)  # the next tick, while the parent publishes
+        elif op == "run":
+            _, sid, gen, period_s, first_deadline = msg
+            if sim is None or sid != sim_id:
+                conn.send(("tickerror", sid, gen, "RuntimeError", "stale simulation source", ""))
+            elif not ahead and sim.done:
+                conn.send(("tickerror", sid, gen, "RuntimeError", "simulation finished", ""))
+            else:
+                pace = _Pace(sid, gen, float(period_s), float(first_deadline))
+        elif op == "pause":
+            pace = None  # the ticks computed ahead are kept for the next run
         else:
             conn.send(("error", "RuntimeError", f"unknown request {op!r}", ""))
     if ring is not None:
@@ -290,7 +375,14 @@ def _worker_main(
 
 # ---- the parent side --------------------------------------------------------------------------
 class ProcessTick(LazyImagePair):
-    """A tick from the worker: the :class:`DockingTick`'s fields, images read on demand."""
+    """A tick from the worker: the :class:`DockingTick`'s fields, images read on demand.
+
+    Its schedule, on the machine's monotonic clock (``time.monotonic``, the same in every
+    process): ``deadline_s`` (the worker's deadline this tick serves), ``released_s`` (when
+    the worker sent it: its result available), ``received_s`` (when this process had it) and
+    ``missed_deadlines`` (deadlines the worker skipped just before this one)."""
+
+    paced = True  # the worker keeps the schedule (app.server.tick_loop.TickLoop reads this)
 
     def __init__(
         self,
@@ -300,12 +392,21 @@ class ProcessTick(LazyImagePair):
         stamp: int,
         inline: tuple[np.ndarray, np.ndarray] | None,
         sim_ms: float,
+        *,
+        deadline_s: float,
+        released_s: float,
+        received_s: float,
+        missed_deadlines: int,
     ) -> None:
         super().__init__(inline)
         self._tick = tick
         self._ring = ring
         self._slot = slot
         self._stamp = stamp
+        self.deadline_s = deadline_s
+        self.released_s = released_s
+        self.received_s = received_s
+        self.missed_deadlines = missed_deadlines
         self.extra_timings_ms = {"sim": sim_ms}
 
     def __getattr__(self, name: str) -> Any:
@@ -336,8 +437,16 @@ def _raise_remote(reply: tuple[Any, ...]) -> None:
     raise RuntimeError(f"{kind}: {message}")
 
 
+_STREAM = ("tick", "tickerror")  # what the worker sends unasked, on its schedule
+INBOX_MAX = 64  # stream messages kept while a request waits for its reply
+STEP_POLL_S = 0.05  # a waiting step() re-checks pause / replacement this often
+
+
 class SimWorker:
-    """One persistent worker process (respawned when lost) and its image ring."""
+    """One persistent worker process (respawned when lost) and its image ring.
+
+    The worker keeps the tick schedule (:func:`_worker_main`); :meth:`step` starts it on the
+    first call for a simulation and then returns the next tick the worker released."""
 
     def __init__(
         self,
@@ -348,7 +457,7 @@ class SimWorker:
         start_timeout_s: float = 60.0,
         ring_slots: int = RING_SLOTS,
         shared_images: bool = True,
-        prefetch: bool = True,
+        lookahead: int = LOOKAHEAD,
     ) -> None:
         self.image_period_s = 1.0 / image_hz if image_hz > 0 else float("inf")
         self.step_timeout_s = step_timeout_s
@@ -356,7 +465,7 @@ class SimWorker:
         self.start_timeout_s = start_timeout_s
         self.ring_slots = ring_slots
         self.shared_images = shared_images
-        self.prefetch = prefetch
+        self.lookahead = max(0, int(lookahead))
         self._lock = threading.RLock()
         self._proc: Any = None
         self._conn: Connection | None = None
@@ -366,7 +475,11 @@ class SimWorker:
         self._current: tuple[int, Any, dict[str, Any] | None] | None = None
         self._restarted_sid: int | None = None
         self._closed = False
+        self._gen = 0  # run requests sent (a tick of an older one is stale)
+        self._pacing: int | None = None  # the sid the worker's schedule runs for
+        self._inbox: deque[tuple[Any, ...]] = deque(maxlen=INBOX_MAX)
         self.pid: int | None = None
+        self.policy: str | None = None  # the worker's CPU priority: "rr", "nice", "default"
         self.spawns = 0
         self.restarts = 0  # workers lost (crash, exit, timeout) and replaced
 
@@ -404,7 +517,7 @@ class SimWorker:
                 0 if ring is None else ring.capacity,
                 self._epoch,
                 self.image_period_s,
-                self.prefetch,
+                self.lookahead,
             ),
             name=f"aar-sim-worker-{self._epoch}",
             daemon=True,
@@ -414,17 +527,20 @@ class SimWorker:
         self._proc, self._conn = proc, parent
         self.spawns += 1
         try:
-            reply = self._wait(self.start_timeout_s)
+            reply = self._wait_for(("ready",), self.start_timeout_s)
         except _Lost as exc:
             self._kill()
             raise SimWorkerError(f"simulation worker did not start: {exc}") from None
         self.pid = int(reply[1])
-        log.info("simulation worker started (pid %d)", self.pid)
+        self.policy = str(reply[2])
+        log.info("simulation worker started (pid %d, scheduling %s)", self.pid, self.policy)
 
     def _kill(self) -> None:
         proc, conn = self._proc, self._conn
         self._proc = self._conn = None
         self.pid = None
+        self._pacing = None
+        self._inbox.clear()
         if conn is not None:
             conn.close()
         if proc is not None:
@@ -433,6 +549,9 @@ class SimWorker:
             proc.join(timeout=5.0)
 
     def _wait(self, timeout_s: float) -> tuple[Any, ...]:
+        """The next message from the worker (the inbox first)."""
+        if self._inbox:
+            return self._inbox.popleft()
         conn, proc = self._conn, self._proc
         if conn is None or proc is None:
             raise _Lost("no worker")
@@ -453,7 +572,22 @@ class SimWorker:
                     f"{type(exc).__name__} on the pipe, exit code {proc.exitcode}"
                 ) from None
 
-    def _request(self, msg: tuple[Any, ...], timeout_s: float) -> tuple[Any, ...]:
+    def _wait_for(self, kinds: tuple[str, ...], timeout_s: float) -> tuple[Any, ...]:
+        """The reply to a request (a message of ``kinds`` or an ``error``); ticks the worker
+        sends meanwhile are kept in the inbox for :meth:`step`."""
+        deadline = time.monotonic() + timeout_s
+        held: list[tuple[Any, ...]] = []
+        try:
+            while True:
+                msg = self._wait(max(1e-3, deadline - time.monotonic()))
+                if msg[0] in kinds or msg[0] == "error":
+                    return msg
+                if msg[0] in _STREAM:
+                    held.append(msg)
+        finally:
+            self._inbox.extendleft(reversed(held))
+
+    def _send(self, msg: tuple[Any, ...]) -> None:
         conn = self._conn
         if conn is None:
             raise _Lost("no worker")
@@ -461,12 +595,13 @@ class SimWorker:
             conn.send(msg)
         except (OSError, ValueError) as exc:
             raise _Lost(f"send failed ({type(exc).__name__})") from None
-        return self._wait(timeout_s)
 
     def _build_in_worker(self, sid: int, dcfg: Any, wire: dict[str, Any] | None) -> bool:
-        reply = self._request(("build", sid, dcfg, wire), self.build_timeout_s)
+        self._send(("build", sid, dcfg, wire))
+        reply = self._wait_for(("built",), self.build_timeout_s)
         if reply[0] == "error":
             _raise_remote(reply)
+        self._pacing = None  # a new simulation: the worker's schedule ended
         return bool(reply[2])
 
     def _replace(self) -> None:
@@ -509,9 +644,44 @@ class SimWorker:
                 self._kill()
                 raise SimWorkerError(f"simulation worker lost while building: {exc}") from None
             self._current = (sid, dcfg, wire)
-            return ProcessSimSource(self, sid, done)
+            return ProcessSimSource(self, sid, done, 1.0 / float(dcfg.tick_hz))
 
-    def step(self, sid: int) -> tuple[ProcessTick, bool]:
+    def _lost(self, exc: _Lost) -> WorkerRestarted:
+        """The worker was lost during a step: replace it (under ``self._lock``)."""
+        self.restarts += 1
+        log.error("simulation worker lost (%s); starting a new one", exc)
+        self._replace()
+        return WorkerRestarted(f"simulation worker lost ({exc}); restarted: a new run")
+
+    def _take(self, sid: int, gen: int) -> tuple[Any, ...] | None:
+        """The next stream message of run ``gen`` of ``sid`` if one has arrived (stale ones
+        are dropped); ``None`` if none yet. Under ``self._lock``."""
+        while self._inbox:
+            msg = self._inbox.popleft()
+            if msg[0] in _STREAM and msg[1] == sid and msg[2] == gen:
+                return msg
+        conn, proc = self._conn, self._proc
+        if conn is None or proc is None:
+            raise _Lost("no worker")
+        try:
+            while conn.poll(0):
+                msg = conn.recv()
+                if msg[0] in _STREAM and msg[1] == sid and msg[2] == gen:
+                    return msg
+        except (EOFError, OSError) as exc:
+            proc.join(timeout=0.2)  # for its exit code
+            raise _Lost(f"{type(exc).__name__} on the pipe, exit code {proc.exitcode}") from None
+        if not proc.is_alive() and not conn.poll(0):
+            raise _Lost(f"worker exited with code {proc.exitcode}")
+        return None
+
+    def step(self, sid: int, period_s: float) -> tuple[ProcessTick, bool]:
+        """The next tick the worker releases on its schedule (started here if it is not
+        running for ``sid``: first deadline now, then every ``period_s``).
+
+        The wait for it holds no lock (``build``, ``pause`` and ``ping`` go ahead meanwhile);
+        if the schedule is paused or the simulation replaced during the wait, this raises
+        :class:`StepCancelled`."""
         with self._lock:
             if self._closed:
                 raise SimWorkerError("the simulation worker is shut down")
@@ -521,26 +691,77 @@ class SimWorker:
             if sid == self._restarted_sid:  # rebuilt by a build() after a loss: say so once
                 self._restarted_sid = None
                 raise WorkerRestarted("simulation worker restarted: a new run")
-            try:
-                reply = self._request(("step", sid), self.step_timeout_s)
-            except _Lost as exc:
-                self.restarts += 1
-                log.error("simulation worker lost (%s); starting a new one", exc)
-                self._replace()
-                raise WorkerRestarted(
-                    f"simulation worker lost ({exc}); restarted: a new run"
-                ) from None
-            if reply[0] == "error":
-                _raise_remote(reply)
-            _, tick, done, sim_ms, slot, stamp, inline = reply
+            if self._pacing != sid:
+                self._gen += 1
+                try:
+                    self._send(("run", sid, self._gen, period_s, time.monotonic()))
+                except _Lost as exc:
+                    raise self._lost(exc) from None
+                self._pacing = sid
+            gen = self._gen
+        give_up = time.monotonic() + self.step_timeout_s
+        while True:
+            with self._lock:
+                if self._closed:
+                    raise SimWorkerError("the simulation worker is shut down")
+                if self._pacing != sid or self._gen != gen:
+                    raise StepCancelled("the schedule was paused or its simulation replaced")
+                try:
+                    msg = self._take(sid, gen)
+                    if msg is None and time.monotonic() >= give_up:
+                        raise _Lost(f"no answer within {self.step_timeout_s:g} s")
+                except _Lost as exc:
+                    raise self._lost(exc) from None
+                conn = self._conn
+            if msg is not None:
+                break
+            try:  # outside the lock: wait for the pipe (a short slice: re-check the state)
+                assert conn is not None
+                conn.poll(min(STEP_POLL_S, max(0.0, give_up - time.monotonic())))
+            except (EOFError, OSError, ValueError):
+                pass  # closed meanwhile: seen under the lock
+        received = time.monotonic()
+        with self._lock:
+            if msg[0] == "tickerror":
+                if self._pacing == sid and self._gen == gen:
+                    self._pacing = None  # the worker's schedule ended with the error
+                _raise_remote(("error", *msg[3:]))
+            tick, done, sim_ms, slot, stamp, inline, deadline, released, missed = msg[3:]
+            if done and self._pacing == sid and self._gen == gen:
+                self._pacing = None  # the worker's schedule ended with the simulation
             ring = self._ring if slot >= 0 else None
-            return ProcessTick(tick, ring, slot, stamp, inline, sim_ms), bool(done)
+        pt = ProcessTick(
+            tick,
+            ring,
+            slot,
+            stamp,
+            inline,
+            sim_ms,
+            deadline_s=deadline,
+            released_s=released,
+            received_s=received,
+            missed_deadlines=int(missed),
+        )
+        return pt, bool(done)
+
+    def pause(self, sid: int) -> None:
+        """Stop the worker's schedule for ``sid`` (the simulation is kept; ticks computed
+        ahead are released when it runs again)."""
+        with self._lock:
+            if self._pacing != sid or self._conn is None:
+                return
+            self._pacing = None
+            try:
+                self._send(("pause",))
+            except _Lost:
+                pass  # noticed (and replaced) at the next step
 
     def ping(self, timeout_s: float = 5.0) -> int:
         """The worker's pid (a round trip through the pipe)."""
         with self._lock:
             try:
-                reply = self._request(("ping",), timeout_s)
+                self._send(("ping",))
+                reply = self._wait_for(("pong",), timeout_s)
             except _Lost as exc:
                 raise SimWorkerError(str(exc)) from None
             return int(reply[1])
@@ -573,11 +794,17 @@ class SimWorker:
 
 
 class ProcessSimSource:
-    """``StepSource`` proxy of the simulation built in the worker (``done`` + ``step()``)."""
+    """``StepSource`` proxy of the simulation built in the worker (``done`` + ``step()``).
 
-    def __init__(self, worker: SimWorker, sid: int, done: bool) -> None:
+    ``paced``: the worker keeps the schedule; ``step()`` waits for its next tick (at most a
+    period, the first one is due at once) and ``pause()`` stops the schedule."""
+
+    paced = True
+
+    def __init__(self, worker: SimWorker, sid: int, done: bool, period_s: float) -> None:
         self.worker = worker
         self.sid = sid
+        self.period_s = period_s
         self._done = done
 
     @property
@@ -585,8 +812,11 @@ class ProcessSimSource:
         return self._done
 
     def step(self) -> ProcessTick:
-        tick, self._done = self.worker.step(self.sid)
+        tick, self._done = self.worker.step(self.sid, self.period_s)
         return tick
+
+    def pause(self) -> None:
+        self.worker.pause(self.sid)
 
 
 class ProcessSourceFactory:
@@ -609,7 +839,7 @@ def process_source_factory(
     build_timeout_s: float = 30.0,
     start_timeout_s: float = 60.0,
     shared_images: bool = True,
-    prefetch: bool = True,
+    lookahead: int = LOOKAHEAD,
 ) -> ProcessSourceFactory:
     """A factory for ``TickLoop(source_factory=...)`` running the simulation in a worker
     process (started on the first build; ``factory.close()`` stops it)."""
@@ -620,6 +850,6 @@ def process_source_factory(
             build_timeout_s=build_timeout_s,
             start_timeout_s=start_timeout_s,
             shared_images=shared_images,
-            prefetch=prefetch,
+            lookahead=lookahead,
         )
     )

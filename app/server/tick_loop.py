@@ -5,12 +5,25 @@ subscribers (history, WebSocket hub, 3-D scene, recorder).
 A late tick is dropped and counted, never queued: when a step overruns the period the
 missed deadlines are skipped. The clock is injectable (:class:`FakeClock`) so that tests can
 step the loop deterministically with :meth:`TickLoop.run_iterations`.
+
+A *paced* source (``source.paced``: the simulation worker process,
+:mod:`app.server.sim_process`) keeps the schedule itself, by the same rule, and its
+``step()`` returns each tick when the source releases it at its deadline: the loop thread
+then only relays (converts, publishes), and the source's missed deadlines are counted here.
+
+Step latency (``timings_ms["step"]``, the ``/metrics`` stage ``step``): the time from the
+deadline a tick serves to its result being available: for a paced source, from the worker's
+deadline to the worker releasing the tick (computed ahead or, if late, just finished); for an
+in-process source, from the loop's deadline to ``step()`` returning (the thread's lateness in
+waking up included). ``timings_ms["relay"]`` (paced sources): from the deadline to the record
+being ready to publish in this process.
 """
 
 from __future__ import annotations
 
 import logging
 import math
+import os
 import threading
 import time
 from collections import deque
@@ -64,7 +77,11 @@ class FakeClock:
 
 
 class StepSource(Protocol):
-    """What the loop drives: :class:`app.sim.docking.DockingSimulation` satisfies it."""
+    """What the loop drives: :class:`app.sim.docking.DockingSimulation` satisfies it.
+
+    Optional: ``paced = True`` (the source keeps the schedule: ``step()`` blocks until its
+    next deadline's tick, which carries ``deadline_s``, ``released_s`` on the monotonic clock
+    and ``missed_deadlines``) and ``pause()`` (stop that schedule; called by ``stop_sim``)."""
 
     @property
     def done(self) -> bool: ...
@@ -200,6 +217,37 @@ Subscriber = Callable[[TickRecord, Any], None]
 """Called in the loop thread with the record and the raw tick (images; ``None`` for uploads)."""
 
 
+TICK_THREAD_NICE = -10  # the tick thread's nice value where the process may raise it
+SERVICE_NICE = -5  # the web server's other threads (app.server.main), where permitted
+RT_PRIORITY = 1  # SCHED_RR priority asked for (the lowest real-time level)
+
+
+def raise_thread_priority(nice: int, *, realtime: bool = False) -> str:
+    """Raise the calling thread's CPU priority where permitted (Linux: each thread has its
+    own; threads it starts later inherit it), silently keeping the default elsewhere.
+
+    ``realtime``: ``SCHED_RR`` at :data:`RT_PRIORITY` first (root or CAP_SYS_NICE; the
+    kernel's real-time throttling still leaves ≥ 5 % of each CPU to the others); then nice
+    ``nice`` (never lowered). Returns what was obtained: ``"rr"``, ``"nice"`` or
+    ``"default"``."""
+    try:
+        tid = threading.get_native_id()
+    except AttributeError:  # pragma: no cover - no native thread ids
+        return "default"
+    if realtime:
+        try:
+            os.sched_setscheduler(tid, os.SCHED_RR, os.sched_param(RT_PRIORITY))
+            return "rr"
+        except (OSError, AttributeError):
+            pass
+    try:
+        if os.getpriority(os.PRIO_PROCESS, tid) > nice:
+            os.setpriority(os.PRIO_PROCESS, tid, nice)
+        return "nice"
+    except (OSError, AttributeError):
+        return "default"
+
+
 class TickLoop:
     """Runs the simulated stream at a fixed rate in a dedicated thread and publishes records."""
 
@@ -212,8 +260,13 @@ class TickLoop:
         clock: Clock | None = None,
         history_s: float = 60.0,
         auto_restart_s: float | None = 3.0,
+        realtime: bool = False,
     ) -> None:
+        """``realtime``: the tick thread asks for ``SCHED_RR`` (else nice −10): for a thread
+        that only relays a paced source's ticks (it would compete at that level otherwise)."""
         self.clock: Clock = clock or MonotonicClock()
+        self.realtime = realtime
+        self.priority: str | None = None  # what the tick thread obtained
         self._factory = source_factory
         self._config = config
         self._calibration = calibration
@@ -316,6 +369,9 @@ class TickLoop:
     def stop_sim(self) -> None:
         with self._lock:
             self.running = False
+            pause = getattr(self._source, "pause", None)
+            if pause is not None:
+                pause()  # a paced source stops its schedule
 
     # ---- publication --------------------------------------------------------------
     def subscribe(self, fn: Subscriber) -> None:
@@ -367,8 +423,30 @@ class TickLoop:
         dq.append(ms)
 
     # ---- one tick -----------------------------------------------------------------
-    def tick(self) -> TickRecord | None:
-        """Step the simulation once and publish; ``None`` if not running or finished."""
+    def _step_failed(self, exc: Exception) -> None:
+        """Count a failed step (under ``self._lock``)."""
+        self.errors += 1
+        self._consecutive_errors += 1
+        self.last_error = f"{type(exc).__name__}: {exc}"
+        if isinstance(exc, SourceRestarted):  # rebuilt from its config: a new run
+            log.error("simulation step failed: %s", self.last_error)
+            self.run += 1
+            self._done_at = None
+        else:
+            log.error("simulation step failed", exc_info=exc)
+        if self._consecutive_errors >= MAX_CONSECUTIVE_ERRORS:
+            log.error("simulation stopped after %d failed steps", MAX_CONSECUTIVE_ERRORS)
+            self.running = False
+            self._consecutive_errors = 0
+
+    def tick(self, deadline: float | None = None) -> TickRecord | None:
+        """Step the simulation once and publish; ``None`` if not running or finished.
+
+        ``deadline``: the loop clock's deadline this tick serves (the scheduler's; ``None``
+        when called directly) — the step latency starts there. A paced source's ``step()``
+        (a wait of up to a period) runs outside the loop's lock, so that ``set_config`` or
+        ``stop_sim`` never wait for it; a tick of a source replaced or stopped meanwhile is
+        dropped, not published."""
         with self._lock:
             now = self.clock.now()
             if not self.running:
@@ -386,30 +464,37 @@ class TickLoop:
                     assert src is not None
                 else:
                     return None
-            t0 = time.perf_counter()
+            paced = bool(getattr(src, "paced", False))
+            if not paced:
+                t0 = time.perf_counter()
+                try:
+                    raw = src.step()
+                except Exception as exc:
+                    self._step_failed(exc)
+                    return None
+                late_s = 0.0 if deadline is None else max(0.0, now - deadline)
+                step_ms = (late_s + time.perf_counter() - t0) * 1e3
+        if paced:
             try:
-                raw = src.step()
+                raw = src.step()  # the source's next deadline's tick
             except Exception as exc:
-                self.errors += 1
-                self._consecutive_errors += 1
-                self.last_error = f"{type(exc).__name__}: {exc}"
-                if isinstance(exc, SourceRestarted):  # rebuilt from its config: a new run
-                    log.error("simulation step failed: %s", self.last_error)
-                    self.run += 1
-                    self._done_at = None
-                else:
-                    log.exception("simulation step failed")
-                if self._consecutive_errors >= MAX_CONSECUTIVE_ERRORS:
-                    log.error("simulation stopped after %d failed steps", MAX_CONSECUTIVE_ERRORS)
-                    self.running = False
-                    self._consecutive_errors = 0
-                return None
+                with self._lock:
+                    if src is self._source and self.running:
+                        self._step_failed(exc)
+                return None  # else: stopped or replaced while waiting, not an error
+        with self._lock:
+            if paced:
+                if src is not self._source or not self.running:
+                    return None
+                step_ms = (raw.released_s - raw.deadline_s) * 1e3
+                self.dropped += int(raw.missed_deadlines)
             self._consecutive_errors = 0
-            step_ms = (time.perf_counter() - t0) * 1e3
             run = self.run
         record = tick_to_record(
             raw, seq=self.next_seq(), clock_s=self.clock.now(), run=run, step_ms=step_ms
         )
+        if paced:  # the source's deadline is on the monotonic clock
+            record.timings_ms["relay"] = (time.monotonic() - raw.deadline_s) * 1e3
         for name, value in record.timings_ms.items():
             self._add_stage(name, value)
         self.publish(record, raw)
@@ -425,6 +510,11 @@ class TickLoop:
         period = self.period_s
         now = self.clock.now()
         self.heartbeat = now
+        src = self._source
+        if self.running and src is not None and getattr(src, "paced", False) and not src.done:
+            self._next_t = None  # the source keeps the schedule: wait for its next tick
+            self.tick()
+            return
         if self._next_t is None:
             self._next_t = now
         if now < self._next_t:
@@ -434,8 +524,9 @@ class TickLoop:
         if missed > 0:
             self.dropped += missed
             self._next_t += missed * period
+        deadline = self._next_t
         self._next_t += period
-        self.tick()
+        self.tick(deadline)
 
     def run_iterations(self, n: int) -> None:
         """Drive the scheduler synchronously (tests, with a :class:`FakeClock`)."""
@@ -443,6 +534,8 @@ class TickLoop:
             self._iterate()
 
     def _run(self) -> None:
+        # it wakes up before the server's other threads (and a browser on the same machine)
+        self.priority = raise_thread_priority(TICK_THREAD_NICE, realtime=self.realtime)
         while not self._stop.is_set():
             try:
                 self._iterate()

@@ -110,8 +110,8 @@ def _init_worker(nice: int, parent_pid: int) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
     _exit_with_parent(parent_pid)
     if nice:
-        try:
-            os.nice(nice)
+        try:  # absolute: the web server's own priority (raised where permitted) is not added
+            os.setpriority(os.PRIO_PROCESS, 0, max(nice, os.getpriority(os.PRIO_PROCESS, 0)))
         except OSError:  # pragma: no cover - not permitted here
             pass
     # the heavy imports now, not in the first request
