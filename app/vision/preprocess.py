@@ -31,7 +31,9 @@ def validate_image(image: object, name: str = "image") -> U8Image:
         raise ImageError(f"{name}: expected a 2-D gray or 3-D colour image, got {image.ndim}-D")
     if image.shape[0] < 16 or image.shape[1] < 16:
         raise ImageError(f"{name}: image too small ({image.shape[1]}×{image.shape[0]} px)")
-    return image
+    # row-major (a view, e.g. one channel of H×W×1 or a strided crop, is copied): the
+    # compiled loops are prepared for C-contiguous images
+    return np.ascontiguousarray(image)
 
 
 def to_gray(image: U8Image) -> U8Image:
