@@ -115,3 +115,57 @@ def test_compiled_ihwt_equals_the_integral_image_formulation() -> None:
     assert got.shape == (200, 64)
     assert np.max(np.abs(got - ref)) < 1e-12
     assert np.all(np.abs(np.linalg.norm(ref, axis=1) - 1.0) < 1e-9)  # not flat: can fail
+
+
+def test_each_compiled_loop_has_one_specialisation() -> None:
+    """Gray, colour, H×W×1 and strided inputs, full frames and tracked windows all reach the
+    compiled loops with the same argument types: what ``app.sim.warmup`` prepares is all that
+    is ever compiled (no compile pause in the middle of a stream)."""
+    from app.geometry import circle_fit, ring, triangulation
+    from app.sim.led_ring import stereo_center_x_mm, tilted_normal
+    from app.sim.paths import load_default_calibration
+    from app.sim.stereo_render import RenderSettings, render_pair
+    from app.vision import blob_kernels, ihwt, preprocess
+    from app.vision.pipeline import NavigationPipeline
+    from app.vision.tracking import StereoTracker
+
+    calib = load_default_calibration()
+    x = stereo_center_x_mm(calib, 1000.0)
+    for color in (False, True):
+        pipe, tracker = NavigationPipeline(calib), StereoTracker(calib, describe=True)
+        for i in range(4):
+            pair = render_pair(
+                calib,
+                np.array([x + 4.0 * i, 0.0, 1000.0]),
+                tilted_normal(12.0, 20.0),
+                RenderSettings(color=color, clutter=6),
+                seed=i,
+            )
+            left, right = pair.left, pair.right
+            if not color and i == 1:
+                left, right = left[:, :, None], right[:, :, None]  # H×W×1
+            if not color and i == 2:  # strided views
+                big = np.zeros((2,) + left.shape[:1] + (2 * left.shape[1],), np.uint8)
+                big[0, :, ::2], big[1, :, ::2] = left, right
+                left, right = big[0, :, ::2], big[1, :, ::2]
+            assert pipe.process(left, right).lock
+            assert tracker.update(left, right).lock
+        assert tracker.stats.tracked >= 2  # the windowed path ran too
+    loops = [
+        blob_kernels.centroid_table,
+        blob_kernels.label_pixels,
+        blob_kernels.foreground_pixels,
+        blob_kernels.gate_mask,
+        blob_kernels.hot_tile_boxes,
+        blob_kernels.pack_boxes,
+        preprocess.subsampled_histogram,
+        ihwt._describe_kernel,
+        triangulation._linear_kernel,
+        triangulation._refine_kernel,
+        circle_fit.circle_kernel,
+        circle_fit.distance_kernel,
+        ring._slot_angles,
+        ring._ring_measures,
+    ]
+    for loop in loops:
+        assert len(loop.signatures) == 1, (loop.__name__, loop.signatures)
