@@ -8,6 +8,8 @@ unmeasured side velocity). These tests check the mechanism and the fix on the sm
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import control
 import numpy as np
 import pytest
@@ -16,7 +18,7 @@ from app.control.lqr import IntegralLqr, augment_integral, augment_lag, discrete
 from app.control.margins import closed_loop_matrix, delay_margin_ticks, spectral_radius
 from app.control.observer import StateObserver
 from app.sim.docking import DockingConfig, DockingSimulation, _build_models
-from app.sim.imperfections import STANDARD, draw
+from app.sim.imperfections import NONE, STANDARD, draw
 from app.sim.receiver import LinearReceiver, perturbed_params
 
 DT = 0.02
@@ -157,3 +159,36 @@ def test_a_formerly_failing_standard_plant_now_captures() -> None:
     out = sim.run()
     assert out.captured and out.aborts == 0
     assert out.miss_distance_m < 0.305 / 2
+
+
+def test_hold_gap_on_lost_lock_rides_out_long_frame_drop_bursts() -> None:
+    """Long bursts of dropped frames (mean 25 frames) lose the lock before the last metre: by
+    default each loss breaks away (the run fails after the 4th); with
+    ``hold_gap_on_lost_lock`` the receiver holds its gap — never closing while unlocked — and
+    captures once the drogue is tracked again."""
+    imp = replace(NONE, name="long drops", drop_prob=0.05, drop_burst_mean=25.0)
+    outcomes = {}
+    for hold in (False, True):
+        sim = DockingSimulation(
+            DockingConfig(
+                turbulence="light",
+                seed=1,
+                vision=False,
+                imperfections=imp,
+                station_keep_s=0.5,
+                hold_gap_on_lost_lock=hold,
+            )
+        )
+        unlocked_far = 0
+        while not sim.done:
+            gap_before = sim.guidance.gap_cmd
+            phase_before = sim.guidance.phase
+            tick = sim.step()
+            if hold and not tick.lock and phase_before == "approach" and tick.phase == "approach":
+                unlocked_far += 1
+                assert sim.guidance.gap_cmd >= gap_before  # no closing while unlocked
+        outcomes[hold] = sim.outcome()
+        if hold:
+            assert unlocked_far > 25  # the bursts did cost the lock for a while
+    assert not outcomes[False].captured and outcomes[False].aborts == 4
+    assert outcomes[True].captured and outcomes[True].aborts <= 1

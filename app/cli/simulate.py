@@ -35,6 +35,12 @@ def add_docking_options(p: argparse.ArgumentParser) -> None:
         help="flight imperfections preset (latency, dropped frames, plant ≠ design, "
         "calibration and INS errors, tanker wake); see docs/models.md",
     )
+    p.add_argument(
+        "--hold-gap-on-lost-lock",
+        action="store_true",
+        help="a lock lost before the last metre holds the gap until re-acquired instead of "
+        "breaking away (default: break away)",
+    )
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -117,6 +123,7 @@ def run(args: argparse.Namespace) -> int:
             render_mode="windows" if args.roi else args.render,
             station_keep_s=args.station_keep,
             imperfections=args.imperfections,
+            hold_gap_on_lost_lock=args.hold_gap_on_lost_lock,
         )
         cfg.validate()
         if args.station_keep < 0:

@@ -94,6 +94,7 @@ def summarise(rows: list[dict[str, Any]], config: DockingConfig | None = None) -
             "tick_hz": config.tick_hz,
             "closure_speed_mps": config.closure_speed_mps,
             "station_keep_s": config.station_keep_s,
+            "hold_gap_on_lost_lock": config.hold_gap_on_lost_lock,
         }
         imp = resolve(config.imperfections)
         summary["imperfections"] = {"preset": imp.name, "values": imp.to_dict()}

@@ -130,6 +130,10 @@ class DockingConfig:
     imperfections: str | Imperfections = "none"
     # fuse delayed camera measurements at their exposure time (False: as if current; ablation)
     latency_compensation: bool = True
+    # a lock lost before the last metre (coast limit passed): False — break away (counts as an
+    # abort); True — hold the gap (the guidance closes only while the drogue is tracked) and
+    # resume when it is re-acquired; inside the last metre a lost lock always breaks away
+    hold_gap_on_lost_lock: bool = False
     roi_margin_px: int = 48  # unused (the tracker sizes its windows)
 
     def validate(self) -> None:
@@ -636,7 +640,12 @@ class DockingSimulation:
             reason = should_abort(
                 float(rel[0]), miss_pred, cfg.capture_radius_m, not lock, margin=cfg.abort_margin
             )
-            if reason is None and not lock and g.phase == "approach":
+            if (
+                reason is None
+                and not lock
+                and g.phase == "approach"
+                and not cfg.hold_gap_on_lost_lock
+            ):
                 reason = "lock_lost"
             if not self.filter.ever_initialised:
                 reason = None  # never acquired: hold the gap (guidance) instead of aborting
