@@ -41,20 +41,7 @@ def _plant(seed: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _current_loop(**extra):  # type: ignore[no-untyped-def]
-    m = _models()
-    return dict(
-        a=m.ad,
-        b=m.bd,
-        c_meas=m.c_meas,
-        obs_gain=m.obs_gain,
-        kp=m.lqr_kp,
-        ki=m.lqr_ki,
-        ke=m.lqr_ke,
-        design_lag_s=m.lqr_design_lag_s,
-        c_tip=m.c_tip,
-        dt=DT,
-        **extra,
-    )
+    return _models().margin_loop(DT, **extra)
 
 
 def _first_tuning_loop(**extra):  # type: ignore[no-untyped-def]
@@ -72,17 +59,8 @@ def _first_tuning_loop(**extra):  # type: ignore[no-untyped-def]
         np.array([3.0, 300.0, 300.0]),
         np.array([300.0, 4.0e5, 4.0e5, 4.0e5]),
     )
-    return dict(
-        a=m.ad,
-        b=m.bd,
-        c_meas=m.c_meas,
-        obs_gain=obs.gain,
-        kp=ctrl.kp,
-        ki=ctrl.ki,
-        c_tip=m.c_tip,
-        dt=DT,
-        **extra,
-    )
+    first = dict(obs_gain=obs.gain, kp=ctrl.kp, ki=ctrl.ki, ke=None, design_lag_s=0.0)
+    return m.margin_loop(DT, **first, **extra)
 
 
 def test_every_sampled_standard_plant_keeps_40ms_of_delay_margin_with_the_lag() -> None:

@@ -43,20 +43,7 @@ def _models():  # type: ignore[no-untyped-def]
 
 
 def _loop(**extra):  # type: ignore[no-untyped-def]
-    m = _models()
-    return dict(
-        a=m.ad,
-        b=m.bd,
-        c_meas=m.c_meas,
-        obs_gain=m.obs_gain,
-        kp=m.lqr_kp,
-        ki=m.lqr_ki,
-        ke=m.lqr_ke,
-        design_lag_s=m.lqr_design_lag_s,
-        c_tip=m.c_tip,
-        dt=DT,
-        **extra,
-    )
+    return _models().margin_loop(DT, **extra)
 
 
 # ------------------------------------------------------------------ presets

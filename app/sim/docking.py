@@ -239,6 +239,23 @@ class _Models:
     c_meas: FloatArray
     meas_sigma: FloatArray
 
+    def margin_loop(self, dt: float, **extra: Any) -> dict[str, Any]:
+        """Keyword arguments of :func:`app.control.margins.closed_loop_matrix` for this design
+        (observer, LQR, modelled servo lag); ``extra`` adds or overrides (``lag_s``, ``plant``…)."""
+        loop: dict[str, Any] = dict(
+            a=self.ad,
+            b=self.bd,
+            c_meas=self.c_meas,
+            obs_gain=self.obs_gain,
+            kp=self.lqr_kp,
+            ki=self.lqr_ki,
+            ke=self.lqr_ke,
+            design_lag_s=self.lqr_design_lag_s,
+            c_tip=self.c_tip,
+            dt=dt,
+        )
+        return {**loop, **extra}
+
 
 def _tip_jacobian(theta0: float, r_probe: FloatArray) -> FloatArray:
     def tip(angles: FloatArray) -> FloatArray:
