@@ -14,6 +14,7 @@ from __future__ import annotations
 import asyncio
 import gc
 import logging
+import sys
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from pathlib import Path
@@ -59,6 +60,7 @@ from app.server.tick_loop import (
 
 log = logging.getLogger(__name__)
 API_PREFIX = "/api/v1"
+GIL_SWITCH_S = 0.0005  # sys.setswitchinterval with the worker process (Python's default: 5 ms)
 _warned_opencv: list[bool] = []  # warn once per process
 
 
@@ -111,12 +113,18 @@ def create_app(
             )
         factory: SourceFactory
         process_factory: Any = None
+        switch_interval = sys.getswitchinterval()  # restored at shutdown
         if source_factory is not None:  # injected (tests): as given, in this process
             factory = source_factory
         elif settings.sim_in_process:
             factory = default_source_factory
         else:  # the simulation in a worker process, off this process's GIL
             from app.server.sim_process import process_source_factory
+
+            # the tick thread relays each tick through a few system calls, each of which gives
+            # the GIL away; with the event loop busy (50 WebSocket clients) taking it back cost
+            # up to the switch interval each time (5 ms by default): the relay fell behind
+            sys.setswitchinterval(min(sys.getswitchinterval(), GIL_SWITCH_S))
 
             factory = process_factory = process_source_factory(
                 image_hz=settings.image_hz, step_timeout_s=settings.sim_step_timeout_s
@@ -156,6 +164,7 @@ def create_app(
         st.streams = StreamService(loop, calib, settings)
 
         def release_workers() -> None:
+            sys.setswitchinterval(switch_interval)
             if process_factory is not None:
                 process_factory.close()
             if upload_pool is not None:

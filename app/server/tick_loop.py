@@ -16,7 +16,8 @@ deadline a tick serves to its result being available: for a paced source, from t
 deadline to the worker releasing the tick (computed ahead or, if late, just finished); for an
 in-process source, from the loop's deadline to ``step()`` returning (the thread's lateness in
 waking up included). ``timings_ms["relay"]`` (paced sources): from the deadline to the record
-being ready to publish in this process.
+being ready to publish in this process (``timings_ms["recv"]``: its part from the release to
+this process having read the tick).
 """
 
 from __future__ import annotations
@@ -495,6 +496,9 @@ class TickLoop:
         )
         if paced:  # the source's deadline is on the monotonic clock
             record.timings_ms["relay"] = (time.monotonic() - raw.deadline_s) * 1e3
+            received = getattr(raw, "received_s", None)
+            if received is not None:  # released → read here (pipe, wake-up, GIL)
+                record.timings_ms["recv"] = (received - raw.released_s) * 1e3
         for name, value in record.timings_ms.items():
             self._add_stage(name, value)
         self.publish(record, raw)
