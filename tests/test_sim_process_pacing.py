@@ -103,12 +103,10 @@ class _PacedSource:
         self.paused += 1
 
 
-def test_loop_relays_a_paced_source_without_its_own_schedule() -> None:
-    plan = [(0.001, 0), (0.002, 0), (0.040, 3), (0.0, 0)]
-    source = _PacedSource(plan)
-    clock = FakeClock()
+def _started_loop(source: Any, clock: FakeClock, hz: float) -> tuple[TickLoop, list[Any]]:
+    """A started loop (not its thread: ``run_iterations`` drives it) and its records."""
     loop = TickLoop(
-        SimConfig(tick_hz=20.0),
+        SimConfig(tick_hz=hz),
         None,
         source_factory=lambda config, calibration: source,
         clock=clock,
@@ -117,6 +115,14 @@ def test_loop_relays_a_paced_source_without_its_own_schedule() -> None:
     records: list[Any] = []
     loop.subscribe(lambda record, raw: records.append(record))
     loop.start_sim()
+    return loop, records
+
+
+def test_loop_relays_a_paced_source_without_its_own_schedule() -> None:
+    plan = [(0.001, 0), (0.002, 0), (0.040, 3), (0.0, 0)]
+    source = _PacedSource(plan)
+    clock = FakeClock()
+    loop, records = _started_loop(source, clock, 20.0)
     loop.run_iterations(len(plan))  # no waiting on the loop's clock: the source paces
     assert clock.now() == 0.0 and source.steps == len(plan) and loop.ticks == len(plan)
     # the step latency is the source's: its deadline → its release (ms)
@@ -146,17 +152,7 @@ def test_in_process_step_latency_counts_from_the_deadline() -> None:
             return _PacedTick(0.0, 0.0, 0.0, 0, paced=False)
 
     clock = FakeClock()
-    source = Slow(clock)
-    loop = TickLoop(
-        SimConfig(tick_hz=10.0),
-        None,
-        source_factory=lambda config, calibration: source,
-        clock=clock,
-        auto_restart_s=None,
-    )
-    records: list[Any] = []
-    loop.subscribe(lambda record, raw: records.append(record))
-    loop.start_sim()
+    loop, records = _started_loop(Slow(clock), clock, 10.0)
     loop.run_iterations(1)  # deadline 0: on time
     clock.advance(0.1 + 0.03)  # the next deadline (0.1) passed 30 ms ago
     loop.run_iterations(1)
