@@ -704,6 +704,9 @@ class SimWorker:
             with self._lock:
                 if self._closed:
                     raise SimWorkerError("the simulation worker is shut down")
+                if self._proc is None:  # lost by another call meanwhile (counted there)
+                    self._replace()
+                    raise WorkerRestarted("simulation worker restarted: a new run")
                 if self._pacing != sid or self._gen != gen:
                     raise StepCancelled("the schedule was paused or its simulation replaced")
                 try:
