@@ -140,9 +140,9 @@ def test_a_formerly_failing_standard_plant_now_captures() -> None:
 
 
 def test_hold_gap_on_lost_lock_rides_out_long_frame_drop_bursts() -> None:
-    """Long bursts of dropped frames (mean 25 frames) lose the lock before the last metre: by
-    default each loss breaks away (the run fails after the 4th); with
-    ``hold_gap_on_lost_lock`` the receiver holds its gap — never closing while unlocked — and
+    """Long bursts of dropped frames (mean 25 frames) lose the lock before the last metre: with
+    ``hold_gap_on_lost_lock=False`` each loss breaks away (the run fails after the 4th); with
+    the default (True) the receiver holds its gap — never closing while unlocked — and
     captures once the drogue is tracked again."""
     imp = replace(NONE, name="long drops", drop_prob=0.05, drop_burst_mean=25.0)
     outcomes = {}

@@ -45,7 +45,7 @@ def run(args: argparse.Namespace) -> int:
             render_mode="windows" if args.roi else args.render,
             imperfections=args.imperfections,
             station_keep_s=args.station_keep,
-            hold_gap_on_lost_lock=args.hold_gap_on_lost_lock,
+            hold_gap_on_lost_lock=not args.backoff_on_lost_lock,
         )
         cfg.validate()
     except ValueError as exc:

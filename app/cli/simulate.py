@@ -36,10 +36,10 @@ def add_docking_options(p: argparse.ArgumentParser) -> None:
         "calibration and INS errors, tanker wake); see docs/models.md",
     )
     p.add_argument(
-        "--hold-gap-on-lost-lock",
+        "--backoff-on-lost-lock",
         action="store_true",
-        help="a lock lost before the last metre holds the gap until re-acquired instead of "
-        "breaking away (default: break away)",
+        help="break away when the lock is lost before the last metre (default: hold the gap "
+        "until the drogue is re-acquired)",
     )
 
 
@@ -123,7 +123,7 @@ def run(args: argparse.Namespace) -> int:
             render_mode="windows" if args.roi else args.render,
             station_keep_s=args.station_keep,
             imperfections=args.imperfections,
-            hold_gap_on_lost_lock=args.hold_gap_on_lost_lock,
+            hold_gap_on_lost_lock=not args.backoff_on_lost_lock,
         )
         cfg.validate()
         if args.station_keep < 0:

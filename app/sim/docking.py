@@ -130,10 +130,11 @@ class DockingConfig:
     imperfections: str | Imperfections = "none"
     # fuse delayed camera measurements at their exposure time (False: as if current; ablation)
     latency_compensation: bool = True
-    # a lock lost before the last metre (coast limit passed): False — break away (counts as an
-    # abort); True — hold the gap (the guidance closes only while the drogue is tracked) and
-    # resume when it is re-acquired; inside the last metre a lost lock always breaks away
-    hold_gap_on_lost_lock: bool = False
+    # a lock lost before the last metre (coast limit passed): True — hold the gap (the guidance
+    # closes only while the drogue is tracked) and resume when it is re-acquired; False — break
+    # away (counts as an abort; the behaviour before issue 13's follow-up). Inside the last
+    # metre a lost lock always breaks away. `harsh` light 76 → 91 %, moderate 64 → 88 %
+    hold_gap_on_lost_lock: bool = True
     roi_margin_px: int = 48  # unused (the tracker sizes its windows)
 
     def validate(self) -> None:
