@@ -144,6 +144,9 @@ def run(args: argparse.Namespace) -> int:
         workers=1,
         log_level=settings.log_level,
         ws_max_size=settings.push_limit_bytes + 4096,  # pushed pairs (the handler checks too)
+        # no per-message compression: deflating every telemetry message once per client was
+        # the web process's largest user of the GIL with 50 clients (bench_load, issue 10)
+        ws_per_message_deflate=False,
     )
     server = uvicorn.Server(config)
     server.run()
