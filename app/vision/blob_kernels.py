@@ -190,19 +190,23 @@ def label_pixels(xy: np.ndarray, labels: np.ndarray) -> np.ndarray:  # pragma: n
         labels[xy[p, 1], xy[p, 0]] = p + 1
     for p in range(k):
         x, y = xy[p, 0], xy[p, 1]
-        for dx, dy in ((-1, -1), (0, -1), (1, -1), (-1, 0)):  # the neighbours already seen
-            nx, ny = x + dx, y + dy
-            if nx < 0 or nx >= w or ny < 0:
-                continue
-            q = labels[ny, nx] - 1
+        root = p
+        # the neighbours already seen: (x−1, y) and the three above
+        for q in (
+            labels[y, x - 1] - 1 if x > 0 else -1,
+            labels[y - 1, x - 1] - 1 if y > 0 and x > 0 else -1,
+            labels[y - 1, x] - 1 if y > 0 else -1,
+            labels[y - 1, x + 1] - 1 if y > 0 and x + 1 < w else -1,
+        ):
             if q < 0:
                 continue
-            a, b = _find(parent, p), _find(parent, q)
-            if a != b:  # the earlier pixel stays the root
-                if a < b:
-                    parent[b] = a
+            b = _find(parent, q)
+            if b != root:  # the earlier pixel stays the root
+                if root < b:
+                    parent[b] = root
                 else:
-                    parent[a] = b
+                    parent[root] = b
+                    root = b
     # final labels in raster order of each component's first pixel, and the stats
     new = np.zeros(k, np.int64)
     big = np.int64(1) << 40
