@@ -254,3 +254,20 @@ def test_descriptor_on_crop_equals_full_frame(calib):
     blobs, _ = extract_blobs(img, mask, 12.0)
     assert len(blobs) == 5
     assert np.allclose(describe(img, blobs), describe(img, blobs, ii=integral_image(img)))
+
+
+def test_epipolar_distances_equal_opencv_epilines(calib):
+    """The compiled symmetric epipolar distance equals one built on
+    ``cv2.computeCorrespondEpilines`` (lines normalised to a² + b² = 1)."""
+    rng = np.random.default_rng(2)
+    xl = rng.uniform([0, 0], [1280, 1024], (7, 2))
+    xr = rng.uniform([0, 0], [1280, 1024], (9, 2))
+    F = calib.fundamental
+    lines_r = cv2.computeCorrespondEpilines(xl.reshape(-1, 1, 2), 1, F).reshape(-1, 3)
+    lines_l = cv2.computeCorrespondEpilines(xr.reshape(-1, 1, 2), 2, F).reshape(-1, 3)
+    d_right = np.abs(lines_r[:, :2] @ xr.T + lines_r[:, 2:3])  # (7, 9): x_r to F x_l
+    d_left = np.abs(lines_l[:, :2] @ xl.T + lines_l[:, 2:3]).T  # (7, 9): x_l to Fᵀ x_r
+    ref = 0.5 * (d_right + d_left)
+    got = epipolar_distances(F, xl, xr)
+    assert got.shape == (7, 9) and np.median(ref) > 1.0
+    assert np.allclose(got, ref, rtol=1e-9, atol=1e-9)

@@ -14,6 +14,7 @@
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 from scipy.optimize import linear_sum_assignment
 
 from app.geometry.calibration import FloatArray
@@ -28,19 +29,39 @@ def descriptor_distances(desc_left: FloatArray, desc_right: FloatArray) -> Float
     return np.asarray(np.sqrt(np.sum(diff * diff, axis=-1)))
 
 
+@njit(cache=True, nogil=True)
+def _epipolar_kernel(
+    F: np.ndarray, xl: np.ndarray, xr: np.ndarray
+) -> np.ndarray:  # pragma: no cover
+    out = np.empty((xl.shape[0], xr.shape[0]))
+    lr = np.empty((xl.shape[0], 3))  # epipolar lines in the right image, F·x_l
+    for i in range(xl.shape[0]):
+        for k in range(3):
+            lr[i, k] = F[k, 0] * xl[i, 0] + F[k, 1] * xl[i, 1] + F[k, 2]
+    for j in range(xr.shape[0]):
+        ll = np.empty(3)  # the epipolar line in the left image, Fᵀ·x_r
+        for k in range(3):
+            ll[k] = F[0, k] * xr[j, 0] + F[1, k] * xr[j, 1] + F[2, k]
+        inv_l = 1.0 / np.hypot(ll[0], ll[1])
+        for i in range(xl.shape[0]):
+            alg = lr[i, 0] * xr[j, 0] + lr[i, 1] * xr[j, 1] + lr[i, 2]  # x_rᵀ F x_l
+            out[i, j] = 0.5 * abs(alg) * (1.0 / np.hypot(lr[i, 0], lr[i, 1]) + inv_l)
+    return out
+
+
 def epipolar_distances(F: FloatArray, x_left: FloatArray, x_right: FloatArray) -> FloatArray:
     """Symmetric point-to-epipolar-line distance (px) for every pair, (NL, NR).
 
-    ``x_rᵀ F x_l = 0``; the distance is the mean of d(x_r, F x_l) and d(x_l, Fᵀ x_r).
+    ``x_rᵀ F x_l = 0``; the distance is the mean of d(x_r, F x_l) and d(x_l, Fᵀ x_r)
+    (compiled loop).
     """
-    hl = np.column_stack([x_left, np.ones(len(x_left))])
-    hr = np.column_stack([x_right, np.ones(len(x_right))])
-    lines_r = hl @ F.T  # (NL, 3): epipolar lines in the right image
-    lines_l = hr @ F  # (NR, 3): epipolar lines in the left image
-    alg = hl @ F.T @ hr.T  # (NL, NR): x_rᵀ F x_l
-    nr = np.hypot(lines_r[:, 0], lines_r[:, 1])[:, None]
-    nl = np.hypot(lines_l[:, 0], lines_l[:, 1])[None, :]
-    return np.asarray(0.5 * np.abs(alg) * (1.0 / nr + 1.0 / nl))
+    return np.asarray(
+        _epipolar_kernel(
+            np.ascontiguousarray(F, dtype=np.float64),
+            np.ascontiguousarray(np.asarray(x_left, dtype=np.float64).reshape(-1, 2)),
+            np.ascontiguousarray(np.asarray(x_right, dtype=np.float64).reshape(-1, 2)),
+        )
+    )
 
 
 def _match(i: int, j: int, desc_dist: FloatArray, epi: FloatArray) -> Match:

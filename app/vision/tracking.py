@@ -508,11 +508,14 @@ class StereoTracker:
             raise _Fallback(f"missing LED {i} reappeared in one image only")
         if len(led_ids) < cfg.min_leds:
             raise _Fallback(f"only {len(led_ids)} LEDs tracked; need {cfg.min_leds}")
-        # mosaic → image coordinates
+        # the blobs (mosaic coordinates: size, peak and colour serve below) and their
+        # centroids in image coordinates
+        bl = [got_l[i] for i in led_ids]
+        br = [got_r[i] for i in led_ids]
         off_l = {w.led_id: (w.x0 - w.mx, w.y0 - w.row) for w in win_l}
         off_r = {w.led_id: (w.x0 - w.mx, w.y0 - w.row) for w in win_r}
-        bl = [_shift(got_l[i], off_l[i]) for i in led_ids]
-        br = [_shift(got_r[i], off_r[i]) for i in led_ids]
+        pl = np.array([b.centroid_px for b in bl]) + np.array([off_l[i] for i in led_ids])
+        pr = np.array([b.centroid_px for b in br]) + np.array([off_r[i] for i in led_ids])
         n_led = len(led_ids)
         if self.describe:
             # IHWT descriptors on the mosaic (each window holds its descriptor window)
@@ -523,8 +526,6 @@ class StereoTracker:
         else:
             desc_dist = np.full(n_led, -1.0)
         # --- epipolar gate and triangulation (as the pipeline)
-        pl = np.array([b.centroid_px for b in bl])
-        pr = np.array([b.centroid_px for b in br])
         xl = undistort_pixels(cal.left, pl)
         xr = undistort_pixels(cal.right, pr)
         epi = np.diagonal(epipolar_distances(self.pipeline._F, xl, xr))  # pairs i ↔ i
