@@ -524,7 +524,7 @@ class StereoTracker:
             desc = describe(gray, mblobs, wf, mw)
             desc_dist = np.sqrt(np.sum((desc[:n_led] - desc[n_led:]) ** 2, axis=1))
         else:
-            desc_dist = np.full(n_led, -1.0)
+            desc_dist = np.full(n_led, -1.0)  # not computed
         # --- epipolar gate and triangulation (as the pipeline)
         xl = undistort_pixels(cal.left, pl)
         xr = undistort_pixels(cal.right, pr)
@@ -535,25 +535,29 @@ class StereoTracker:
         X, reproj = refine_reprojection(cal.P_left, cal.P_right, xl, xr, X0)
         z0, z1 = cfg.depth_range_mm
         if not (
-            np.all(np.isfinite(X))
-            and np.all(reproj <= cfg.max_reprojection_px)
-            and np.all((X0[:, 2] >= z0) & (X0[:, 2] <= z1))
-            and np.all(X[:, 2] > 0)
+            np.isfinite(X).all()
+            and reproj.max() <= cfg.max_reprojection_px
+            and X0[:, 2].min() >= z0
+            and X0[:, 2].max() <= z1
+            and X[:, 2].min() > 0
         ):
             raise _Fallback("a tracked LED does not triangulate consistently")
         # --- appearance
         if cfg.appearance.enabled:
-            z_r = (cal.R @ X.T).T[:, 2] + float(cal.T[2])
+            z_l = X[:, 2].tolist()
+            z_r = (X @ cal.R[2] + float(cal.T[2])).tolist()  # depth in the right camera
+            f_l, f_r = cal.left.fx, cal.right.fx
+            bgs = (st.background[0][0], st.background[1][0])
             for k, i in enumerate(led_ids):
                 reasons = appearance_reasons(
                     bl[k],
                     br[k],
-                    float(X[k, 2]),
-                    float(z_r[k]),
-                    cal.left.fx,
-                    cal.right.fx,
+                    z_l[k],
+                    z_r[k],
+                    f_l,
+                    f_r,
                     cfg.led_diameter_mm,
-                    (st.background[0][0], st.background[1][0]),
+                    bgs,
                     cfg.appearance,
                 )
                 if reasons:
