@@ -125,7 +125,7 @@ def test_each_compiled_loop_has_one_specialisation() -> None:
     from app.sim.led_ring import stereo_center_x_mm, tilted_normal
     from app.sim.paths import load_default_calibration
     from app.sim.stereo_render import RenderSettings, render_pair
-    from app.vision import blob_kernels, ihwt, preprocess
+    from app.vision import blob_kernels, ihwt, matching, preprocess
     from app.vision.pipeline import NavigationPipeline
     from app.vision.tracking import StereoTracker
 
@@ -166,6 +166,7 @@ def test_each_compiled_loop_has_one_specialisation() -> None:
         circle_fit.distance_kernel,
         ring._slot_angles,
         ring._ring_measures,
+        matching._epipolar_kernel,
     ]
     for loop in loops:
         assert len(loop.signatures) == 1, (loop.__name__, loop.signatures)

@@ -137,7 +137,11 @@ def _refine_kernel(
 
 
 def _points(x: FloatArray, width: int) -> FloatArray:
-    return np.ascontiguousarray(np.asarray(x, dtype=np.float64).reshape(-1, width))
+    """A C-contiguous float64 (n, width) read-only view: the compiled loops then always see
+    the same argument type (cached projection matrices are read-only, computed points not)."""
+    out = np.ascontiguousarray(np.asarray(x, dtype=np.float64).reshape(-1, width)).view()
+    out.setflags(write=False)
+    return out
 
 
 def triangulate_linear(

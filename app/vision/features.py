@@ -79,6 +79,7 @@ def extract_blobs(
     mask: U8Image,
     background: float,
     gate: BlobGate | None = None,
+    crop: bool = True,
 ) -> tuple[list[Blob], list[RejectedBlob]]:
     """Label ``mask`` in one pass (Algorithm 2, OpenCV's connected components) and compute each
     component's intensity-weighted centroid on ``gray`` (eq. 11).
@@ -86,17 +87,19 @@ def extract_blobs(
     The centroid weights are ``P_i = gray − background`` over the component dilated by a
     margin (so the blurred fringe of the LED below the threshold is counted symmetrically),
     which gives sub-pixel accuracy; coordinates are pixel centres (u right, v down), px.
-    Only the bounding box of the foreground (widened by the largest centroid margin) is
-    labelled.
+    With ``crop``, only the bounding box of the foreground (widened by the largest centroid
+    margin) is labelled; without, the whole (small) mask, e.g. a tracker's mosaic.
     """
     gate = gate or BlobGate()
     height, width = gray.shape
-    bx, by, bw, bh = cv2.boundingRect(mask)
-    if bw == 0 or bh == 0:
-        return [], []
-    m = ROI_MARGIN_PX
-    box = (max(0, bx - m), max(0, by - m), min(width, bx + bw + m), min(height, by + bh + m))
-    x0, y0, x1, y1 = box
+    x0, y0, x1, y1 = 0, 0, width, height
+    if crop:
+        bx, by, bw, bh = cv2.boundingRect(mask)
+        if bw == 0 or bh == 0:
+            return [], []
+        m = ROI_MARGIN_PX
+        x0, y0 = max(0, bx - m), max(0, by - m)
+        x1, y1 = min(width, bx + bw + m), min(height, by + bh + m)
     n, labels, stats = _label_with_stats(mask[y0:y1, x0:x1])
     if n <= 1:
         return [], []

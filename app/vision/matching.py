@@ -55,13 +55,10 @@ def epipolar_distances(F: FloatArray, x_left: FloatArray, x_right: FloatArray) -
     ``x_rᵀ F x_l = 0``; the distance is the mean of d(x_r, F x_l) and d(x_l, Fᵀ x_r)
     (compiled loop).
     """
-    return np.asarray(
-        _epipolar_kernel(
-            np.ascontiguousarray(F, dtype=np.float64),
-            np.ascontiguousarray(np.asarray(x_left, dtype=np.float64).reshape(-1, 2)),
-            np.ascontiguousarray(np.asarray(x_right, dtype=np.float64).reshape(-1, 2)),
-        )
-    )
+    fm = np.array(F, dtype=np.float64)  # a writable copy whatever F was (one compiled type)
+    xl = np.ascontiguousarray(np.asarray(x_left, dtype=np.float64).reshape(-1, 2))
+    xr = np.ascontiguousarray(np.asarray(x_right, dtype=np.float64).reshape(-1, 2))
+    return np.asarray(_epipolar_kernel(fm, xl, xr))
 
 
 def _match(i: int, j: int, desc_dist: FloatArray, epi: FloatArray) -> Match:

@@ -422,17 +422,22 @@ class StereoTracker:
         top, bottom = gray[:side], gray[side + 1 :]
         thr_l = self._threshold(top, left, st.background[0], st.thresholds[0])
         thr_r = self._threshold(bottom, right, st.background[1], st.thresholds[1])
-        binary = np.zeros(gray.shape, np.uint8)
-        binary[:side] = binarize(top, thr_l)
-        binary[side + 1 :] = binarize(bottom, thr_r)
+        if thr_l == thr_r:  # one call (the separator row is 0 in the mosaic either way)
+            binary = binarize(gray, thr_l)
+        else:
+            binary = np.zeros(gray.shape, np.uint8)
+            binary[:side] = binarize(top, thr_l)
+            binary[side + 1 :] = binarize(bottom, thr_r)
         mask = median_filter(binary, cfg.median_ksize)
         bg_l, bg_r = st.background[0][0], st.background[1][0]
         try:
             if bg_l == bg_r:
-                blobs, _ = extract_blobs(gray, mask, bg_l, cfg.gate)
+                blobs, _ = extract_blobs(gray, mask, bg_l, cfg.gate, crop=False)
             else:  # each half with its own background level
-                blobs, _ = extract_blobs(gray[:side], mask[:side], bg_l, cfg.gate)
-                low, _ = extract_blobs(gray[side + 1 :], mask[side + 1 :], bg_r, cfg.gate)
+                blobs, _ = extract_blobs(gray[:side], mask[:side], bg_l, cfg.gate, crop=False)
+                low, _ = extract_blobs(
+                    gray[side + 1 :], mask[side + 1 :], bg_r, cfg.gate, crop=False
+                )
                 blobs += [_shift(b, (0, side + 1)) for b in low]
         except TooManyBlobs as exc:
             raise _Fallback(str(exc)) from None
