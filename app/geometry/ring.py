@@ -452,8 +452,8 @@ def log10_nfa(
     dist = distance_to_circle(points, circle) if distance_mm is None else distance_mm
     rho = max(
         floor,
-        float(np.max(dist)) if len(dist) else 0.0,
-        R * math.radians(float(np.max(np.abs(resid_deg)))),
+        float(dist.max()) if len(dist) else 0.0,
+        R * math.radians(float(np.abs(resid_deg).max())),
     )
     delta = 2.0 * rho + max(floor, abs(circle.radius - R))
     chord = 2.0 * R * math.sin(math.pi * (N // 2) / N)

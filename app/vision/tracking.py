@@ -637,7 +637,8 @@ class StereoTracker:
         nfa = log10_nfa(len(X), volume, circle, X, resid, params, ring.distance_mm)
         if nfa > params.log10_nfa_max:
             raise _Fallback(f"not distinctive (NFA 10^{nfa:.1f})")
-        near = float(np.linalg.norm(circle.center - st.center_mm)) <= 2.0 * cfg.ring_radius_mm
+        moved = circle.center - st.center_mm
+        near = math.sqrt(float(moved @ moved)) <= 2.0 * cfg.ring_radius_mm
         roll = roll_from_offset(offset, n, cfg.led_phase_deg, st.roll_deg if near else None)
         slot_angles = offset + (360.0 / n) * slots.astype(np.float64)
         ids = led_ids_for_angles(slot_angles, roll, n, cfg.led_phase_deg)
