@@ -15,8 +15,8 @@ from numba import njit
 
 # columns of the candidate table passed to :func:`centroid_table`
 # label, x, y, w, h, area (image px), region (lx, ly, lx1, ly1) of its box in the label
-# array, origin (ox, oy) of that box in the image, pad (centroid margin, px)
-CAND_COLUMNS = 13
+# array, origin (ox, oy) of that box in the image
+CAND_COLUMNS = 12
 
 
 @njit(cache=True, nogil=True)
@@ -64,7 +64,8 @@ def centroid_table(
         lab_id = cands[c, 0]
         x, y, w, h, area = cands[c, 1], cands[c, 2], cands[c, 3], cands[c, 4], cands[c, 5]
         lx, ly, lx1, ly1 = cands[c, 6], cands[c, 7], cands[c, 8], cands[c, 9]
-        ox, oy, pad = cands[c, 10], cands[c, 11], cands[c, 12]
+        ox, oy = cands[c, 10], cands[c, 11]
+        pad = max(2, int(np.rint(0.5 * np.sqrt(area))))  # the centroid margin (px)
         # the window, in box coordinates (as the OpenCV formulation crops it)
         wx0 = max(0, x - ox - pad)
         wy0 = max(0, y - oy - pad)
@@ -128,7 +129,6 @@ def centroid_table(
             out[c, 1] = m01 / mass + wy0 + oy
         out[c, 2] = mass
         out[c, 3] = peak
-        _ = area
     return out
 
 

@@ -283,10 +283,8 @@ def _gate_components(
 def _candidate_table(labels: np.ndarray, stats: np.ndarray, boxes: np.ndarray) -> np.ndarray:
     """Rows of :data:`app.vision.blob_kernels.CAND_COLUMNS`: label, (x, y, w, h, area) in
     image px, the region (lx, ly, lx1, ly1) of its box in the label image and that box's
-    origin (ox, oy) in the image (``boxes`` rows), and the centroid margin
-    max(2, round(0.5·√area)) px."""
-    pad = np.maximum(2, np.round(0.5 * np.sqrt(stats[:, 4]))).astype(np.int64)
-    return np.column_stack([labels, stats[:, :5], boxes, pad]).astype(np.int64)
+    origin (ox, oy) in the image (``boxes`` rows)."""
+    return np.column_stack([labels, stats[:, :5], boxes]).astype(np.int64)
 
 
 def _centroids(
