@@ -94,7 +94,7 @@ class _Fallback(Exception):
     """A tracked check failed: the frame goes to full-frame acquisition."""
 
 
-@dataclass
+@dataclass(slots=True)
 class _Led:
     """One tracked LED: last centroids (px), the previous ones (velocity), blob radius."""
 
@@ -125,7 +125,7 @@ class TrackerStats:
     lost: int = 0
 
 
-@dataclass(frozen=True)
+@dataclass(slots=True)
 class _Prediction:
     led_id: int
     left: tuple[float, float]  # predicted centroid (px)
@@ -134,7 +134,7 @@ class _Prediction:
     expected: bool  # in the last lock (else the search for a missing LED)
 
 
-@dataclass
+@dataclass(slots=True)
 class _Window:
     led_id: int
     x0: int
