@@ -60,6 +60,11 @@ def run(args: argparse.Namespace) -> int:
         except OSError as exc:
             print(f"error: cannot reach Dask scheduler {args.scheduler}: {exc}", file=sys.stderr)
             return 2
+    if cfg.vision and client is None:
+        # compile the navigation loops once here (cached on disk) rather than in every worker
+        from app.sim.warmup import compile_kernels
+
+        compile_kernels()
     bar = None
     if not args.no_progress:
         from tqdm import tqdm

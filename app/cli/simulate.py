@@ -131,6 +131,10 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    if cfg.vision:  # compile the navigation loops first (once per install): not timed
+        from app.sim.warmup import compile_kernels
+
+        compile_kernels()
     sim = DockingSimulation(cfg)
     log = TickLog()
     t0 = time.perf_counter()
