@@ -324,3 +324,55 @@ def pack_boxes(
             for i in range(x1 - x0):
                 owner[py + j, px + i] = k
     return mosaic, owner
+
+
+@njit(cache=True, nogil=True)
+def grow_and_merge_boxes(
+    boxes: np.ndarray, width: int, height: int, reach: int
+) -> np.ndarray:  # pragma: no cover - compiled
+    """Each box (k, 4: x0, y0, x1, y1, half-open) widened by the largest centroid margin a blob
+    inside it can need (max(2, ⌈0.5·√area⌉), area ≤ the box's) plus ``reach`` px, clipped to the
+    image; overlapping boxes merged into their bounding box, repeated until none overlap
+    (groups numbered by their first member, in order)."""
+    n = boxes.shape[0]
+    g = np.empty((n, 4), np.int64)
+    for i in range(n):
+        area = (boxes[i, 2] - boxes[i, 0]) * (boxes[i, 3] - boxes[i, 1])
+        m = max(2, int(np.ceil(0.5 * np.sqrt(area)))) + reach
+        g[i, 0] = max(0, boxes[i, 0] - m)
+        g[i, 1] = max(0, boxes[i, 1] - m)
+        g[i, 2] = min(width, boxes[i, 2] + m)
+        g[i, 3] = min(height, boxes[i, 3] + m)
+    while g.shape[0] > 1:
+        n = g.shape[0]
+        group = np.arange(n)
+        merged = False
+        for i in range(n):
+            for j in range(i + 1, n):
+                if (
+                    g[i, 0] < g[j, 2]
+                    and g[j, 0] < g[i, 2]
+                    and g[i, 1] < g[j, 3]
+                    and g[j, 1] < g[i, 3]
+                ):
+                    merged = True
+                    gi, gj = group[i], group[j]
+                    if gi != gj:
+                        for t in range(n):
+                            if group[t] == gj:
+                                group[t] = gi
+        if not merged:
+            break
+        ids = np.unique(group)
+        out = np.empty((ids.shape[0], 4), np.int64)
+        for k in range(ids.shape[0]):
+            out[k, 0] = out[k, 1] = np.int64(1) << 40
+            out[k, 2] = out[k, 3] = -1
+            for t in range(n):
+                if group[t] == ids[k]:
+                    out[k, 0] = min(out[k, 0], g[t, 0])
+                    out[k, 1] = min(out[k, 1], g[t, 1])
+                    out[k, 2] = max(out[k, 2], g[t, 2])
+                    out[k, 3] = max(out[k, 3], g[t, 3])
+        g = out
+    return g

@@ -11,6 +11,7 @@ from app.vision.blob_kernels import (
     centroid_table,
     foreground_pixels,
     gate_mask,
+    grow_and_merge_boxes,
     hot_tile_boxes,
     label_pixels,
     pack_boxes,
@@ -144,49 +145,12 @@ def bright_boxes(gray: U8Image, threshold: int, bands: np.ndarray | None = None)
 
 def _grow_and_merge(boxes: list[Box], width: int, height: int, ksize: int) -> list[Box]:
     """Each box widened by the largest centroid margin a blob inside it can need (0.5·√area,
-    area ≤ the box's) plus the median filter's reach, clipped; overlapping boxes merged."""
+    area ≤ the box's) plus the median filter's reach, clipped; overlapping boxes merged
+    (compiled: :func:`app.vision.blob_kernels.grow_and_merge_boxes`)."""
     if not boxes:
         return []
-    b = np.array(boxes, dtype=np.int64)
-    area = (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1])
-    m = np.maximum(2, np.ceil(0.5 * np.sqrt(area)).astype(np.int64)) + ksize // 2 + 2
-    g = np.column_stack(
-        [
-            np.maximum(0, b[:, 0] - m),
-            np.maximum(0, b[:, 1] - m),
-            np.minimum(width, b[:, 2] + m),
-            np.minimum(height, b[:, 3] + m),
-        ]
-    )
-    while len(g) > 1:
-        over = (
-            (g[:, None, 0] < g[None, :, 2])
-            & (g[None, :, 0] < g[:, None, 2])
-            & (g[:, None, 1] < g[None, :, 3])
-            & (g[None, :, 1] < g[:, None, 3])
-        )
-        np.fill_diagonal(over, False)
-        if not over.any():
-            break
-        # merge every group of overlapping boxes into its bounding box (repeat until stable)
-        group = np.arange(len(g))
-        for i, j in zip(*np.nonzero(np.triu(over)), strict=True):
-            gi, gj = group[i], group[j]
-            if gi != gj:
-                group[group == gj] = gi
-        ids = np.unique(group)
-        g = np.array(
-            [
-                [
-                    g[group == k, 0].min(),
-                    g[group == k, 1].min(),
-                    g[group == k, 2].max(),
-                    g[group == k, 3].max(),
-                ]
-                for k in ids
-            ]
-        )
-    return [(int(r[0]), int(r[1]), int(r[2]), int(r[3])) for r in g]
+    merged = grow_and_merge_boxes(np.array(boxes, dtype=np.int64), width, height, ksize // 2 + 2)
+    return [(int(r[0]), int(r[1]), int(r[2]), int(r[3])) for r in merged.tolist()]
 
 
 def detect_blobs(
