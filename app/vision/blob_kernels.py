@@ -60,6 +60,14 @@ def centroid_table(
     """
     k = cands.shape[0]
     out = np.zeros((k, 4), np.float64)
+    # scratch images, allocated once for the largest window (w, h + 2·pad ≤ w, h + 2·pad_max)
+    big = 0
+    for c in range(k):
+        pad = max(2, int(np.rint(0.5 * np.sqrt(cands[c, 5]))))
+        big = max(big, max(cands[c, 3], cands[c, 4]) + 2 * pad)
+    comp_buf = np.empty((big, big), np.uint8)
+    horiz_buf = np.empty((big, big), np.uint8)
+    support_buf = np.empty((big, big), np.uint8)
     for c in range(k):
         lab_id = cands[c, 0]
         x, y, w, h, area = cands[c, 1], cands[c, 2], cands[c, 3], cands[c, 4], cands[c, 5]
@@ -73,13 +81,12 @@ def centroid_table(
         wy1 = min(ly1 - ly, y - oy + h + pad)
         ww, wh = wx1 - wx0, wy1 - wy0
         # dilation of the component: rows, then columns (separable square kernel)
-        comp = np.zeros((wh, ww), np.uint8)
+        comp = comp_buf[:wh, :ww]  # every element written below
         for j in range(wh):
             for i in range(ww):
-                if labels[ly + wy0 + j, lx + wx0 + i] == lab_id:
-                    comp[j, i] = 1
+                comp[j, i] = 1 if labels[ly + wy0 + j, lx + wx0 + i] == lab_id else 0
         # running counts over (2·pad+1) px: O(window) whatever the pad
-        horiz = np.zeros((wh, ww), np.uint8)
+        horiz = horiz_buf[:wh, :ww]
         for j in range(wh):
             count = 0
             for i in range(min(pad, ww)):
@@ -90,7 +97,7 @@ def centroid_table(
                 if i - pad - 1 >= 0:
                     count -= comp[j, i - pad - 1]
                 horiz[j, i] = count > 0
-        support = np.zeros((wh, ww), np.uint8)
+        support = support_buf[:wh, :ww]
         for i in range(ww):
             count = 0
             for j in range(min(pad, wh)):
