@@ -8,12 +8,12 @@ import json
 import os
 import subprocess
 import sys
-import time
 import urllib.request
 from pathlib import Path
 
 import pytest
 from streams_sequence import cached_sequence, write_avi
+from waiting import stop_process, wait_for_server
 
 pytestmark = pytest.mark.browser
 
@@ -49,15 +49,7 @@ def test_page_shows_the_video_source_and_switches_it(tmp_path: Path) -> None:
     proc = subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=log, stderr=log)
     base = f"http://127.0.0.1:{port}"
     try:
-        deadline = time.monotonic() + 60
-        while True:
-            assert proc.poll() is None, (tmp_path / "serve.log").read_text()[-2000:]
-            assert time.monotonic() < deadline, "server did not come up"
-            try:
-                _status(base)
-                break
-            except OSError:
-                time.sleep(0.1)
+        wait_for_server(proc, lambda: _status(base) is not None, tmp_path / "serve.log")
         with sync_playwright() as p:
             browser = p.chromium.launch(executable_path=CHROMIUM, args=ARGS)
             page = browser.new_page()
@@ -84,10 +76,5 @@ def test_page_shows_the_video_source_and_switches_it(tmp_path: Path) -> None:
             browser.close()
         assert _status(base)["source"] == "push"
     finally:
-        proc.terminate()
-        try:
-            proc.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+        stop_process(proc)
         log.close()

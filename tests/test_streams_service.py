@@ -6,11 +6,9 @@ from __future__ import annotations
 
 import json
 import os
-import signal
 import socket
 import subprocess
 import sys
-import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -22,7 +20,7 @@ import pytest
 from fastapi.testclient import TestClient
 from starlette.websockets import WebSocketDisconnect
 from streams_sequence import cached_sequence, read_jsonl, write_avi, write_png_folders
-from waiting import wait_until
+from waiting import stop_process, wait_for_server, wait_until
 
 from app.cli.main import main as cli_main
 from app.server.main import create_app
@@ -192,23 +190,14 @@ def served_push(tmp_path: Path) -> Iterator[tuple[str, int]]:
     proc = subprocess.Popen(cmd + ["--port", str(port)], cwd=ROOT, env=env, stdout=log, stderr=log)
     base = f"http://127.0.0.1:{port}/api/v1"
     try:
-        deadline = time.monotonic() + 60
-        while True:
-            assert proc.poll() is None, (tmp_path / "serve.log").read_text()[-2000:]
-            assert time.monotonic() < deadline, "server did not come up"
-            try:
-                if httpx.get(f"{base}/healthz", timeout=1).status_code == 200:
-                    break
-            except httpx.HTTPError:
-                time.sleep(0.1)
+        wait_for_server(
+            proc,
+            lambda: httpx.get(f"{base}/healthz", timeout=1).status_code == 200,
+            tmp_path / "serve.log",
+        )
         yield base, port
     finally:
-        proc.send_signal(signal.SIGTERM)
-        try:
-            proc.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+        stop_process(proc)
         log.close()
 
 

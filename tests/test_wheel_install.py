@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from waiting import stop_process
 
 from app.sim.paths import REPO_ROOT
 
@@ -154,12 +155,7 @@ def test_serve_health_and_page(installed):
         # nothing written into the working directory (recordings live under XDG_DATA_HOME)
         assert sorted(p.name for p in work.iterdir()) == ["serve.log"]
     finally:
-        proc.terminate()
-        try:
-            proc.wait(timeout=30)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+        stop_process(proc, 30)
         log.close()
     shutil.rmtree(work / "__pycache__", ignore_errors=True)
 
