@@ -159,21 +159,6 @@ def triangulate_linear(
     )
 
 
-def reprojection_rms(
-    P_left: FloatArray, P_right: FloatArray, x_left: FloatArray, x_right: FloatArray, X: FloatArray
-) -> FloatArray:
-    """RMS reprojection error (px) per point over both images (4 residuals per point)."""
-    _, rms = _refine_kernel(
-        _points(P_left, 4),
-        _points(P_right, 4),
-        _points(x_left, 2),
-        _points(x_right, 2),
-        _points(X, 3),
-        0,
-    )
-    return np.asarray(rms)
-
-
 def refine_reprojection(
     P_left: FloatArray,
     P_right: FloatArray,

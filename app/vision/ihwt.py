@@ -33,14 +33,6 @@ def integral_image(gray: U8Image) -> FloatArray:
     return np.asarray(cv2.integral(gray, sdepth=cv2.CV_64F), dtype=np.float64)
 
 
-def integral_image_i32(gray: U8Image) -> NDArray[np.int32]:
-    """Eq. 12 in exact 32-bit integers (255·H·W < 2³¹ up to 8 Mpx; half the memory traffic of
-    float64 for the descriptor's gathers)."""
-    if gray.size * 255 * 2 >= 2**31:
-        raise ValueError("image too large for a 32-bit integral image")
-    return np.asarray(cv2.integral(gray, sdepth=cv2.CV_32S), dtype=np.int32)
-
-
 def box_sum(ii: FloatArray, x0: NDArray, y0: NDArray, x1: NDArray, y1: NDArray) -> FloatArray:
     """Eq. 13: S_D = I_1 + I_4 − I_2 − I_3 for boxes [x0, x1) × [y0, y1) (px, clipped)."""
     h, w = ii.shape[0] - 1, ii.shape[1] - 1
