@@ -29,8 +29,8 @@ def _scene(seed: int, n: int, size: tuple[int, int] = (1024, 1280)) -> np.ndarra
     return np.clip(img, 0, 255).astype(np.uint8)
 
 
-def _reference(img: np.ndarray, thr: int, bg: float, gate: BlobGate):  # type: ignore[no-untyped-def]
-    return extract_blobs(img, median_filter(binarize(img, thr), 3), bg, gate)
+def _reference(img: np.ndarray, thr: int, bg: float, gate: BlobGate, ksize: int = 3):  # type: ignore[no-untyped-def]
+    return extract_blobs(img, median_filter(binarize(img, thr), ksize), bg, gate)
 
 
 def _key(blobs):  # type: ignore[no-untyped-def]
@@ -42,13 +42,16 @@ def _key(blobs):  # type: ignore[no-untyped-def]
 
 @pytest.mark.parametrize("n", [0, 1, 5, 40, 300])
 @pytest.mark.parametrize("seed", [0, 1, 2])
-def test_detect_blobs_equals_the_full_frame_chain(n: int, seed: int) -> None:
+@pytest.mark.parametrize("ksize", [3, 1, 5])
+def test_detect_blobs_equals_the_full_frame_chain(n: int, seed: int, ksize: int) -> None:
+    """The compiled box-by-box median (counts over the window, the box edge replicated)
+    equals ``cv2.medianBlur`` on the whole frame, for every median size the config allows."""
     img = _scene(seed * 1000 + n, n)
     stats = background_level(img)
     thr = choose_threshold(img, "auto", stats)
     gate = BlobGate()
-    ref, ref_rej = _reference(img, thr, stats[0], gate)
-    got, got_rej = detect_blobs(img, thr, stats[0], gate)
+    ref, ref_rej = _reference(img, thr, stats[0], gate, ksize)
+    got, got_rej = detect_blobs(img, thr, stats[0], gate, median_ksize=ksize)
     assert _key(got) == _key(ref)
     assert sorted((r.centroid_px, r.reason) for r in got_rej) == sorted(
         (r.centroid_px, r.reason) for r in ref_rej

@@ -135,10 +135,8 @@ def test_warmup_compiles_everything_frames_need() -> None:
         blob_kernels.label_pixels,
         blob_kernels.foreground_pixels,
         blob_kernels.gate_mask,
-        blob_kernels.hot_tile_boxes,
-        blob_kernels.pack_boxes,
-        blob_kernels.grow_and_merge_boxes,
-        preprocess.subsampled_histogram,
+        blob_kernels.detect_in_boxes,
+        preprocess.frame_summary,
         ihwt._describe_kernel,
         triangulation._linear_kernel,
         triangulation._refine_kernel,
@@ -226,7 +224,7 @@ def _numpy_grow_and_merge(boxes, width, height, ksize):  # type: ignore[no-untyp
 def test_compiled_box_merge_equals_the_numpy_formulation() -> None:
     """Acquisition boxes grown and merged by the compiled loop equal the numpy formulation,
     order included, on random sets of up to 60 boxes (many overlapping, at the borders)."""
-    from app.vision.features import _grow_and_merge
+    from app.vision.blob_kernels import grow_and_merge_boxes
 
     rng = np.random.default_rng(0)
     merged_some = False
@@ -238,7 +236,8 @@ def test_compiled_box_merge_equals_the_numpy_formulation() -> None:
             (int(a), int(b), int(min(1280, a + c)), int(min(1024, b + d)))
             for a, b, c, d in zip(x0, y0, w, h, strict=True)
         ]
-        got = _grow_and_merge(boxes, 1280, 1024, 3)
+        grown = grow_and_merge_boxes(np.array(boxes, np.int64), 1280, 1024, 3 // 2 + 2)
+        got = [tuple(int(v) for v in r) for r in grown.tolist()]
         assert got == _numpy_grow_and_merge(boxes, 1280, 1024, 3)
         merged_some |= len(got) < len(boxes)
     assert merged_some  # overlaps happened: the merging was exercised

@@ -60,14 +60,14 @@ def centroid_table(
     """
     k = cands.shape[0]
     out = np.zeros((k, 4), np.float64)
-    # scratch images, allocated once for the largest window (w, h + 2·pad ≤ w, h + 2·pad_max)
+    # scratch, allocated once for the largest window (w + 2·pad ≤ its side)
     big = 0
     for c in range(k):
         pad = max(2, int(np.rint(0.5 * np.sqrt(cands[c, 5]))))
         big = max(big, max(cands[c, 3], cands[c, 4]) + 2 * pad)
-    comp_buf = np.empty((big, big), np.uint8)
-    horiz_buf = np.empty((big, big), np.uint8)
-    support_buf = np.empty((big, big), np.uint8)
+    horiz_buf = np.empty((big, big), np.uint8)  # the component's rows dilated horizontally
+    comp_row = np.empty(big, np.uint8)
+    cover = np.empty(big, np.int32)  # dilated rows within ±pad of the current row
     for c in range(k):
         lab_id = cands[c, 0]
         x, y, w, h, area = cands[c, 1], cands[c, 2], cands[c, 3], cands[c, 4], cands[c, 5]
@@ -80,49 +80,60 @@ def centroid_table(
         wx1 = min(lx1 - lx, x - ox + w + pad)
         wy1 = min(ly1 - ly, y - oy + h + pad)
         ww, wh = wx1 - wx0, wy1 - wy0
-        # dilation of the component: rows, then columns (separable square kernel)
-        comp = comp_buf[:wh, :ww]  # every element written below
-        for j in range(wh):
+        # the component's rows (window rows r0..r1−1) dilated horizontally by a running
+        # count over (2·pad+1) px, and its peak; rows outside r0..r1 hold no component pixel
+        r0, r1 = y - oy - wy0, y - oy - wy0 + h
+        peak = 0.0
+        for j in range(r0, r1):
+            lrow = labels[ly + wy0 + j]
+            grow = gray[oy + wy0 + j]
             for i in range(ww):
-                comp[j, i] = 1 if labels[ly + wy0 + j, lx + wx0 + i] == lab_id else 0
-        # running counts over (2·pad+1) px: O(window) whatever the pad
-        horiz = horiz_buf[:wh, :ww]
-        for j in range(wh):
+                on = lrow[lx + wx0 + i] == lab_id
+                comp_row[i] = on
+                if on:
+                    g = float(grow[ox + wx0 + i])
+                    if g > peak:
+                        peak = g
+            hz = horiz_buf[j - r0]
             count = 0
             for i in range(min(pad, ww)):
-                count += comp[j, i]
+                count += comp_row[i]
             for i in range(ww):
                 if i + pad < ww:
-                    count += comp[j, i + pad]
+                    count += comp_row[i + pad]
                 if i - pad - 1 >= 0:
-                    count -= comp[j, i - pad - 1]
-                horiz[j, i] = count > 0
-        support = support_buf[:wh, :ww]
+                    count -= comp_row[i - pad - 1]
+                hz[i] = count > 0
+        # vertical dilation as a running count per column, row by row; weights where dilated
         for i in range(ww):
-            count = 0
-            for j in range(min(pad, wh)):
-                count += horiz[j, i]
-            for j in range(wh):
-                if j + pad < wh:
-                    count += horiz[j + pad, i]
-                if j - pad - 1 >= 0:
-                    count -= horiz[j - pad - 1, i]
-                support[j, i] = count > 0
+            cover[i] = 0
+        for j in range(min(r1, pad)):  # rows r0.. up to (the first window row) + pad
+            if j >= r0:
+                hz = horiz_buf[j - r0]
+                for i in range(ww):
+                    cover[i] += hz[i]
         mass = 0.0
         m10 = 0.0
         m01 = 0.0
-        peak = 0.0
         for j in range(wh):
+            add, sub = j + pad, j - pad - 1
+            if add < wh and r0 <= add < r1:
+                hz = horiz_buf[add - r0]
+                for i in range(ww):
+                    cover[i] += hz[i]
+            if sub >= 0 and r0 <= sub < r1:
+                hz = horiz_buf[sub - r0]
+                for i in range(ww):
+                    cover[i] -= hz[i]
+            lrow = labels[ly + wy0 + j]
+            grow = gray[oy + wy0 + j]
             for i in range(ww):
-                g = float(gray[oy + wy0 + j, ox + wx0 + i])
-                if comp[j, i] and g > peak:
-                    peak = g
-                if not support[j, i]:
+                if cover[i] == 0:
                     continue
-                lab = labels[ly + wy0 + j, lx + wx0 + i]
+                lab = lrow[lx + wx0 + i]
                 if lab != 0 and lab != lab_id:
                     continue
-                wgt = g - background
+                wgt = float(grow[ox + wx0 + i]) - background
                 if wgt <= 0.0:
                     continue
                 mass += wgt
@@ -311,29 +322,6 @@ def hot_tile_boxes(
 
 
 @njit(cache=True, nogil=True)
-def pack_boxes(
-    gray: np.ndarray, boxes: np.ndarray, places: np.ndarray, ring: int, shape: tuple[int, int]
-) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled
-    """The mosaic of the image boxes (k, 4: x0, y0, x1, y1) at ``places`` (k, 2: x, y), each
-    with a ``ring``-px border replicated from its edge (``cv2.BORDER_REPLICATE``), and the
-    owner map (the box index of each mosaic pixel that is an image pixel, else −1)."""
-    mosaic = np.zeros(shape, np.uint8)
-    owner = np.full(shape, -1, np.int32)
-    for k in range(boxes.shape[0]):
-        x0, y0, x1, y1 = boxes[k, 0], boxes[k, 1], boxes[k, 2], boxes[k, 3]
-        px, py = places[k, 0], places[k, 1]
-        for j in range(-ring, y1 - y0 + ring):
-            sy = min(max(y0 + j, y0), y1 - 1)
-            for i in range(-ring, x1 - x0 + ring):
-                sx = min(max(x0 + i, x0), x1 - 1)
-                mosaic[py + j, px + i] = gray[sy, sx]
-        for j in range(y1 - y0):
-            for i in range(x1 - x0):
-                owner[py + j, px + i] = k
-    return mosaic, owner
-
-
-@njit(cache=True, nogil=True)
 def grow_and_merge_boxes(
     boxes: np.ndarray, width: int, height: int, reach: int
 ) -> np.ndarray:  # pragma: no cover - compiled
@@ -383,3 +371,145 @@ def grow_and_merge_boxes(
                     out[k, 3] = max(out[k, 3], g[t, 3])
         g = out
     return g
+
+
+@njit(cache=True, nogil=True)
+def median_foreground(
+    gray: np.ndarray,
+    box: np.ndarray,
+    threshold: int,
+    radius: int,
+    xy: np.ndarray,
+) -> int:  # pragma: no cover - compiled
+    """Eq. 10 binarisation (I ≥ T) and the (2·radius+1)² median filter of §4.1 (3) inside the
+    image ``box`` (x0, y0, x1, y1, half-open), with ``cv2.BORDER_REPLICATE`` at the box's edge
+    (as ``cv2.medianBlur``): writes the (x, y) box coordinates of the filtered image's
+    foreground pixels, in raster order, into ``xy`` and returns their count. On a binary image
+    the median is 1 where at least half the window (rounded up) is 1."""
+    x0, y0, x1, y1 = box[0], box[1], box[2], box[3]
+    bh, bw = y1 - y0, x1 - x0
+    side = 2 * radius + 1
+    need = (side * side + 1) // 2
+    col = np.empty((bh, bw), np.int32)  # ones in the window's column through each pixel
+    if radius == 1:  # the default 3×3 filter, unrolled (≈ 2× the general loop)
+        for j in range(bh):
+            ra, rb, rc = gray[y0 + max(j - 1, 0)], gray[y0 + j], gray[y0 + min(j + 1, bh - 1)]
+            for i in range(bw):
+                x = x0 + i
+                col[j, i] = (
+                    np.int32(ra[x] >= threshold)
+                    + np.int32(rb[x] >= threshold)
+                    + np.int32(rc[x] >= threshold)
+                )
+        count = 0
+        for j in range(bh):
+            for i in range(bw):
+                if col[j, max(i - 1, 0)] + col[j, i] + col[j, min(i + 1, bw - 1)] >= 5:
+                    xy[count, 0], xy[count, 1] = i, j
+                    count += 1
+        return count
+    for j in range(bh):
+        for i in range(bw):
+            s = 0
+            for d in range(-radius, radius + 1):
+                jj = min(max(j + d, 0), bh - 1)
+                if gray[y0 + jj, x0 + i] >= threshold:
+                    s += 1
+            col[j, i] = s
+    count = 0
+    for j in range(bh):
+        for i in range(bw):
+            s = 0
+            for d in range(-radius, radius + 1):
+                s += col[j, min(max(i + d, 0), bw - 1)]
+            if s >= need:
+                xy[count, 0], xy[count, 1] = i, j
+                count += 1
+    return count
+
+
+@njit(cache=True, nogil=True)
+def detect_in_boxes(
+    gray: np.ndarray,
+    bands: np.ndarray,
+    band_rows: int,
+    threshold: int,
+    ksize: int,
+    background: float,
+    min_area: int,
+    max_area: int,
+    max_aspect: float,
+    min_fill: float,
+    max_blobs: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:  # pragma: no cover - compiled
+    """The whole lean acquisition of one image in one compiled call: the bright tiles
+    (:func:`hot_tile_boxes`) grown and merged (:func:`grow_and_merge_boxes`), then in each box
+    eq. 10 + the median filter (:func:`median_foreground`), Algorithm 2's labelling
+    (:func:`label_pixels`), the gate (:func:`gate_mask`) and eq. 11 (:func:`centroid_table`).
+
+    Returns (kept (k, 5) int64 x, y, w, h, area in image px; their (k, 4) float64 u px, v px,
+    mass, peak; rejected (r, 5) int64 rows; the number of kept components). Boxes in order,
+    components in raster order within a box. Past ``max_blobs`` kept components no more
+    centroids are computed (the frame is refused)."""
+    h, w = gray.shape
+    tiles = hot_tile_boxes(gray, bands, band_rows, threshold)
+    if tiles.shape[0] == 0:
+        return np.zeros((0, 5), np.int64), np.zeros((0, 4)), np.zeros((0, 5), np.int64), 0
+    boxes = grow_and_merge_boxes(tiles, w, h, ksize // 2 + 2)
+    big = 0
+    for b in range(boxes.shape[0]):
+        big = max(big, (boxes[b, 2] - boxes[b, 0]) * (boxes[b, 3] - boxes[b, 1]))
+    xy = np.empty((big, 2), np.int64)
+    kept_parts = [np.zeros((0, 5), np.int64)]  # typed by their first (empty) part
+    cent_parts = [np.zeros((0, 4))]
+    rej_parts = [np.zeros((0, 5), np.int64)]
+    total = 0
+    for b in range(boxes.shape[0]):
+        x0, y0 = boxes[b, 0], boxes[b, 1]
+        bw, bh = boxes[b, 2] - x0, boxes[b, 3] - y0
+        count = median_foreground(gray, boxes[b], threshold, ksize // 2, xy)
+        if count == 0:
+            continue
+        labels = np.zeros((bh, bw), np.int32)
+        st = label_pixels(xy[:count], labels)[1:]
+        st[:, 0] += x0
+        st[:, 1] += y0
+        ok = gate_mask(st, w, h, min_area, max_area, max_aspect, min_fill)
+        n_ok = 0
+        for c in range(st.shape[0]):
+            if ok[c]:
+                n_ok += 1
+        rej_parts.append(st[~ok])
+        if n_ok == 0:
+            continue
+        cands = np.empty((n_ok, 12), np.int64)
+        k = 0
+        for c in range(st.shape[0]):
+            if ok[c]:
+                cands[k, 0] = c + 1
+                cands[k, 1:6] = st[c]
+                cands[k, 6], cands[k, 7], cands[k, 8], cands[k, 9] = 0, 0, bw, bh
+                cands[k, 10], cands[k, 11] = x0, y0
+                k += 1
+        total += n_ok
+        kept_parts.append(cands[:, 1:6].copy())
+        if total <= max_blobs:
+            cent_parts.append(centroid_table(gray, labels, cands, background))
+    if total > max_blobs:
+        kept_parts = [np.zeros((0, 5), np.int64)]
+        cent_parts = [np.zeros((0, 4))]
+    return _stack(kept_parts, 5), _stack(cent_parts, 4), _stack(rej_parts, 5), total
+
+
+@njit(cache=True, nogil=True)
+def _stack(parts, ncols):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
+    """Rows of a non-empty list of (k_i, ncols) arrays, one after the other."""
+    n = 0
+    for a in parts:
+        n += a.shape[0]
+    out = np.empty((n, ncols), parts[0].dtype)
+    r = 0
+    for a in parts:
+        out[r : r + a.shape[0]] = a
+        r += a.shape[0]
+    return out

@@ -9,14 +9,13 @@ import numpy as np
 
 from app.vision.blob_kernels import (
     centroid_table,
+    detect_in_boxes,
     foreground_pixels,
     gate_mask,
-    grow_and_merge_boxes,
     hot_tile_boxes,
     label_pixels,
-    pack_boxes,
 )
-from app.vision.preprocess import U8Image
+from app.vision.preprocess import U8Image, frame_summary
 from app.vision.types import Blob, RejectedBlob
 
 MAX_REJECTED_REPORTED = 100
@@ -116,20 +115,15 @@ def extract_blobs(
     return _centroids(gray, labels, table, background), rejected
 
 
-BAND_ROWS = 16  # rows per band of :func:`band_maxima` (2⁴: its tree of pair maxima)
+BAND_ROWS = 16  # rows per band of :func:`band_maxima` (the tile side of :func:`bright_boxes`)
 
 
 def band_maxima(gray: U8Image) -> np.ndarray:
     """Maximum of each column over bands of ``BAND_ROWS`` rows: (ceil(H / 16), W) uint8, one
-    vectorised pass over the image (its overall max is eq. 10's peak)."""
-    h, w = gray.shape
-    full = h - h % BAND_ROWS
-    out: np.ndarray = gray[:full]
-    for _ in range(4):  # 16 = 2⁴ rows: a tree of row-pair maxima (SIMD, ~1.7× numpy's max)
-        out = cv2.max(out[0::2], out[1::2])
-    if full < h:
-        out = np.vstack([out, gray[full:].max(axis=0, keepdims=True)])
-    return np.asarray(out)
+    compiled pass over the image (its overall max is eq. 10's peak;
+    :func:`app.vision.preprocess.frame_summary`, which also gives the background's histogram
+    in the same pass)."""
+    return np.asarray(frame_summary(gray, BAND_ROWS, 0, 1)[0])
 
 
 def bright_boxes(gray: U8Image, threshold: int, bands: np.ndarray | None = None) -> list[Box]:
@@ -143,16 +137,6 @@ def bright_boxes(gray: U8Image, threshold: int, bands: np.ndarray | None = None)
     return [(int(r[0]), int(r[1]), int(r[2]), int(r[3])) for r in boxes.tolist()]
 
 
-def _grow_and_merge(boxes: list[Box], width: int, height: int, ksize: int) -> list[Box]:
-    """Each box widened by the largest centroid margin a blob inside it can need (0.5·√area,
-    area ≤ the box's) plus the median filter's reach, clipped; overlapping boxes merged
-    (compiled: :func:`app.vision.blob_kernels.grow_and_merge_boxes`)."""
-    if not boxes:
-        return []
-    merged = grow_and_merge_boxes(np.array(boxes, dtype=np.int64), width, height, ksize // 2 + 2)
-    return [(int(r[0]), int(r[1]), int(r[2]), int(r[3])) for r in merged.tolist()]
-
-
 def detect_blobs(
     gray: U8Image,
     threshold: int,
@@ -164,61 +148,37 @@ def detect_blobs(
     """Eq. 10 binarisation, the median filter, labelling and eq. 11 centroids, done only
     inside :func:`bright_boxes` (grown by each blob's centroid margin): the same blobs as
     ``extract_blobs(gray, median_filter(binarize(gray, threshold)), ...)`` on the whole frame,
-    at a fraction of the cost when the bright pixels are few."""
+    at a fraction of the cost when the bright pixels are few.
+
+    One compiled call (:func:`app.vision.blob_kernels.detect_in_boxes`) does it box by box:
+    each grown box's edge is background for ≥ the median's reach, so neither the filter nor
+    8-connectivity couples neighbouring boxes, and the box edge replicated stands for the
+    median filter's border handling at the image edge (inside the image it is background
+    anyway). Blobs come box by box, in raster order within a box."""
     gate = gate or BlobGate()
     height, width = gray.shape
-    boxes = _grow_and_merge(bright_boxes(gray, threshold, bands), width, height, median_ksize)
-    if not boxes:
-        return [], []
-    # every box into one mosaic (shelves of boxes side by side): one threshold, median and
-    # labelling call for all. Each box's edge is background for ≥ the median's reach, so
-    # neither the filter nor 8-connectivity couples neighbouring boxes.
-    # A ring of r px replicated around each box stands for the median filter's border
-    # handling at the image edge (inside the image, the box's edge is background anyway).
-    r = median_ksize // 2
-    placed, mh, mw = _shelf_pack([(x0, y0, x1 + 2 * r, y1 + 2 * r) for x0, y0, x1, y1 in boxes])
-    places = [(px + r, py + r) for px, py in placed]
-    pb, bb = np.array(places, np.int64), np.array(boxes, np.int64)
-    mosaic, owner = pack_boxes(gray, bb, pb, r, (mh, mw))
-    _, binary = cv2.threshold(mosaic, threshold - 1, 255, cv2.THRESH_BINARY)
-    mask = np.asarray(
-        cv2.medianBlur(binary, median_ksize) if median_ksize > 1 else binary, dtype=np.uint8
+    if bands is None:
+        bands = band_maxima(gray)
+    kept, cents, rej, count = detect_in_boxes(
+        gray,
+        np.ascontiguousarray(bands),
+        BAND_ROWS,
+        int(threshold),
+        int(median_ksize),
+        float(background),
+        gate.min_area_px,
+        gate.max_area_px,
+        float(gate.max_aspect),
+        float(gate.min_fill),
+        gate.max_blobs,
     )
-    if r:
-        mask[owner < 0] = 0  # the replicated rings are not image pixels
-    n, labels, st = _label_with_stats(mask)
-    if n <= 1:
-        return [], []
-    st = st[1:, :5].astype(np.int64)
-    k_of = owner[st[:, 1], st[:, 0]]  # the box holding each component (its bbox corner)
-    st[:, 0] += bb[k_of, 0] - pb[k_of, 0]  # mosaic → image px
-    st[:, 1] += bb[k_of, 1] - pb[k_of, 1]
-    ok, rejected = _gate_components(st, (width, height), gate)
-    kept = np.flatnonzero(ok)
-    if len(kept) > gate.max_blobs:
-        raise TooManyBlobs(len(kept), gate.max_blobs)
-    # each box's region in the label mosaic and its origin in the image
-    regions = np.column_stack([pb, pb + bb[:, 2:4] - bb[:, 0:2], bb[:, 0:2]])
-    table = _candidate_table(kept + 1, st[kept], regions[k_of[kept]])
-    return _centroids(gray, labels, table, background), rejected
-
-
-def _shelf_pack(boxes: list[Box]) -> tuple[list[tuple[int, int]], int, int]:
-    """Top-left mosaic position of each box (shelf packing, tallest first): (places, H, W)."""
-    sizes = [(x1 - x0, y1 - y0) for x0, y0, x1, y1 in boxes]
-    limit = max(1024, max(w for w, _ in sizes))
-    places: list[tuple[int, int]] = [(0, 0)] * len(boxes)
-    x = y = shelf_h = width = 0
-    for k in sorted(range(len(boxes)), key=lambda i: -sizes[i][1]):
-        w, h = sizes[k]
-        if x + w > limit:  # next shelf
-            y += shelf_h
-            x = shelf_h = 0
-        places[k] = (x, y)
-        x += w
-        shelf_h = max(shelf_h, h)
-        width = max(width, x)
-    return places, y + shelf_h, width
+    if count > gate.max_blobs:
+        raise TooManyBlobs(int(count), gate.max_blobs)
+    rejected = _rejected_blobs(rej, gate)
+    return [
+        Blob((cu, cv), area, (x, y, w, h), pk, m)
+        for (x, y, w, h, area), (cu, cv, m, pk) in zip(kept.tolist(), cents.tolist(), strict=True)
+    ], rejected
 
 
 def _gate_components(
@@ -236,12 +196,17 @@ def _gate_components(
         float(gate.max_aspect),
         float(gate.min_fill),
     )
+    return ok, _rejected_blobs(st[~ok], gate)
+
+
+def _rejected_blobs(st: np.ndarray, gate: BlobGate) -> list[RejectedBlob]:
+    """The first ``MAX_REJECTED_REPORTED`` rejected (x, y, w, h, area) rows with their reasons."""
     rejected = []
-    for x, y, w, h, area in st[~ok][:MAX_REJECTED_REPORTED].tolist():
+    for x, y, w, h, area in st[:MAX_REJECTED_REPORTED].tolist():
         reason = _gate(area, w, h, gate) or "touches the image border"
         centre = (x + (w - 1) / 2.0, y + (h - 1) / 2.0)
         rejected.append(RejectedBlob(centroid_px=centre, area_px=area, reason=reason))
-    return ok, rejected
+    return rejected
 
 
 def _candidate_table(labels: np.ndarray, stats: np.ndarray, boxes: np.ndarray) -> np.ndarray:

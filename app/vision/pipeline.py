@@ -22,7 +22,7 @@ from app.geometry.projection import undistort_pixels
 from app.geometry.ring import RingFit, RingParams, RingPrior, find_ring
 from app.geometry.triangulation import refine_reprojection, triangulate_linear
 from app.vision.appearance import AppearanceConfig, appearance_reasons, blob_color_bgr
-from app.vision.features import BlobGate, TooManyBlobs, band_maxima, detect_blobs
+from app.vision.features import BAND_ROWS, BlobGate, TooManyBlobs, detect_blobs
 from app.vision.ihwt import describe
 from app.vision.matching import (
     descriptor_distances,
@@ -31,10 +31,13 @@ from app.vision.matching import (
     match_min_distance,
 )
 from app.vision.preprocess import (
+    BACKGROUND_COL_STEP,
+    BACKGROUND_ROW_STEP,
     ImageError,
     ThresholdMode,
-    background_level,
+    background_from_histogram,
     choose_threshold,
+    frame_summary,
     to_gray,
     validate_image,
 )
@@ -167,10 +170,11 @@ class NavigationPipeline:
         cfg = self.config
         gray = to_gray(image)
         t0 = time.perf_counter()
-        stats = background_level(gray)
+        # one pass over the frame: the band maxima (the peak of eq. 10's "auto" rule and the
+        # bright bands) and the background's histogram
+        bands, hist = frame_summary(gray, BAND_ROWS, BACKGROUND_ROW_STEP, BACKGROUND_COL_STEP)
+        stats = background_from_histogram(hist)
         bg = stats[0]
-        # one pass for the band maxima: the peak of eq. 10's "auto" rule and the bright bands
-        bands = band_maxima(gray)
         threshold = choose_threshold(gray, cfg.threshold, stats, float(bands.max()))
         t1 = time.perf_counter()
         # binarise, median-filter, label and centroid only around the bright pixels

@@ -45,27 +45,58 @@ def to_gray(image: U8Image) -> U8Image:
     return np.asarray(cv2.cvtColor(image, cv2.COLOR_BGR2GRAY), dtype=np.uint8)
 
 
+BACKGROUND_ROW_STEP = 8  # the background's subsample: every 8th row ...
+BACKGROUND_COL_STEP = 4  # ... and every 4th column (1/32 of the pixels)
+
+
+@njit(cache=True, nogil=True)
+def _histogram_row(row: np.ndarray, col_step: int, hist: np.ndarray) -> None:  # pragma: no cover
+    """Add ``row[::col_step]`` to the 4 interleaved 256-bin histograms ``hist`` (4, 256)
+    (interleaved: no store-to-load stall on runs of equal values)."""
+    k = 0
+    for x in range(0, row.shape[0], col_step):
+        hist[k, row[x]] += 1
+        k = (k + 1) & 3
+
+
 @njit(cache=True, nogil=True)
 def subsampled_histogram(
     gray: np.ndarray, row_step: int, col_step: int
 ) -> np.ndarray:  # pragma: no cover - compiled
     """256-bin histogram of ``gray[::row_step, ::col_step]`` (no copy of the subsample)."""
-    hist = np.zeros((4, 256), np.int64)  # 4 interleaved histograms: no store-to-load stall
-    h, w = gray.shape
-    for y in range(0, h, row_step):
-        row = gray[y]
-        k = 0
-        for x in range(0, w, col_step):
-            hist[k, row[x]] += 1
-            k = (k + 1) & 3
+    hist = np.zeros((4, 256), np.int64)
+    for y in range(0, gray.shape[0], row_step):
+        _histogram_row(gray[y], col_step, hist)
     return hist[0] + hist[1] + hist[2] + hist[3]
 
 
-def background_level(gray: U8Image) -> tuple[float, float]:
-    """Robust background level and noise σ (DN) from a 1/32 subsample (every 8th row, every 4th
-    column: one eighth of the memory traffic): the median and
-    1.4826·MAD, both read off the 256-bin histogram (no sort)."""
-    hist = subsampled_histogram(gray, 8, 4)
+@njit(cache=True, nogil=True)
+def frame_summary(
+    gray: np.ndarray, band_rows: int, row_step: int, col_step: int
+) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled
+    """One pass over the image for what the acquisition needs of the whole frame: the maximum
+    of each column over bands of ``band_rows`` rows ((ceil(H / band_rows), W) uint8; their
+    maximum is eq. 10's peak) and the 256-bin histogram of ``gray[::row_step, ::col_step]``
+    (the background level; ``row_step`` 0: none, all zeros)."""
+    h, w = gray.shape
+    nb = (h + band_rows - 1) // band_rows
+    bands = np.zeros((nb, w), np.uint8)
+    hist = np.zeros((4, 256), np.int64)
+    for b in range(nb):
+        out = bands[b]
+        for y in range(b * band_rows, min(h, (b + 1) * band_rows)):
+            row = gray[y]
+            for x in range(w):
+                if row[x] > out[x]:
+                    out[x] = row[x]
+            if row_step > 0 and y % row_step == 0:
+                _histogram_row(row, col_step, hist)
+    return bands, hist[0] + hist[1] + hist[2] + hist[3]
+
+
+def background_from_histogram(hist: np.ndarray) -> tuple[float, float]:
+    """Robust background level and noise σ (DN) of a 256-bin histogram: the median and
+    1.4826·MAD, both read off the histogram (no sort)."""
     half = hist.sum() / 2.0
     med = int(np.searchsorted(np.cumsum(hist), half))
     # histogram of |x − med|: fold the histogram about the median
@@ -77,6 +108,13 @@ def background_level(gray: U8Image) -> tuple[float, float]:
     dev[1 : 1 + len(down)] += down
     mad = int(np.searchsorted(np.cumsum(dev), half))
     return float(med), max(1.4826 * mad, 0.5)
+
+
+def background_level(gray: U8Image) -> tuple[float, float]:
+    """Robust background level and noise σ (DN) from a 1/32 subsample (every 8th row, every 4th
+    column: one eighth of the memory traffic): :func:`background_from_histogram`."""
+    hist = subsampled_histogram(gray, BACKGROUND_ROW_STEP, BACKGROUND_COL_STEP)
+    return background_from_histogram(hist)
 
 
 def choose_threshold(
