@@ -126,7 +126,7 @@ def test_warmup_compiles_everything_frames_need() -> None:
     from app.sim.paths import load_default_calibration
     from app.sim.stereo_render import RenderSettings, render_pair
     from app.sim.warmup import compile_kernels
-    from app.vision import blob_kernels, ihwt, matching, preprocess
+    from app.vision import appearance, blob_kernels, ihwt, matching, preprocess
     from app.vision.pipeline import NavigationPipeline
     from app.vision.tracking import StereoTracker
 
@@ -144,7 +144,12 @@ def test_warmup_compiles_everything_frames_need() -> None:
         circle_fit.distance_kernel,
         ring._slot_angles,
         ring._ring_measures,
+        ring.seed_kernel,
+        ring.refine_kernel,
         matching._epipolar_kernel,
+        matching._descriptor_kernel,
+        matching._gated_cost,
+        appearance._appearance_kernel,
     ]
     compile_kernels()
     prepared = {loop.__name__: len(loop.signatures) for loop in loops}

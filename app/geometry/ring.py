@@ -17,6 +17,11 @@ considered (no cap):
    as well ("ambiguous"), and the ring does not carry extra points off its slots (a ring of a
    different LED count).
 
+Steps 1–3 run in two compiled loops per frame (:func:`seed_kernel`, :func:`refine_kernel`;
+numba, cached on disk); the numpy formulation of each step (:func:`_compatible_pairs`,
+:func:`_seed_triples`, :func:`_circumcircles`, :func:`_seed_slots`, :func:`_fit_hypothesis`) is
+kept as their reference and gives the same seeds, in the same order, and the same hypotheses.
+
 Slot angles are measured clockwise from the camera's up direction (−y) projected on the ring
 plane (:func:`app.geometry.circle_fit.plane_basis`); ids are assigned from the slot offset by
 :mod:`app.geometry.led_ids`.
@@ -145,6 +150,7 @@ class _Hypothesis:
     angle_tol: float
     inlier_tol: float
     extra_on_ring: int
+    distance_mm: FloatArray | None = None  # of each member from the circle
     log10_nfa: float = math.inf
 
 
@@ -414,7 +420,374 @@ def _fit_hypothesis(p: FloatArray, members: np.ndarray, params: RingParams) -> _
         angle_tol=atol,
         inlier_tol=itol,
         extra_on_ring=extra,
+        distance_mm=d_m,
     )
+
+
+# ---- compiled seed search and refinement (the formulations above are their reference) ----
+
+_DEG = 180.0 / math.pi  # np.degrees' factor
+_RAD = math.pi / 180.0  # np.radians' factor
+
+
+def _ring_consts(params: RingParams) -> tuple[float, int, float, float, float, float, float]:
+    """The ring and its tolerances as the compiled loops take them (typed as warm-up typed)."""
+    return (
+        float(params.radius_mm),
+        int(params.led_count),
+        float(params.radius_tol_frac),
+        float(params.inlier_tol_mm),
+        float(params.angle_tol_deg),
+        float(params.max_angle_tol_deg),
+        float(params.depth_sigma_per_mm),
+    )
+
+
+@njit(cache=True, nogil=True)
+def _angle_tol_at(
+    z: float, radius: float, angle_tol: float, max_angle_tol: float, dsig: float
+) -> float:  # pragma: no cover - compiled
+    """:meth:`RingParams.angle_tol_deg_at` (deg) at range z (mm)."""
+    a = (2.5 * (dsig * (z * z)) / radius) * _DEG
+    return min(max(a, angle_tol), max_angle_tol)
+
+
+@njit(cache=True, nogil=True)
+def seed_kernel(
+    p: np.ndarray,
+    radius: float,
+    count: int,
+    rtol_frac: float,
+    inlier_tol: float,
+    angle_tol: float,
+    max_angle_tol: float,
+    dsig: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover - compiled
+    """Steps 1–2 of the module docstring in one loop: the chord-compatible triples i < j < k
+    (T, 3) in lexicographic order (as :func:`_seed_triples` of :func:`_compatible_pairs`), and
+    the rows of those that are seeds (circumcircle of the ring's radius, three distinct evenly
+    spaced slots: :func:`_circumcircles`, :func:`_seed_slots`), best slot fit first (stable), with
+    their sums of squared slot residuals (deg²)."""
+    n = p.shape[0]
+    adj = np.zeros((n, n), np.bool_)
+    half = count // 2
+    for i in range(n):
+        for j in range(i + 1, n):
+            d0, d1, d2 = p[i, 0] - p[j, 0], p[i, 1] - p[j, 1], p[i, 2] - p[j, 2]
+            d = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+            z = max(p[i, 2], p[j, 2])
+            sz = dsig * (z * z)
+            alpha = _angle_tol_at(z, radius, angle_tol, max_angle_tol, dsig) * _RAD
+            rtol = rtol_frac * radius + 2.0 * sz
+            itol = max(inlier_tol, 4.0 * sz)
+            for k in range(1, half + 1):
+                s, c = math.sin(math.pi * k / count), math.cos(math.pi * k / count)
+                tol = 2.0 * rtol * s + 2.0 * radius * abs(c) * alpha + 2.0 * itol
+                if abs(d - 2.0 * radius * s) <= tol:
+                    adj[i, j] = True
+                    adj[j, i] = True
+                    break
+    total = 0
+    for i in range(n):
+        for j in range(i + 1, n):
+            if adj[i, j]:
+                for k in range(j + 1, n):
+                    if adj[i, k] and adj[j, k]:
+                        total += 1
+    triples = np.empty((total, 3), np.int64)
+    t = 0
+    for i in range(n):
+        for j in range(i + 1, n):
+            if adj[i, j]:
+                for k in range(j + 1, n):
+                    if adj[i, k] and adj[j, k]:
+                        triples[t, 0], triples[t, 1], triples[t, 2] = i, j, k
+                        t += 1
+    rows = np.empty(total, np.int64)
+    keys = np.empty(total)
+    spacing = 360.0 / count
+    ang = np.empty(3)
+    s_count = 0
+    for t in range(total):
+        p1, p2, p3 = p[triples[t, 0]], p[triples[t, 1]], p[triples[t, 2]]
+        a0, a1, a2 = p1[0] - p3[0], p1[1] - p3[1], p1[2] - p3[2]
+        b0, b1, b2 = p2[0] - p3[0], p2[1] - p3[1], p2[2] - p3[2]
+        x0, x1, x2 = a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+        n2 = x0 * x0 + x1 * x1 + x2 * x2
+        if not n2 > 1e-9:
+            continue  # collinear: no circle
+        aa, bb = a0 * a0 + a1 * a1 + a2 * a2, b0 * b0 + b1 * b1 + b2 * b2
+        u0, u1, u2 = aa * b0 - bb * a0, aa * b1 - bb * a1, aa * b2 - bb * a2
+        c0 = p3[0] + (u1 * x2 - u2 * x1) / (2.0 * n2)
+        c1 = p3[1] + (u2 * x0 - u0 * x2) / (2.0 * n2)
+        c2 = p3[2] + (u0 * x1 - u1 * x0) / (2.0 * n2)
+        r0, r1, r2 = c0 - p3[0], c1 - p3[1], c2 - p3[2]
+        r = np.sqrt(r0 * r0 + r1 * r1 + r2 * r2)
+        sz = dsig * (c2 * c2)
+        if not abs(r - radius) <= rtol_frac * radius + 2.0 * sz:
+            continue
+        # the seed's slots on its circumcircle (normal towards the cameras)
+        nn = np.sqrt(n2)
+        n0, n1, nz = x0 / nn, x1 / nn, x2 / nn
+        if n0 * -c0 + n1 * -c1 + nz * -c2 < 0:
+            n0, n1, nz = -n0, -n1, -nz
+        m = -n1  # n · (0, −1, 0)
+        e0, e1, e2 = 0.0 - m * n0, -1.0 - m * n1, 0.0 - m * nz
+        en = max(np.sqrt(e0 * e0 + e1 * e1 + e2 * e2), 1e-12)
+        e0, e1, e2 = e0 / en, e1 / en, e2 / en
+        f0, f1, f2 = e1 * nz - e2 * n1, e2 * n0 - e0 * nz, e0 * n1 - e1 * n0
+        ss, cs = 0.0, 0.0
+        for q in range(3):
+            pq = p[triples[t, q]]
+            q0, q1, q2 = pq[0] - c0, pq[1] - c1, pq[2] - c2
+            ang[q] = math.atan2(q0 * f0 + q1 * f1 + q2 * f2, q0 * e0 + q1 * e1 + q2 * e2) * _DEG
+            phase = ang[q] * count * _RAD
+            cs += math.cos(phase)
+            ss += math.sin(phase)
+        off = math.atan2(ss * (1.0 / 3.0), cs * (1.0 / 3.0)) * _DEG / count  # as np.mean
+        limit = 1.5 * _angle_tol_at(c2, radius, angle_tol, max_angle_tol, dsig)
+        key = 0.0
+        slot = np.empty(3, np.int64)
+        fits = True
+        for q in range(3):
+            k = np.rint((ang[q] - off) / spacing)
+            res = ang[q] - off - k * spacing
+            slot[q] = int(k) % count
+            fits = fits and abs(res) <= limit
+            key += res * res
+        if fits and slot[0] != slot[1] and slot[0] != slot[2] and slot[1] != slot[2]:
+            rows[s_count] = t
+            keys[s_count] = key
+            s_count += 1
+    order = np.argsort(keys[:s_count], kind="mergesort")
+    return triples, rows[:s_count][order], keys[:s_count][order]
+
+
+@njit(cache=True, nogil=True)
+def _fit_members(pts: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
+    """:func:`circle_kernel` (10 iterations) with the normal towards the cameras (as
+    :func:`oriented`); status (index 9) 1 when there is no finite circle (``FitError``)."""
+    try:
+        fit = circle_kernel(pts, 10)
+    except Exception:  # a singular circle system
+        fit = np.zeros(10)
+        fit[9] = 1.0
+        return fit
+    for q in range(10):
+        if not np.isfinite(fit[q]):
+            fit[9] = 1.0
+    if fit[9] == 0.0 and fit[3:6] @ (-fit[0:3]) < 0.0:
+        fit[3:6] = -fit[3:6]
+    return fit
+
+
+@njit(cache=True, nogil=True)
+def hypothesis_kernel(
+    p: np.ndarray,
+    seed: np.ndarray,
+    radius: float,
+    count: int,
+    rtol_frac: float,
+    inlier_tol: float,
+    angle_tol: float,
+    max_angle_tol: float,
+    dsig: float,
+    max_view_deg: float,
+) -> tuple[bool, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover
+    """Step 3 for one seed, the arithmetic of :func:`_fit_hypothesis`: (found, members (sorted
+    point indices), their slots, residuals (deg), distances from the circle (mm), and 16
+    floats: the oriented fit (10, as :func:`circle_kernel`), offset (deg), cost, angle
+    tolerance (deg), inlier tolerance (mm), points on the circle off the slots, range z)."""
+    n = p.shape[0]
+    info = np.zeros(16)
+    no = np.zeros(0, np.int64)
+    nof = np.zeros(0)
+    current = np.sort(seed)
+    fit = np.zeros(10)
+    dist = np.zeros(n)
+    near = no
+    slots = no
+    resid = nof
+    offset, itol, atol, z = 0.0, 0.0, 0.0, 0.0
+    for _ in range(4):
+        fit = _fit_members(p[current])
+        if fit[9] != 0.0:
+            return False, no, no, nof, nof, info
+        center, normal = fit[0:3], fit[3:6]
+        z = fit[2]
+        sz = dsig * (z * z)
+        itol = max(inlier_tol, 4.0 * sz)
+        atol = _angle_tol_at(z, radius, angle_tol, max_angle_tol, dsig)
+        offset = _slot_offset(_slot_angles(p[current], center, normal), count)
+        dist = distance_kernel(p, center, normal, fit[6])
+        near = np.flatnonzero(dist <= itol)
+        slots, resid = _slot_residuals(_slot_angles(p[near], center, normal), offset, count)
+        chosen = np.full(count, -1, np.int64)  # the near point taken by each slot
+        for j in range(near.shape[0]):
+            s, r = slots[j], resid[j]
+            if abs(r) > atol:
+                continue
+            if chosen[s] < 0 or abs(r) < abs(resid[chosen[s]]):
+                chosen[s] = j
+        new = np.sort(near[chosen[chosen >= 0]])
+        if new.shape[0] < 3:
+            return False, no, no, nof, nof, info
+        same = new.shape[0] == current.shape[0]
+        if same:
+            for q in range(new.shape[0]):
+                same = same and new[q] == current[q]
+        current = new
+        if same:
+            break
+    sel = np.zeros(near.shape[0], np.bool_)
+    q = 0
+    for j in range(near.shape[0]):  # near and current are both ascending
+        while q < current.shape[0] and current[q] < near[j]:
+            q += 1
+        sel[j] = q < current.shape[0] and current[q] == near[j]
+    members = near[sel]
+    m_slots, m_resid = slots[sel], resid[sel]
+    d_m = dist[members]
+    cost_d, cost_a = 0.0, 0.0
+    for q in range(members.shape[0]):
+        cost_d += (d_m[q] / itol) ** 2
+        cost_a += (m_resid[q] / atol) ** 2
+    # the fit must still be the ring we look for
+    if abs(fit[6] - radius) > rtol_frac * radius + 2.0 * (dsig * (z * z)) or fit[7] > itol:
+        return False, no, no, nof, nof, info
+    c = fit[0:3]
+    view = -c / max(math.sqrt(c @ c), 1e-9)
+    if math.acos(min(1.0, max(-1.0, float(fit[3:6] @ view)))) * _DEG > max_view_deg:
+        return False, no, no, nof, nof, info
+    info[0:10] = fit
+    info[10], info[11], info[12], info[13] = offset, cost_d + cost_a, atol, itol
+    info[14], info[15] = near.shape[0] - members.shape[0], z
+    return True, members, m_slots, m_resid, d_m, info
+
+
+@njit(cache=True, nogil=True)
+def _grown(a: np.ndarray, rows: int, fill: Any) -> np.ndarray:  # pragma: no cover - compiled
+    out = np.full((rows, a.shape[1]), fill, a.dtype)
+    out[: a.shape[0]] = a
+    return out
+
+
+@njit(cache=True, nogil=True)
+def refine_kernel(
+    p: np.ndarray,
+    triples: np.ndarray,
+    seeds: np.ndarray,
+    radius: float,
+    count: int,
+    rtol_frac: float,
+    inlier_tol: float,
+    angle_tol: float,
+    max_angle_tol: float,
+    dsig: float,
+    max_view_deg: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover
+    """Step 3 over the seeds in order (the loop of :func:`find_ring`): a seed whose three points
+    all belong to a hypothesis already found is skipped, a hypothesis found twice is kept once.
+    Per distinct hypothesis (H rows, N = ``count`` columns, padded with −1 / 0): members,
+    slots, residuals (deg), distances (mm), and :func:`hypothesis_kernel`'s 16 floats."""
+    n = p.shape[0]
+    cap = 8
+    on = np.zeros((cap, n), np.bool_)  # the points of each hypothesis
+    members = np.full((cap, count), -1, np.int64)
+    slots = np.full((cap, count), -1, np.int64)
+    resid = np.zeros((cap, count))
+    dist = np.zeros((cap, count))
+    info = np.zeros((cap, 16))
+    h = 0
+    for t in seeds:
+        a, b, c = triples[t, 0], triples[t, 1], triples[t, 2]
+        covered = False
+        for g in range(h):
+            if on[g, a] and on[g, b] and on[g, c]:
+                covered = True
+                break
+        if covered:
+            continue  # already explained by a refined hypothesis
+        found, mem, sl, rs, dm, inf = hypothesis_kernel(
+            p,
+            triples[t],
+            radius,
+            count,
+            rtol_frac,
+            inlier_tol,
+            angle_tol,
+            max_angle_tol,
+            dsig,
+            max_view_deg,
+        )
+        if not found:
+            continue
+        m = mem.shape[0]
+        seen = False
+        for g in range(h):
+            same = members[g, m - 1] >= 0 and (m == count or members[g, m] < 0)
+            for q in range(m):
+                same = same and members[g, q] == mem[q]
+            if same:
+                seen = True
+                break
+        if seen:
+            continue
+        if h == cap:  # grow
+            cap *= 2
+            on = _grown(on, cap, False)
+            members, slots = _grown(members, cap, -1), _grown(slots, cap, -1)
+            resid, dist, info = (
+                _grown(resid, cap, 0.0),
+                _grown(dist, cap, 0.0),
+                _grown(info, cap, 0.0),
+            )
+        for q in range(m):
+            on[h, mem[q]] = True
+        members[h, :m], slots[h, :m], resid[h, :m], dist[h, :m] = mem, sl, rs, dm
+        info[h] = inf
+        h += 1
+    return members[:h], slots[:h], resid[:h], dist[:h], info[:h]
+
+
+def _seeds_reference(
+    p: FloatArray, params: RingParams
+) -> tuple[np.ndarray, np.ndarray, FloatArray]:
+    """:func:`seed_kernel`'s result with the numpy formulation (the reference of the tests)."""
+    triples = _seed_triples(_compatible_pairs(p, params))
+    if len(triples) == 0:
+        return triples, np.zeros(0, np.int64), np.zeros(0)
+    c, nrm, r = _circumcircles(p, triples)
+    z = c[:, 2]
+    t_idx = np.flatnonzero(np.abs(r - params.radius_mm) <= params.radius_tol(z))
+    res, distinct = _seed_slots(p, triples[t_idx], c[t_idx], nrm[t_idx], params.led_count)
+    ok = distinct & (np.max(np.abs(res), axis=1) <= 1.5 * params.angle_tol_deg_at(z[t_idx]))
+    keys = np.sum(res[ok] ** 2, axis=1)
+    order = np.argsort(keys, kind="stable")
+    return triples, t_idx[ok][order], keys[order]
+
+
+def _hypotheses_reference(
+    p: FloatArray, triples: np.ndarray, seeds: np.ndarray, params: RingParams
+) -> list[_Hypothesis]:
+    """:func:`refine_kernel`'s loop with :func:`_fit_hypothesis` (the reference of the tests)."""
+    hyps: list[_Hypothesis] = []
+    covered: list[set[int]] = []
+    seen: set[tuple[int, ...]] = set()
+    for t in seeds:
+        tri = set(triples[t].tolist())
+        if any(tri <= cov for cov in covered):
+            continue  # already explained by a refined hypothesis
+        h = _fit_hypothesis(p, triples[t], params)
+        if h is None:
+            continue
+        key = tuple(h.members.tolist())
+        covered.append(set(key))
+        if key in seen:
+            continue
+        seen.add(key)
+        hyps.append(h)
+    return hyps
 
 
 def _log10_comb(n: int, k: int) -> float:
@@ -504,6 +877,42 @@ def _radius_only_count(p: FloatArray, params: RingParams, triples: np.ndarray) -
     return best
 
 
+def _hypotheses(
+    p: FloatArray,
+    triples: np.ndarray,
+    seeds: np.ndarray,
+    params: RingParams,
+    consts: tuple[float, int, float, float, float, float, float],
+) -> list[_Hypothesis]:
+    """The distinct refined hypotheses of the seeds (:func:`refine_kernel`), NFA not yet set."""
+    members, slots, resid, dist, info = refine_kernel(
+        p, triples, seeds, *consts, float(params.max_view_angle_deg)
+    )
+    hyps = []
+    for h in range(len(members)):
+        m = int(np.count_nonzero(members[h] >= 0))
+        fit = info[h]
+        circle = Circle3D(
+            fit[0:3].copy(), fit[3:6].copy(), float(fit[6]), float(fit[7]), float(fit[8])
+        )
+        hyps.append(
+            _Hypothesis(
+                members=members[h, :m],
+                points=p[members[h, :m]],
+                slots=slots[h, :m],
+                resid_deg=resid[h, :m],
+                circle=circle,
+                offset_deg=float(fit[10]),
+                cost=float(fit[11]),
+                angle_tol=float(fit[12]),
+                inlier_tol=float(fit[13]),
+                extra_on_ring=int(fit[14]),
+                distance_mm=dist[h, :m],
+            )
+        )
+    return hyps
+
+
 def find_ring(
     points: FloatArray, params: RingParams, prior: RingPrior | None = None
 ) -> RingFit | RingRejection:
@@ -515,34 +924,9 @@ def find_ring(
     n, N = len(p), params.led_count
     if n < params.min_leds:
         return RingRejection(f"only {n} matched LED(s); need at least {params.min_leds}")
-    adj = _compatible_pairs(p, params)
-    triples = _seed_triples(adj)
-    hyps: list[_Hypothesis] = []
-    if len(triples):
-        c, nrm, r = _circumcircles(p, triples)
-        z = c[:, 2]
-        keep = np.abs(r - params.radius_mm) <= params.radius_tol(z)
-        # seed slot check: the three points on distinct, evenly spaced slots
-        t_idx = np.flatnonzero(keep)
-        res, distinct = _seed_slots(p, triples[t_idx], c[t_idx], nrm[t_idx], N)
-        ok = distinct & (np.max(np.abs(res), axis=1) <= 1.5 * params.angle_tol_deg_at(z[t_idx]))
-        t_ok = t_idx[ok]
-        seeds = t_ok[np.argsort(np.sum(res[ok] ** 2, axis=1), kind="stable")]
-        covered: list[set[int]] = []
-        seen: set[tuple[int, ...]] = set()
-        for t in seeds[:MAX_SEEDS]:
-            tri = set(triples[t].tolist())
-            if any(tri <= cov for cov in covered):
-                continue  # already explained by a refined hypothesis
-            h = _fit_hypothesis(p, triples[t], params)
-            if h is None:
-                continue
-            key = tuple(h.members.tolist())
-            covered.append(set(key))
-            if key in seen:
-                continue
-            seen.add(key)
-            hyps.append(h)
+    consts = _ring_consts(params)
+    triples, seeds, _ = seed_kernel(p, *consts)
+    hyps = _hypotheses(p, triples, seeds[:MAX_SEEDS], params, consts) if len(seeds) else []
     if not hyps:
         most = _radius_only_count(p, params, triples)
         if most >= 4:
@@ -557,7 +941,7 @@ def find_ring(
         )
     volume = _volume(p, params)
     for h in hyps:
-        h.log10_nfa = log10_nfa(n, volume, h.circle, h.points, h.resid_deg, params)
+        h.log10_nfa = log10_nfa(n, volume, h.circle, h.points, h.resid_deg, params, h.distance_mm)
         if prior is not None and agrees_with_prior(h.circle, prior):
             # a hypothesis predicted by a recent lock is tested only against its neighbourhood
             near = np.linalg.norm(p - prior.center_mm, axis=1) <= params.radius_mm + prior.gate_mm
@@ -568,6 +952,7 @@ def find_ring(
                 h.points,
                 h.resid_deg,
                 params,
+                h.distance_mm,
             )
             h.log10_nfa = min(h.log10_nfa, local)
     hyps.sort(key=lambda h: (-len(h.members), h.cost))
