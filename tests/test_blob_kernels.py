@@ -121,7 +121,7 @@ def test_warmup_compiles_everything_frames_need() -> None:
     """Gray, colour, H×W×1 and strided inputs, full frames and tracked windows all reach the
     compiled loops with argument types ``app.sim.warmup`` has already compiled: nothing is
     compiled after it (no compile pause in the middle of a stream)."""
-    from app.geometry import circle_fit, ring, triangulation
+    from app.geometry import ring, triangulation
     from app.sim.led_ring import stereo_center_x_mm, tilted_normal
     from app.sim.paths import load_default_calibration
     from app.sim.stereo_render import RenderSettings, render_pair
@@ -140,12 +140,10 @@ def test_warmup_compiles_everything_frames_need() -> None:
         ihwt._describe_kernel,
         triangulation._linear_kernel,
         triangulation._refine_kernel,
-        circle_fit.circle_kernel,
-        circle_fit.distance_kernel,
-        ring._slot_angles,
         ring._ring_measures,
         ring.seed_kernel,
         ring.refine_kernel,
+        ring.radius_only_kernel,
         matching._epipolar_kernel,
         matching._descriptor_kernel,
         matching._gated_cost,

@@ -236,3 +236,17 @@ def test_degenerate_candidates() -> None:
         assert not isinstance(find_ring(p, loose), RingFit)
         if p is not same:
             assert len(triples) > 0  # chord-compatible triples reached the circle check
+
+
+def test_compiled_radius_only_count_equals_the_numpy_formulation() -> None:
+    """The refusal's diagnosis (most points on one circle of the ring's radius, slots
+    ignored) with every triple (≤ 30 points) or the chord-compatible ones (more)."""
+    counts = []
+    for name, p, params in SETS:
+        consts = ring._ring_consts(params)
+        triples = ring.seed_kernel(p, *consts)[0]
+        got = ring.radius_only_kernel(p, triples, consts[0], consts[2], consts[3], consts[6])
+        assert got == ring._radius_only_count(p, params, triples), name
+        counts.append((len(p) <= 30, got))
+    assert {small for small, _ in counts} == {True, False}  # both kinds of triples
+    assert len({got for _, got in counts}) >= 3

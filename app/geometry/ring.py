@@ -453,6 +453,32 @@ def _angle_tol_at(
 
 
 @njit(cache=True, nogil=True)
+def _circumcircle(p: np.ndarray, i: int, j: int, k: int) -> np.ndarray:  # pragma: no cover
+    """:func:`_circumcircles` of one triple (same arithmetic): centre (3), unit normal (3),
+    radius (∞ for collinear points), mm."""
+    p1, p2, p3 = p[i], p[j], p[k]
+    a0, a1, a2 = p1[0] - p3[0], p1[1] - p3[1], p1[2] - p3[2]
+    b0, b1, b2 = p2[0] - p3[0], p2[1] - p3[1], p2[2] - p3[2]
+    x0, x1, x2 = a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+    n2 = x0 * x0 + x1 * x1 + x2 * x2
+    out = np.empty(7)
+    if not n2 > 1e-9:  # collinear: no circle
+        out[:] = 0.0
+        out[6] = np.inf
+        return out
+    aa, bb = a0 * a0 + a1 * a1 + a2 * a2, b0 * b0 + b1 * b1 + b2 * b2
+    u0, u1, u2 = aa * b0 - bb * a0, aa * b1 - bb * a1, aa * b2 - bb * a2
+    out[0] = p3[0] + (u1 * x2 - u2 * x1) / (2.0 * n2)
+    out[1] = p3[1] + (u2 * x0 - u0 * x2) / (2.0 * n2)
+    out[2] = p3[2] + (u0 * x1 - u1 * x0) / (2.0 * n2)
+    r0, r1, r2 = out[0] - p3[0], out[1] - p3[1], out[2] - p3[2]
+    nn = np.sqrt(n2)
+    out[3], out[4], out[5] = x0 / nn, x1 / nn, x2 / nn
+    out[6] = np.sqrt(r0 * r0 + r1 * r1 + r2 * r2)
+    return out
+
+
+@njit(cache=True, nogil=True)
 def seed_kernel(
     p: np.ndarray,
     radius: float,
@@ -509,26 +535,11 @@ def seed_kernel(
     ang = np.empty(3)
     s_count = 0
     for t in range(total):
-        p1, p2, p3 = p[triples[t, 0]], p[triples[t, 1]], p[triples[t, 2]]
-        a0, a1, a2 = p1[0] - p3[0], p1[1] - p3[1], p1[2] - p3[2]
-        b0, b1, b2 = p2[0] - p3[0], p2[1] - p3[1], p2[2] - p3[2]
-        x0, x1, x2 = a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
-        n2 = x0 * x0 + x1 * x1 + x2 * x2
-        if not n2 > 1e-9:
-            continue  # collinear: no circle
-        aa, bb = a0 * a0 + a1 * a1 + a2 * a2, b0 * b0 + b1 * b1 + b2 * b2
-        u0, u1, u2 = aa * b0 - bb * a0, aa * b1 - bb * a1, aa * b2 - bb * a2
-        c0 = p3[0] + (u1 * x2 - u2 * x1) / (2.0 * n2)
-        c1 = p3[1] + (u2 * x0 - u0 * x2) / (2.0 * n2)
-        c2 = p3[2] + (u0 * x1 - u1 * x0) / (2.0 * n2)
-        r0, r1, r2 = c0 - p3[0], c1 - p3[1], c2 - p3[2]
-        r = np.sqrt(r0 * r0 + r1 * r1 + r2 * r2)
-        sz = dsig * (c2 * c2)
-        if not abs(r - radius) <= rtol_frac * radius + 2.0 * sz:
-            continue
+        circ = _circumcircle(p, triples[t, 0], triples[t, 1], triples[t, 2])
+        c0, c1, c2, n0, n1, nz, r = circ[0], circ[1], circ[2], circ[3], circ[4], circ[5], circ[6]
+        if not abs(r - radius) <= rtol_frac * radius + 2.0 * (dsig * (c2 * c2)):
+            continue  # not the ring's radius (or no circle: r = ∞)
         # the seed's slots on its circumcircle (normal towards the cameras)
-        nn = np.sqrt(n2)
-        n0, n1, nz = x0 / nn, x1 / nn, x2 / nn
         if n0 * -c0 + n1 * -c1 + nz * -c2 < 0:
             n0, n1, nz = -n0, -n1, -nz
         m = -n1  # n · (0, −1, 0)
@@ -913,6 +924,51 @@ def _hypotheses(
     return hyps
 
 
+@njit(cache=True, nogil=True)
+def radius_only_kernel(
+    p: np.ndarray,
+    triples: np.ndarray,
+    radius: float,
+    rtol_frac: float,
+    inlier_tol: float,
+    dsig: float,
+) -> int:  # pragma: no cover - compiled
+    """:func:`_radius_only_count` in one loop: with ≤ 30 points every triple i < j < k (in
+    lexicographic order), else ``triples``; the first 2000 circumcircles of the ring's radius;
+    the most points within the inlier tolerance of one of them."""
+    n = p.shape[0]
+    every = n <= 30
+    total = n * (n - 1) * (n - 2) // 6 if every else triples.shape[0]
+    i, j, k = 0, 1, 2
+    tried, best = 0, 0
+    for t in range(total):
+        if every:
+            if t > 0:  # the next combination
+                k += 1
+                if k == n:
+                    j += 1
+                    if j == n - 1:
+                        i += 1
+                        j = i + 1
+                    k = j + 1
+        else:
+            i, j, k = triples[t, 0], triples[t, 1], triples[t, 2]
+        circ = _circumcircle(p, i, j, k)
+        sz = dsig * (circ[2] * circ[2])
+        if not abs(circ[6] - radius) <= rtol_frac * radius + 2.0 * sz:
+            continue
+        dist = distance_kernel(p, circ[0:3], circ[3:6], circ[6])
+        tol = max(inlier_tol, 4.0 * sz)
+        cnt = 0
+        for q in range(n):
+            cnt += dist[q] <= tol
+        best = max(best, cnt)
+        tried += 1
+        if tried == 2000:
+            break
+    return best
+
+
 def find_ring(
     points: FloatArray, params: RingParams, prior: RingPrior | None = None
 ) -> RingFit | RingRejection:
@@ -928,7 +984,7 @@ def find_ring(
     triples, seeds, _ = seed_kernel(p, *consts)
     hyps = _hypotheses(p, triples, seeds[:MAX_SEEDS], params, consts) if len(seeds) else []
     if not hyps:
-        most = _radius_only_count(p, params, triples)
+        most = radius_only_kernel(p, triples, consts[0], consts[2], consts[3], consts[6])
         if most >= 4:
             return RingRejection(
                 f"{most} points lie on a ring of radius {params.radius_mm:.0f} mm but not on "

@@ -17,6 +17,7 @@ import time
 
 import numpy as np
 
+from app.geometry.ring import RingParams, find_ring
 from app.sim.led_ring import stereo_center_x_mm, tilted_normal
 from app.sim.paths import load_default_calibration
 from app.sim.stereo_render import RenderSettings, render_pair
@@ -37,6 +38,8 @@ def compile_kernels() -> float:
         pair = render_pair(calib, centre, tilted_normal(10.0, 30.0), RenderSettings(), seed=i)
         pipeline.process(pair.left, pair.right)
         tracker.update(pair.left, pair.right)
+    # a refusal (no ring among the candidates) runs the ring search's diagnosis loop
+    find_ring(np.array([[0.0, 0.0, 1e3], [40.0, 0.0, 1e3], [0.0, 300.0, 1e3]]), RingParams())
     return time.perf_counter() - t0
 
 
