@@ -20,6 +20,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 from numpy.typing import NDArray
 
 from app.vision.types import Blob
@@ -97,3 +98,121 @@ def appearance_reasons(
         if g < cfg.green_ratio * max(bb, rr):
             out.append(f"{side} blob is not green (B, G, R = {bb:.0f}, {g:.0f}, {rr:.0f})")
     return out
+
+
+@njit(cache=True, nogil=True)
+def _appearance_kernel(
+    area: np.ndarray,
+    peak: np.ndarray,
+    color: np.ndarray,
+    z: np.ndarray,
+    f_px: np.ndarray,
+    led_diameter_mm: float,
+    background_dn: np.ndarray,
+    bounds: np.ndarray,
+) -> np.ndarray:  # pragma: no cover - compiled
+    """:func:`appearance_reasons`' tests for N pairs at once: ``area``, ``peak``, ``z`` (2, N)
+    (left row, right row), ``color`` (2, N, 3) BGR (NaN: not judged), ``f_px`` and
+    ``background_dn`` (2,), ``bounds`` the configuration's numbers in the order of
+    :func:`_bounds`. The same operations in the same order: the same verdicts."""
+    low, high, slack_px, size_ratio, peak_ratio, green_ratio, saturated = bounds
+    n = area.shape[1]
+    ok = np.ones(n, np.bool_)
+    for k in range(n):
+        rho_l = f_px[0] * 0.5 * led_diameter_mm / max(z[0, k], 1e-6)
+        rho_r = f_px[1] * 0.5 * led_diameter_mm / max(z[1, k], 1e-6)
+        r_l = math.sqrt(max(area[0, k], 0.0) / math.pi)
+        r_r = math.sqrt(max(area[1, k], 0.0) / math.pi)
+        if not (low * rho_l - slack_px <= r_l <= high * rho_l + slack_px):
+            ok[k] = False
+        if not (low * rho_r - slack_px <= r_r <= high * rho_r + slack_px):
+            ok[k] = False
+        a, b = r_l / max(rho_l, 1e-9), r_r / max(rho_r, 1e-9)
+        slack = slack_px / max(min(rho_l, rho_r), 1e-9)
+        if max(a, b) > size_ratio * min(a, b) + slack:
+            ok[k] = False
+        pl = max(peak[0, k] - background_dn[0], 1.0)
+        pr = max(peak[1, k] - background_dn[1], 1.0)
+        if max(pl, pr) > peak_ratio * min(pl, pr):
+            ok[k] = False
+        for s in range(2):
+            bb, g, rr = color[s, k, 0], color[s, k, 1], color[s, k, 2]
+            if np.isnan(bb) or max(bb, g, rr) >= saturated:
+                continue
+            if g < green_ratio * max(bb, rr):
+                ok[k] = False
+    return ok
+
+
+def _bounds(cfg: AppearanceConfig) -> NDArray[np.float64]:
+    return np.array(
+        [
+            cfg.size_low_frac,
+            cfg.size_high_frac,
+            cfg.size_slack_px,
+            cfg.stereo_size_ratio,
+            cfg.stereo_peak_ratio,
+            cfg.green_ratio,
+            cfg.saturated_dn,
+        ]
+    )
+
+
+@dataclass(frozen=True)
+class BlobTable:
+    """The appearance-relevant numbers of a list of blobs as arrays (rows aligned with it):
+    area (px), peak (DN), mean colour (B, G, R) DN (NaN where the blob has none)."""
+
+    area_px: NDArray[np.float64]
+    peak: NDArray[np.float64]
+    color_bgr: NDArray[np.float64]  # (N, 3)
+
+    @classmethod
+    def of(cls, blobs: list[Blob]) -> BlobTable:
+        n = len(blobs)
+        area = np.array([b.area_px for b in blobs], dtype=np.float64).reshape(n)
+        peak = np.array([b.peak for b in blobs], dtype=np.float64).reshape(n)
+        color = np.full((n, 3), np.nan)
+        for k, b in enumerate(blobs):
+            if b.color_bgr is not None:
+                color[k] = b.color_bgr
+        return cls(area, peak, color)
+
+
+def appearance_ok(
+    left: BlobTable,
+    right: BlobTable,
+    left_index: NDArray[np.int64],
+    right_index: NDArray[np.int64],
+    z_left_mm: NDArray[np.float64],
+    z_right_mm: NDArray[np.float64],
+    f_left_px: float,
+    f_right_px: float,
+    led_diameter_mm: float,
+    background_dn: tuple[float, float],
+    cfg: AppearanceConfig,
+) -> NDArray[np.bool_]:
+    """For each pair ``left_index[k] ↔ right_index[k]``, whether it looks like one LED:
+    :func:`appearance_reasons` returns [] exactly where this is True (compiled, all pairs at
+    once; build the reasons for the others only)."""
+    n = len(left_index)
+    if not cfg.enabled or n == 0:
+        return np.ones(n, dtype=np.bool_)
+    area = np.stack([left.area_px[left_index], right.area_px[right_index]])
+    peak = np.stack([left.peak[left_index], right.peak[right_index]])
+    color = np.stack([left.color_bgr[left_index], right.color_bgr[right_index]])
+    z = np.stack(
+        [np.asarray(z_left_mm, dtype=np.float64), np.asarray(z_right_mm, dtype=np.float64)]
+    )
+    return np.asarray(
+        _appearance_kernel(
+            area,
+            peak,
+            color,
+            z,
+            np.array([f_left_px, f_right_px], dtype=np.float64),
+            float(led_diameter_mm),
+            np.array(background_dn, dtype=np.float64),
+            _bounds(cfg),
+        )
+    )

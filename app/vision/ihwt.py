@@ -172,7 +172,10 @@ def describe(
     """
     if not blobs:
         return np.zeros((0, DESCRIPTOR_SIZE))
-    windows = np.array([window_side_px(b.area_px, window_factor, min_window_px) for b in blobs])
+    # window_side_px for all blobs at once (the same operations)
+    areas = np.array([b.area_px for b in blobs], dtype=np.float64)
+    r_eq = np.sqrt(np.maximum(areas, 1.0) / math.pi)
+    windows = np.maximum(float(min_window_px), window_factor * r_eq)
     centers = np.array([b.centroid_px for b in blobs], dtype=np.float64)
     if ii is not None:
         return describe_points(ii, centers, windows)

@@ -15,18 +15,56 @@ from __future__ import annotations
 
 import numpy as np
 from numba import njit
+from numpy.typing import NDArray
 from scipy.optimize import linear_sum_assignment
 
 from app.geometry.calibration import FloatArray
 from app.vision.types import Match
 
 _BIG = 1e6
+_PAIRWISE_BLOCK = 128  # numpy's pairwise-summation block (rows up to this are one block)
+
+
+@njit(cache=True, nogil=True)
+def _descriptor_kernel(a: np.ndarray, b: np.ndarray) -> np.ndarray:  # pragma: no cover
+    """Eq. 14 for every pair, summed as numpy sums a row (pairwise: eight running partial sums
+    combined as a tree, then the remainder), so that the distances are numpy's to the bit."""
+    nl, nr, d = a.shape[0], b.shape[0], a.shape[1]
+    out = np.empty((nl, nr))
+    r = np.empty(8)
+    head = d - d % 8
+    for i in range(nl):
+        for j in range(nr):
+            if d < 8:
+                s = 0.0
+                for k in range(d):
+                    t = a[i, k] - b[j, k]
+                    s += t * t
+            else:
+                for k in range(8):
+                    t = a[i, k] - b[j, k]
+                    r[k] = t * t
+                for k0 in range(8, head, 8):
+                    for k in range(8):
+                        t = a[i, k0 + k] - b[j, k0 + k]
+                        r[k] += t * t
+                s = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]))
+                for k in range(head, d):
+                    t = a[i, k] - b[j, k]
+                    s += t * t
+            out[i, j] = np.sqrt(s)
+    return out
 
 
 def descriptor_distances(desc_left: FloatArray, desc_right: FloatArray) -> FloatArray:
-    """Eq. 14 for every pair: (NL, NR) Euclidean distances."""
-    diff = desc_left[:, None, :] - desc_right[None, :, :]
-    return np.asarray(np.sqrt(np.sum(diff * diff, axis=-1)))
+    """Eq. 14 for every pair: (NL, NR) Euclidean distances (compiled loop; equal to the
+    numpy formulation ``sqrt(sum((l − r)², axis=-1))`` to the bit)."""
+    a = np.ascontiguousarray(desc_left, dtype=np.float64)
+    b = np.ascontiguousarray(desc_right, dtype=np.float64)
+    if a.shape[1] > _PAIRWISE_BLOCK:  # numpy splits longer rows recursively
+        diff = a[:, None, :] - b[None, :, :]
+        return np.asarray(np.sqrt(np.sum(diff * diff, axis=-1)))
+    return np.asarray(_descriptor_kernel(a, b))
 
 
 @njit(cache=True, nogil=True)
@@ -61,26 +99,96 @@ def epipolar_distances(F: FloatArray, x_left: FloatArray, x_right: FloatArray) -
     return np.asarray(_epipolar_kernel(fm, xl, xr))
 
 
-def _match(i: int, j: int, desc_dist: FloatArray, epi: FloatArray) -> Match:
-    return Match(
-        left_index=i,
-        right_index=j,
-        descriptor_distance=float(desc_dist[i, j]),
-        epipolar_px=float(epi[i, j]),
-    )
+IntArray = NDArray[np.int64]
+
+
+def matches_from_indices(
+    left: IntArray, right: IntArray, desc_dist: FloatArray, epi: FloatArray
+) -> list[Match]:
+    """:class:`Match` records of the index pairs ``left[k] ↔ right[k]``."""
+    d = desc_dist[left, right].tolist()
+    e = epi[left, right].tolist()
+    return [
+        Match(left_index=i, right_index=j, descriptor_distance=dk, epipolar_px=ek)
+        for i, j, dk, ek in zip(left.tolist(), right.tolist(), d, e, strict=True)
+    ]
+
+
+def match_min_distance_indices(desc_dist: FloatArray) -> tuple[IntArray, IntArray]:
+    """The paper's matcher as index arrays (left, right): every left FP, in order, with the
+    right FP at minimum descriptor distance (the first one on a tie)."""
+    nl = desc_dist.shape[0] if desc_dist.size else 0
+    right = np.argmin(desc_dist, axis=1) if nl else np.zeros(0, np.int64)
+    return np.arange(nl, dtype=np.int64), np.asarray(right, dtype=np.int64)
 
 
 def match_min_distance(desc_dist: FloatArray, epi: FloatArray) -> list[Match]:
     """The paper's matcher: per left FP, the right FP at minimum descriptor distance."""
+    return matches_from_indices(*match_min_distance_indices(desc_dist), desc_dist, epi)
+
+
+@njit(cache=True, nogil=True)
+def _gated_cost(
+    desc_dist: np.ndarray,
+    epi: np.ndarray,
+    depth: np.ndarray,
+    tol_px: float,
+    z_lo: float,
+    z_hi: float,
+    big: float,
+) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled
+    """The epipolar/depth gate and the cost ``desc + epi / tol`` inside it (``big`` outside)."""
+    nl, nr = desc_dist.shape
+    gate = np.empty((nl, nr), np.bool_)
+    cost = np.empty((nl, nr))
+    for i in range(nl):
+        for j in range(nr):
+            z = depth[i, j]
+            g = epi[i, j] <= tol_px and z >= z_lo and z <= z_hi and np.isfinite(z)
+            gate[i, j] = g
+            cost[i, j] = desc_dist[i, j] + epi[i, j] / tol_px if g else big
+    return gate, cost
+
+
+def _assign(cost: FloatArray, gate: np.ndarray) -> tuple[IntArray, IntArray]:
+    rows, cols = linear_sum_assignment(cost)
+    ok = gate[rows, cols]
+    return np.asarray(rows[ok], dtype=np.int64), np.asarray(cols[ok], dtype=np.int64)
+
+
+def match_epipolar_indices(
+    desc_dist: FloatArray,
+    epi: FloatArray,
+    depth_mm: FloatArray,
+    tol_px: float = 2.0,
+    depth_range_mm: tuple[float, float] = (100.0, 50_000.0),
+    depth_coherence: float = 0.1,
+) -> tuple[IntArray, IntArray]:
+    """:func:`match_epipolar` as index arrays (left, right), in increasing left index."""
     if desc_dist.size == 0:
-        return []
-    return [_match(i, int(np.argmin(row)), desc_dist, epi) for i, row in enumerate(desc_dist)]
-
-
-def _assign(cost: FloatArray, gate: np.ndarray) -> list[tuple[int, int]]:
-    c = np.where(gate, cost, _BIG)
-    rows, cols = linear_sum_assignment(c)
-    return [(int(i), int(j)) for i, j in zip(rows, cols, strict=True) if gate[i, j]]
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    gate, cost = _gated_cost(
+        np.ascontiguousarray(desc_dist, dtype=np.float64),
+        np.ascontiguousarray(epi, dtype=np.float64),
+        np.ascontiguousarray(depth_mm, dtype=np.float64),
+        float(tol_px),
+        float(depth_range_mm[0]),
+        float(depth_range_mm[1]),
+        _BIG,
+    )
+    rows, cols = _assign(cost, gate)
+    if len(rows) >= 2:
+        # depth coherence, on the gated pairs only (the others stay at _BIG)
+        z_ref = float(np.median(depth_mm[rows, cols]))
+        gl, gr = np.nonzero(gate)
+        dev = np.abs(np.log(depth_mm[gl, gr] / z_ref))
+        cost[gl, gr] += dev / depth_coherence
+        rows, cols = _assign(cost, gate)
+    best_for_left = np.argmin(cost, axis=1)
+    best_for_right = np.argmin(cost, axis=0)
+    # Drop leftovers of the assignment that neither side prefers (mutual consistency).
+    keep = (best_for_left[rows] == cols) | (best_for_right[cols] == rows)
+    return rows[keep], cols[keep]
 
 
 def match_epipolar(
@@ -94,24 +202,7 @@ def match_epipolar(
     """Our matcher (see module docstring). ``depth_mm`` is the (NL, NR) depth of each candidate
     pair's linear triangulation; ``depth_coherence`` is the relative depth deviation that costs
     as much as a unit descriptor distance."""
-    if desc_dist.size == 0:
-        return []
-    gate = (epi <= tol_px) & (depth_mm >= depth_range_mm[0]) & (depth_mm <= depth_range_mm[1])
-    gate &= np.isfinite(depth_mm)
-    cost = desc_dist + epi / tol_px
-    pairs = _assign(cost, gate)
-    if len(pairs) >= 2:
-        z_ref = float(np.median([depth_mm[i, j] for i, j in pairs]))
-        with np.errstate(divide="ignore", invalid="ignore"):
-            dev = np.abs(np.log(np.where(gate, depth_mm, z_ref) / z_ref))
-        cost = cost + dev / depth_coherence
-        pairs = _assign(cost, gate)
-    masked = np.where(gate, cost, _BIG)
-    best_for_left = np.argmin(masked, axis=1)
-    best_for_right = np.argmin(masked, axis=0)
-    # Drop leftovers of the assignment that neither side prefers (mutual consistency).
-    return [
-        _match(i, j, desc_dist, epi)
-        for i, j in pairs
-        if best_for_left[i] == j or best_for_right[j] == i
-    ]
+    left, right = match_epipolar_indices(
+        desc_dist, epi, depth_mm, tol_px, depth_range_mm, depth_coherence
+    )
+    return matches_from_indices(left, right, desc_dist, epi)

@@ -21,14 +21,21 @@ from app.geometry.led_ids import DEFAULT_PHASE_DEG, led_ids_for_angles, roll_fro
 from app.geometry.projection import undistort_pixels
 from app.geometry.ring import RingFit, RingParams, RingPrior, find_ring
 from app.geometry.triangulation import refine_reprojection, triangulate_linear
-from app.vision.appearance import AppearanceConfig, appearance_reasons, blob_color_bgr
+from app.vision.appearance import (
+    AppearanceConfig,
+    BlobTable,
+    appearance_ok,
+    appearance_reasons,
+    blob_color_bgr,
+)
 from app.vision.features import BAND_ROWS, BlobGate, TooManyBlobs, detect_blobs
 from app.vision.ihwt import describe
 from app.vision.matching import (
     descriptor_distances,
     epipolar_distances,
-    match_epipolar,
-    match_min_distance,
+    match_epipolar_indices,
+    match_min_distance_indices,
+    matches_from_indices,
 )
 from app.vision.preprocess import (
     BACKGROUND_COL_STEP,
@@ -239,37 +246,53 @@ class NavigationPipeline:
 
     def _appearance_ok(
         self,
-        matches: list[Match],
+        pairs: tuple[np.ndarray, np.ndarray],
         idx: np.ndarray,
         X: np.ndarray,
         feats_l: FeatureSet,
         feats_r: FeatureSet,
         background: tuple[float, float],
     ) -> np.ndarray:
-        """Subset of ``idx`` whose matched blobs look like one LED (app.vision.appearance)."""
+        """Subset of ``idx`` (into the matched pairs ``pairs``: left, right blob indices) whose
+        blobs look like one LED (app.vision.appearance): the verdicts for all matches at once,
+        the reasons built for the rejected ones only."""
         cfg, cal = self.config, self.calibration
         if not cfg.appearance.enabled or len(idx) == 0:
             return idx
+        z_l = X[idx, 2]
         z_r = (cal.R @ X[idx].T).T[:, 2] + float(cal.T[2])
-        keep = []
-        for k, i in enumerate(idx):
-            m = matches[int(i)]
+        li, ri = pairs[0][idx], pairs[1][idx]
+        f_l, f_r = cal.left.fx, cal.right.fx
+        ok = appearance_ok(
+            BlobTable.of(feats_l.blobs),
+            BlobTable.of(feats_r.blobs),
+            li,
+            ri,
+            z_l,
+            z_r,
+            f_l,
+            f_r,
+            cfg.led_diameter_mm,
+            background,
+            cfg.appearance,
+        )
+        for k in np.flatnonzero(~ok).tolist():
             reasons = appearance_reasons(
-                feats_l.blobs[m.left_index],
-                feats_r.blobs[m.right_index],
-                float(X[i, 2]),
+                feats_l.blobs[int(li[k])],
+                feats_r.blobs[int(ri[k])],
+                float(z_l[k]),
                 float(z_r[k]),
-                cal.left.fx,
-                cal.right.fx,
+                f_l,
+                f_r,
                 cfg.led_diameter_mm,
                 background,
                 cfg.appearance,
             )
             if reasons:
-                self.trace.appearance_rejected[int(i)] = reasons
-            else:
-                keep.append(int(i))
-        return np.array(keep, dtype=np.int64)
+                self.trace.appearance_rejected[int(idx[k])] = reasons
+            else:  # (the compiled verdict is tested equal; the reasons' rule has the last word)
+                ok[k] = True
+        return np.asarray(idx[ok], dtype=np.int64)
 
     def _solve(
         self, feats_l: FeatureSet, feats_r: FeatureSet, background: tuple[float, float]
@@ -289,7 +312,7 @@ class NavigationPipeline:
         ddist = descriptor_distances(feats_l.descriptors, feats_r.descriptors)
         epi = epipolar_distances(self._F, xl, xr)
         if cfg.matcher == "paper":
-            matches = match_min_distance(ddist, epi)
+            li, ri = match_min_distance_indices(ddist)
         else:
             # depth only for the pairs inside the epipolar gate (the others are never matched)
             il, ir = np.nonzero(epi <= cfg.epipolar_tol_px)
@@ -297,7 +320,10 @@ class NavigationPipeline:
             if len(il):
                 X_g = triangulate_linear(cal.P_left, cal.P_right, xl[il], xr[ir])
                 depth[il, ir] = X_g[:, 2]
-            matches = match_epipolar(ddist, epi, depth, cfg.epipolar_tol_px, cfg.depth_range_mm)
+            li, ri = match_epipolar_indices(
+                ddist, epi, depth, cfg.epipolar_tol_px, cfg.depth_range_mm
+            )
+        matches = matches_from_indices(li, ri, ddist, epi)
         t1 = time.perf_counter()
         self._stage_ms["match"] = (t1 - t0) * 1e3
         if len(matches) < cfg.min_leds:
@@ -307,8 +333,6 @@ class NavigationPipeline:
                 f"need at least {cfg.min_leds}",
             )
         # --- triangulation
-        li = np.array([m.left_index for m in matches])
-        ri = np.array([m.right_index for m in matches])
         X0 = triangulate_linear(cal.P_left, cal.P_right, xl[li], xr[ri])
         X, reproj = refine_reprojection(cal.P_left, cal.P_right, xl[li], xr[ri], X0)
         good = (reproj <= cfg.max_reprojection_px) & (X[:, 2] > 0) & np.all(np.isfinite(X), axis=1)
@@ -325,7 +349,7 @@ class NavigationPipeline:
             )
         # --- LED appearance, ring hypotheses with integrity test, plane + circle fit
         n_matched = len(idx)
-        idx = self._appearance_ok(matches, idx, X, feats_l, feats_r, background)
+        idx = self._appearance_ok((li, ri), idx, X, feats_l, feats_r, background)
         if len(idx) < cfg.min_leds:
             self._stage_ms["pose"] = (time.perf_counter() - t2) * 1e3
             return PoseResult(
