@@ -69,6 +69,27 @@ def test_compiled_centroids_equal_opencv_moments(n: int, bg_offset: float) -> No
         assert abs(g[4] - r[4]) <= 1e-12 * r[4]
 
 
+@pytest.mark.parametrize("density", [0.2, 0.45, 0.6])
+def test_run_labelling_equals_opencv_on_random_masks(density: float) -> None:
+    """Random binary masks (diagonal-only contacts, U-shapes that merge two labels on a later
+    row, runs touching the image border): the run-based union–find gives OpenCV's
+    components and stats."""
+    rng = np.random.default_rng(int(density * 100))
+    for shape in [(64, 80), (37, 129), (200, 8)]:
+        mask = (rng.random(shape) < density).astype(np.uint8) * 255
+        n_ref, lab_ref, st_ref, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+        n_got, lab_got, st_got = _label_with_stats(mask)
+        assert n_got == n_ref
+        fg = lab_got > 0
+        assert np.array_equal(fg, lab_ref > 0)
+        pairs = np.unique(np.stack([lab_got[fg], lab_ref[fg]]), axis=1)
+        assert pairs.shape[1] == n_ref - 1  # one to one
+        assert np.array_equal(st_got[pairs[0]], st_ref[pairs[1]].astype(np.int64))
+        # numbered in raster order of each component's first pixel
+        first = [np.flatnonzero(lab_got.ravel() == k)[0] for k in range(1, n_got)]
+        assert first == sorted(first)
+
+
 @pytest.mark.parametrize("n", [0, 1, 40, 300])
 def test_labelling_equals_opencv_connected_components(n: int) -> None:
     """Algorithm 2 by union–find over the foreground: the same components (the label images
@@ -132,8 +153,8 @@ def test_warmup_compiles_everything_frames_need() -> None:
 
     loops = [
         blob_kernels.centroid_table,
-        blob_kernels.label_pixels,
-        blob_kernels.foreground_pixels,
+        blob_kernels.label_runs,
+        blob_kernels.mask_runs,
         blob_kernels.gate_mask,
         blob_kernels.detect_in_boxes,
         preprocess.frame_summary,

@@ -47,6 +47,106 @@ def gate_mask(
 
 
 @njit(cache=True, nogil=True)
+def centroid_margin_px(area: int) -> int:  # pragma: no cover - compiled
+    """The centroid's support margin around a component of ``area`` px: max(2, rint(½√area))."""
+    return max(2, int(np.rint(0.5 * np.sqrt(area))))
+
+
+@njit(cache=True, nogil=True)
+def _centroid(
+    gray: np.ndarray,
+    labels: np.ndarray,
+    cand: np.ndarray,
+    background: float,
+    horiz_buf: np.ndarray,
+    comp_row: np.ndarray,
+    cover: np.ndarray,
+    out: np.ndarray,
+) -> None:  # pragma: no cover - compiled
+    """Eq. 11 for one candidate row (``CAND_COLUMNS``) into ``out`` (u px, v px, mass, peak);
+    scratch buffers of at least the window's side (:func:`centroid_table`)."""
+    lab_id = cand[0]
+    x, y, w, h, area = cand[1], cand[2], cand[3], cand[4], cand[5]
+    lx, ly, lx1, ly1 = cand[6], cand[7], cand[8], cand[9]
+    ox, oy = cand[10], cand[11]
+    pad = centroid_margin_px(area)
+    # the window, in box coordinates (as the OpenCV formulation crops it)
+    wx0 = max(0, x - ox - pad)
+    wy0 = max(0, y - oy - pad)
+    wx1 = min(lx1 - lx, x - ox + w + pad)
+    wy1 = min(ly1 - ly, y - oy + h + pad)
+    ww, wh = wx1 - wx0, wy1 - wy0
+    # the component's rows (window rows r0..r1−1) dilated horizontally by a running count
+    # over (2·pad+1) px, and its peak; rows outside r0..r1 hold no component pixel
+    r0, r1 = y - oy - wy0, y - oy - wy0 + h
+    peak = 0
+    for j in range(r0, r1):
+        lrow = labels[ly + wy0 + j]
+        grow = gray[oy + wy0 + j]
+        for i in range(ww):
+            on = lrow[lx + wx0 + i] == lab_id
+            comp_row[i] = on
+            if on and grow[ox + wx0 + i] > peak:
+                peak = grow[ox + wx0 + i]
+        hz = horiz_buf[j - r0]
+        count = 0
+        for i in range(min(pad, ww)):
+            count += comp_row[i]
+        for i in range(ww):
+            if i + pad < ww:
+                count += comp_row[i + pad]
+            if i - pad - 1 >= 0:
+                count -= comp_row[i - pad - 1]
+            hz[i] = count > 0
+    # vertical dilation as a running count per column, row by row; the weights where dilated
+    for i in range(ww):
+        cover[i] = 0
+    for j in range(r0, min(r1, pad)):  # the rows within pad of the first window row
+        hz = horiz_buf[j - r0]
+        for i in range(ww):
+            cover[i] += hz[i]
+    # P_i = g − background > 0 summed as integers (g, g·i, g·j, count, i, j), exact: with an
+    # integer background the sums equal float sums of the weights bit for bit
+    n = sg = sgi = sgj = si = sj = 0
+    for j in range(wh):
+        add, sub = j + pad, j - pad - 1
+        if add < wh and r0 <= add < r1:
+            hz = horiz_buf[add - r0]
+            for i in range(ww):
+                cover[i] += hz[i]
+        if sub >= 0 and r0 <= sub < r1:
+            hz = horiz_buf[sub - r0]
+            for i in range(ww):
+                cover[i] -= hz[i]
+        lrow = labels[ly + wy0 + j]
+        grow = gray[oy + wy0 + j]
+        for i in range(ww):
+            if cover[i] == 0:
+                continue
+            lab = lrow[lx + wx0 + i]
+            if lab != 0 and lab != lab_id:
+                continue
+            g = np.int64(grow[ox + wx0 + i])
+            if g <= background:
+                continue
+            n += 1
+            sg += g
+            sgi += g * i
+            sgj += g * j
+            si += i
+            sj += j
+    mass = sg - n * background
+    if mass <= 0.0:
+        out[0] = x + (w - 1) / 2.0
+        out[1] = y + (h - 1) / 2.0
+    else:
+        out[0] = (sgi - si * background) / mass + wx0 + ox
+        out[1] = (sgj - sj * background) / mass + wy0 + oy
+    out[2] = mass
+    out[3] = peak
+
+
+@njit(cache=True, nogil=True)
 def centroid_table(
     gray: np.ndarray, labels: np.ndarray, cands: np.ndarray, background: float
 ) -> np.ndarray:  # pragma: no cover - compiled
@@ -54,99 +154,20 @@ def centroid_table(
     (u px, v px, mass, peak).
 
     Weights ``P_i = max(gray − background, 0)`` over the component dilated by ``pad`` px (a
-    (2·pad+1)² square), never on a neighbouring component's pixels; (u, v) are pixel centres
-    in the image. ``peak`` is the brightest gray value on the component itself; a component
-    of zero mass gets its bounding-box centre.
+    (2·pad+1)² square, :func:`centroid_margin_px`), never on a neighbouring component's
+    pixels; (u, v) are pixel centres in the image. ``peak`` is the brightest gray value on the
+    component itself; a component of zero mass gets its bounding-box centre.
     """
     k = cands.shape[0]
     out = np.zeros((k, 4), np.float64)
-    # scratch, allocated once for the largest window (w + 2·pad ≤ its side)
-    big = 0
+    big = 0  # scratch, allocated once for the largest window (w + 2·pad ≤ its side)
     for c in range(k):
-        pad = max(2, int(np.rint(0.5 * np.sqrt(cands[c, 5]))))
-        big = max(big, max(cands[c, 3], cands[c, 4]) + 2 * pad)
+        big = max(big, max(cands[c, 3], cands[c, 4]) + 2 * centroid_margin_px(cands[c, 5]))
     horiz_buf = np.empty((big, big), np.uint8)  # the component's rows dilated horizontally
     comp_row = np.empty(big, np.uint8)
     cover = np.empty(big, np.int32)  # dilated rows within ±pad of the current row
     for c in range(k):
-        lab_id = cands[c, 0]
-        x, y, w, h, area = cands[c, 1], cands[c, 2], cands[c, 3], cands[c, 4], cands[c, 5]
-        lx, ly, lx1, ly1 = cands[c, 6], cands[c, 7], cands[c, 8], cands[c, 9]
-        ox, oy = cands[c, 10], cands[c, 11]
-        pad = max(2, int(np.rint(0.5 * np.sqrt(area))))  # the centroid margin (px)
-        # the window, in box coordinates (as the OpenCV formulation crops it)
-        wx0 = max(0, x - ox - pad)
-        wy0 = max(0, y - oy - pad)
-        wx1 = min(lx1 - lx, x - ox + w + pad)
-        wy1 = min(ly1 - ly, y - oy + h + pad)
-        ww, wh = wx1 - wx0, wy1 - wy0
-        # the component's rows (window rows r0..r1−1) dilated horizontally by a running
-        # count over (2·pad+1) px, and its peak; rows outside r0..r1 hold no component pixel
-        r0, r1 = y - oy - wy0, y - oy - wy0 + h
-        peak = 0.0
-        for j in range(r0, r1):
-            lrow = labels[ly + wy0 + j]
-            grow = gray[oy + wy0 + j]
-            for i in range(ww):
-                on = lrow[lx + wx0 + i] == lab_id
-                comp_row[i] = on
-                if on:
-                    g = float(grow[ox + wx0 + i])
-                    if g > peak:
-                        peak = g
-            hz = horiz_buf[j - r0]
-            count = 0
-            for i in range(min(pad, ww)):
-                count += comp_row[i]
-            for i in range(ww):
-                if i + pad < ww:
-                    count += comp_row[i + pad]
-                if i - pad - 1 >= 0:
-                    count -= comp_row[i - pad - 1]
-                hz[i] = count > 0
-        # vertical dilation as a running count per column, row by row; weights where dilated
-        for i in range(ww):
-            cover[i] = 0
-        for j in range(min(r1, pad)):  # rows r0.. up to (the first window row) + pad
-            if j >= r0:
-                hz = horiz_buf[j - r0]
-                for i in range(ww):
-                    cover[i] += hz[i]
-        mass = 0.0
-        m10 = 0.0
-        m01 = 0.0
-        for j in range(wh):
-            add, sub = j + pad, j - pad - 1
-            if add < wh and r0 <= add < r1:
-                hz = horiz_buf[add - r0]
-                for i in range(ww):
-                    cover[i] += hz[i]
-            if sub >= 0 and r0 <= sub < r1:
-                hz = horiz_buf[sub - r0]
-                for i in range(ww):
-                    cover[i] -= hz[i]
-            lrow = labels[ly + wy0 + j]
-            grow = gray[oy + wy0 + j]
-            for i in range(ww):
-                if cover[i] == 0:
-                    continue
-                lab = lrow[lx + wx0 + i]
-                if lab != 0 and lab != lab_id:
-                    continue
-                wgt = float(grow[ox + wx0 + i]) - background
-                if wgt <= 0.0:
-                    continue
-                mass += wgt
-                m10 += wgt * i
-                m01 += wgt * j
-        if mass <= 0.0:
-            out[c, 0] = x + (w - 1) / 2.0
-            out[c, 1] = y + (h - 1) / 2.0
-        else:
-            out[c, 0] = m10 / mass + wx0 + ox
-            out[c, 1] = m01 / mass + wy0 + oy
-        out[c, 2] = mass
-        out[c, 3] = peak
+        _centroid(gray, labels, cands[c], background, horiz_buf, comp_row, cover, out[c])
     return out
 
 
@@ -163,93 +184,91 @@ def _find(parent: np.ndarray, p: int) -> int:  # pragma: no cover - compiled
 
 
 @njit(cache=True, nogil=True)
-def foreground_pixels(
-    flat: np.ndarray, words: np.ndarray, width: int
-) -> np.ndarray:  # pragma: no cover
-    """(k, 2) int64 (x, y) of the nonzero pixels of a C-contiguous image, in row-major order
-    (as ``cv2.findNonZero``): ``flat`` is the image as one uint8 row, ``words`` its first
-    8·⌊size/8⌋ bytes seen as uint64 (eight pixels tested at once)."""
+def mask_runs(mask: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
+    """(k, 3) int64 runs (row y, first x, last x, px) of the nonzero pixels of ``mask``, in
+    raster order."""
+    h, w = mask.shape
     count = 0
-    for i in range(words.shape[0]):
-        if words[i] != 0:
-            for b in range(8):
-                if flat[8 * i + b] != 0:
-                    count += 1
-    for i in range(8 * words.shape[0], flat.shape[0]):
-        if flat[i] != 0:
-            count += 1
-    out = np.empty((count, 2), np.int64)
+    for y in range(h):
+        row = mask[y]
+        inside = False
+        for x in range(w):
+            on = row[x] != 0
+            if on and not inside:
+                count += 1
+            inside = on
+    runs = np.empty((count, 3), np.int64)
     k = 0
-    for i in range(words.shape[0]):
-        if words[i] != 0:
-            for b in range(8):
-                j = 8 * i + b
-                if flat[j] != 0:
-                    out[k, 0], out[k, 1] = j % width, j // width
-                    k += 1
-    for j in range(8 * words.shape[0], flat.shape[0]):
-        if flat[j] != 0:
-            out[k, 0], out[k, 1] = j % width, j // width
+    for y in range(h):
+        row = mask[y]
+        inside = False
+        for x in range(w):
+            on = row[x] != 0
+            if on and not inside:
+                runs[k, 0], runs[k, 1] = y, x
+            elif inside and not on:
+                runs[k, 2] = x - 1
+                k += 1
+            inside = on
+        if inside:
+            runs[k, 2] = w - 1
             k += 1
-    return out
+    return runs
 
 
 @njit(cache=True, nogil=True)
-def label_pixels(xy: np.ndarray, labels: np.ndarray) -> np.ndarray:  # pragma: no cover
-    """8-connected components of the foreground pixels ``xy`` ((k, 2) x, y in row-major order,
-    as ``cv2.findNonZero`` lists them): writes labels 1..n−1 (numbered in raster order of each
-    component's first pixel) into the zeroed int32 image ``labels`` and returns the (n, 5)
-    int64 stats rows (x, y, w, h, area), row 0 unused — Algorithm 2's one-pass labelling by
-    union–find over the foreground only, O(foreground pixels)."""
-    k = xy.shape[0]
-    h, w = labels.shape
+def label_runs(runs: np.ndarray, labels: np.ndarray) -> np.ndarray:  # pragma: no cover
+    """8-connected components of the foreground given as runs ((k, 3) row, first x, last x,
+    in raster order, as :func:`mask_runs` lists them): writes labels 1..n−1 (numbered in
+    raster order of each component's first pixel) into the zeroed int32 image ``labels`` and
+    returns the (n, 5) int64 stats rows (x, y, w, h, area), row 0 unused — Algorithm 2's
+    one-pass labelling, by union–find over the runs (the values of
+    ``cv2.connectedComponentsWithStats``)."""
+    k = runs.shape[0]
     parent = np.arange(k)
-    for p in range(k):
-        labels[xy[p, 1], xy[p, 0]] = p + 1
-    for p in range(k):
-        x, y = xy[p, 0], xy[p, 1]
-        root = p
-        # the neighbours already seen: (x−1, y) and the three above
-        for q in (
-            labels[y, x - 1] - 1 if x > 0 else -1,
-            labels[y - 1, x - 1] - 1 if y > 0 and x > 0 else -1,
-            labels[y - 1, x] - 1 if y > 0 else -1,
-            labels[y - 1, x + 1] - 1 if y > 0 and x + 1 < w else -1,
-        ):
-            if q < 0:
-                continue
-            b = _find(parent, q)
-            if b != root:  # the earlier pixel stays the root
-                if root < b:
-                    parent[b] = root
-                else:
-                    parent[root] = b
-                    root = b
-    # final labels in raster order of each component's first pixel, and the stats
+    prev0 = prev1 = 0  # the previous row's runs: prev0..prev1−1
+    r = 0
+    while r < k:
+        y = runs[r, 0]
+        cur0 = r
+        while r < k and runs[r, 0] == y:
+            r += 1
+        if cur0 > 0 and runs[cur0 - 1, 0] == y - 1:
+            p = prev0
+            for q in range(cur0, r):
+                a0, a1 = runs[q, 1], runs[q, 2]
+                while p < prev1 and runs[p, 2] < a0 - 1:  # ends left of q's reach
+                    p += 1
+                t = p
+                while t < prev1 and runs[t, 1] <= a1 + 1:  # 8-connected: touches diagonally
+                    ra, rb = _find(parent, q), _find(parent, t)
+                    if ra != rb:  # the earlier run stays the root
+                        if ra < rb:
+                            parent[rb] = ra
+                        else:
+                            parent[ra] = rb
+                    t += 1
+        prev0, prev1 = cur0, r
     new = np.zeros(k, np.int64)
     big = np.int64(1) << 40
     st = np.zeros((k + 1, 5), np.int64)
     x1 = np.full(k + 1, -1, np.int64)
     y1 = np.full(k + 1, -1, np.int64)
     n = 1
-    for p in range(k):
-        r = _find(parent, p)
-        lab = new[r]
+    for q in range(k):
+        root = _find(parent, q)
+        lab = new[root]
         if lab == 0:
-            lab = new[r] = n
+            lab = new[root] = n
             st[n, 0] = st[n, 1] = big
             n += 1
-        x, y = xy[p, 0], xy[p, 1]
-        labels[y, x] = lab
-        st[lab, 4] += 1
-        if x < st[lab, 0]:
-            st[lab, 0] = x
-        if y < st[lab, 1]:
-            st[lab, 1] = y
-        if x > x1[lab]:
-            x1[lab] = x
-        if y > y1[lab]:
-            y1[lab] = y
+        y, a0, a1 = runs[q, 0], runs[q, 1], runs[q, 2]
+        labels[y, a0 : a1 + 1] = lab
+        st[lab, 4] += a1 - a0 + 1
+        st[lab, 0] = min(st[lab, 0], a0)
+        st[lab, 1] = min(st[lab, 1], y)
+        x1[lab] = max(x1[lab], a1)
+        y1[lab] = max(y1[lab], y)
     for lab in range(1, n):
         st[lab, 2] = x1[lab] - st[lab, 0] + 1
         st[lab, 3] = y1[lab] - st[lab, 1] + 1
@@ -374,57 +393,57 @@ def grow_and_merge_boxes(
 
 
 @njit(cache=True, nogil=True)
-def median_foreground(
+def median_runs(
     gray: np.ndarray,
     box: np.ndarray,
+    bright: np.ndarray,
     threshold: int,
     radius: int,
-    xy: np.ndarray,
+    runs: np.ndarray,
 ) -> int:  # pragma: no cover - compiled
     """Eq. 10 binarisation (I ≥ T) and the (2·radius+1)² median filter of §4.1 (3) inside the
     image ``box`` (x0, y0, x1, y1, half-open), with ``cv2.BORDER_REPLICATE`` at the box's edge
-    (as ``cv2.medianBlur``): writes the (x, y) box coordinates of the filtered image's
-    foreground pixels, in raster order, into ``xy`` and returns their count. On a binary image
-    the median is 1 where at least half the window (rounded up) is 1."""
+    (as ``cv2.medianBlur``): writes the runs (row, first x, last x; box px, raster order) of
+    the filtered image's foreground into ``runs`` and returns their count. On a binary image
+    the median is 1 where at least half the window (rounded up) is 1.
+
+    Only pixels within ``radius`` of ``bright`` (x0, y0, x1, y1: a box in the image holding
+    every pixel ≥ T of ``box``) are filtered: any other window holds no pixel ≥ T."""
     x0, y0, x1, y1 = box[0], box[1], box[2], box[3]
     bh, bw = y1 - y0, x1 - x0
+    # the region to filter, box coordinates
+    fx0, fy0 = max(0, bright[0] - x0 - radius), max(0, bright[1] - y0 - radius)
+    fx1, fy1 = min(bw, bright[2] - x0 + radius), min(bh, bright[3] - y0 + radius)
+    if fx1 <= fx0 or fy1 <= fy0:
+        return 0
     side = 2 * radius + 1
     need = (side * side + 1) // 2
-    col = np.empty((bh, bw), np.int32)  # ones in the window's column through each pixel
-    if radius == 1:  # the default 3×3 filter, unrolled (≈ 2× the general loop)
-        for j in range(bh):
-            ra, rb, rc = gray[y0 + max(j - 1, 0)], gray[y0 + j], gray[y0 + min(j + 1, bh - 1)]
-            for i in range(bw):
-                x = x0 + i
-                col[j, i] = (
-                    np.int32(ra[x] >= threshold)
-                    + np.int32(rb[x] >= threshold)
-                    + np.int32(rc[x] >= threshold)
-                )
-        count = 0
-        for j in range(bh):
-            for i in range(bw):
-                if col[j, max(i - 1, 0)] + col[j, i] + col[j, min(i + 1, bw - 1)] >= 5:
-                    xy[count, 0], xy[count, 1] = i, j
-                    count += 1
-        return count
-    for j in range(bh):
-        for i in range(bw):
-            s = 0
-            for d in range(-radius, radius + 1):
-                jj = min(max(j + d, 0), bh - 1)
-                if gray[y0 + jj, x0 + i] >= threshold:
-                    s += 1
-            col[j, i] = s
+    fw = fx1 - fx0
+    col = np.empty(fw + 2 * radius, np.int32)  # ones in each column's window, this row
     count = 0
-    for j in range(bh):
-        for i in range(bw):
+    for j in range(fy0, fy1):
+        for c in range(fw + 2 * radius):  # columns fx0 − radius .. fx1 + radius − 1 (clamped)
+            xi = x0 + min(max(fx0 - radius + c, 0), bw - 1)
             s = 0
             for d in range(-radius, radius + 1):
-                s += col[j, min(max(i + d, 0), bw - 1)]
-            if s >= need:
-                xy[count, 0], xy[count, 1] = i, j
+                if gray[y0 + min(max(j + d, 0), bh - 1), xi] >= threshold:
+                    s += 1
+            col[c] = s
+        inside = False
+        for i in range(fw):
+            s = 0
+            for d in range(side):
+                s += col[i + d]
+            on = s >= need
+            if on and not inside:
+                runs[count, 0], runs[count, 1] = j, fx0 + i
+            elif inside and not on:
+                runs[count, 2] = fx0 + i - 1
                 count += 1
+            inside = on
+        if inside:
+            runs[count, 2] = fx1 - 1
+            count += 1
     return count
 
 
@@ -441,75 +460,82 @@ def detect_in_boxes(
     max_aspect: float,
     min_fill: float,
     max_blobs: int,
+    max_rejected: int,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:  # pragma: no cover - compiled
     """The whole lean acquisition of one image in one compiled call: the bright tiles
     (:func:`hot_tile_boxes`) grown and merged (:func:`grow_and_merge_boxes`), then in each box
-    eq. 10 + the median filter (:func:`median_foreground`), Algorithm 2's labelling
-    (:func:`label_pixels`), the gate (:func:`gate_mask`) and eq. 11 (:func:`centroid_table`).
+    eq. 10 + the median filter (:func:`median_runs`), Algorithm 2's labelling
+    (:func:`label_runs`), the gate (:func:`gate_mask`) and eq. 11 (:func:`centroid_table`).
 
     Returns (kept (k, 5) int64 x, y, w, h, area in image px; their (k, 4) float64 u px, v px,
-    mass, peak; rejected (r, 5) int64 rows; the number of kept components). Boxes in order,
-    components in raster order within a box. Past ``max_blobs`` kept components no more
-    centroids are computed (the frame is refused)."""
+    mass, peak; the first ``max_rejected`` rejected (x, y, w, h, area) rows; the number of
+    kept components). Boxes in order, components in raster order within a box. Past
+    ``max_blobs`` kept components nothing more is kept (the frame is refused)."""
     h, w = gray.shape
+    kept = np.empty((max_blobs, 5), np.int64)
+    cents = np.empty((max_blobs, 4))
+    rejected = np.empty((max_rejected, 5), np.int64)
     tiles = hot_tile_boxes(gray, bands, band_rows, threshold)
     if tiles.shape[0] == 0:
-        return np.zeros((0, 5), np.int64), np.zeros((0, 4)), np.zeros((0, 5), np.int64), 0
+        return kept[:0], cents[:0], rejected[:0], 0
     boxes = grow_and_merge_boxes(tiles, w, h, ksize // 2 + 2)
-    big = 0
+    # the pixels ≥ T of each box lie in the tile boxes inside it (boxes do not overlap)
+    bright = np.empty((boxes.shape[0], 4), np.int64)
+    bright[:, 0:2] = np.int64(1) << 40
+    bright[:, 2:4] = -1
+    for t in range(tiles.shape[0]):
+        for b in range(boxes.shape[0]):
+            if (
+                boxes[b, 0] <= tiles[t, 0]
+                and boxes[b, 1] <= tiles[t, 1]
+                and tiles[t, 2] <= boxes[b, 2]
+                and tiles[t, 3] <= boxes[b, 3]
+            ):
+                bright[b, 0] = min(bright[b, 0], tiles[t, 0])
+                bright[b, 1] = min(bright[b, 1], tiles[t, 1])
+                bright[b, 2] = max(bright[b, 2], tiles[t, 2])
+                bright[b, 3] = max(bright[b, 3], tiles[t, 3])
+                break
+    # scratch for the largest box (and the largest centroid window inside it)
+    big_area = big_side = 0
     for b in range(boxes.shape[0]):
-        big = max(big, (boxes[b, 2] - boxes[b, 0]) * (boxes[b, 3] - boxes[b, 1]))
-    xy = np.empty((big, 2), np.int64)
-    kept_parts = [np.zeros((0, 5), np.int64)]  # typed by their first (empty) part
-    cent_parts = [np.zeros((0, 4))]
-    rej_parts = [np.zeros((0, 5), np.int64)]
-    total = 0
+        bw, bh = boxes[b, 2] - boxes[b, 0], boxes[b, 3] - boxes[b, 1]
+        big_area = max(big_area, bw * bh)
+        big_side = max(big_side, max(bw, bh) + 2 * centroid_margin_px(bw * bh))
+    runs = np.empty((big_area, 3), np.int64)
+    label_buf = np.empty(big_area, np.int32)
+    horiz_buf = np.empty((big_side, big_side), np.uint8)
+    comp_row = np.empty(big_side, np.uint8)
+    cover = np.empty(big_side, np.int32)
+    cand = np.empty(CAND_COLUMNS, np.int64)
+    n_kept = n_rej = total = 0
     for b in range(boxes.shape[0]):
         x0, y0 = boxes[b, 0], boxes[b, 1]
         bw, bh = boxes[b, 2] - x0, boxes[b, 3] - y0
-        count = median_foreground(gray, boxes[b], threshold, ksize // 2, xy)
+        count = median_runs(gray, boxes[b], bright[b], threshold, ksize // 2, runs)
         if count == 0:
             continue
-        labels = np.zeros((bh, bw), np.int32)
-        st = label_pixels(xy[:count], labels)[1:]
-        st[:, 0] += x0
-        st[:, 1] += y0
+        labels = label_buf[: bh * bw].reshape(bh, bw)
+        labels[:] = 0
+        st = label_runs(runs[:count], labels)[1:]
+        for c in range(st.shape[0]):
+            st[c, 0] += x0
+            st[c, 1] += y0
         ok = gate_mask(st, w, h, min_area, max_area, max_aspect, min_fill)
-        n_ok = 0
         for c in range(st.shape[0]):
-            if ok[c]:
-                n_ok += 1
-        rej_parts.append(st[~ok])
-        if n_ok == 0:
-            continue
-        cands = np.empty((n_ok, 12), np.int64)
-        k = 0
-        for c in range(st.shape[0]):
-            if ok[c]:
-                cands[k, 0] = c + 1
-                cands[k, 1:6] = st[c]
-                cands[k, 6], cands[k, 7], cands[k, 8], cands[k, 9] = 0, 0, bw, bh
-                cands[k, 10], cands[k, 11] = x0, y0
-                k += 1
-        total += n_ok
-        kept_parts.append(cands[:, 1:6].copy())
-        if total <= max_blobs:
-            cent_parts.append(centroid_table(gray, labels, cands, background))
-    if total > max_blobs:
-        kept_parts = [np.zeros((0, 5), np.int64)]
-        cent_parts = [np.zeros((0, 4))]
-    return _stack(kept_parts, 5), _stack(cent_parts, 4), _stack(rej_parts, 5), total
-
-
-@njit(cache=True, nogil=True)
-def _stack(parts, ncols):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
-    """Rows of a non-empty list of (k_i, ncols) arrays, one after the other."""
-    n = 0
-    for a in parts:
-        n += a.shape[0]
-    out = np.empty((n, ncols), parts[0].dtype)
-    r = 0
-    for a in parts:
-        out[r : r + a.shape[0]] = a
-        r += a.shape[0]
-    return out
+            if not ok[c]:
+                if n_rej < max_rejected:
+                    rejected[n_rej] = st[c]
+                    n_rej += 1
+                continue
+            total += 1
+            if total > max_blobs:
+                continue  # refused: only counted
+            cand[0] = c + 1
+            cand[1:6] = st[c]
+            cand[6], cand[7], cand[8], cand[9] = 0, 0, bw, bh
+            cand[10], cand[11] = x0, y0
+            kept[n_kept] = st[c]
+            _centroid(gray, labels, cand, background, horiz_buf, comp_row, cover, cents[n_kept])
+            n_kept += 1
+    return kept[:n_kept], cents[:n_kept], rejected[:n_rej], total

@@ -10,10 +10,10 @@ import numpy as np
 from app.vision.blob_kernels import (
     centroid_table,
     detect_in_boxes,
-    foreground_pixels,
     gate_mask,
     hot_tile_boxes,
-    label_pixels,
+    label_runs,
+    mask_runs,
 )
 from app.vision.preprocess import U8Image, frame_summary
 from app.vision.types import Blob, RejectedBlob
@@ -61,16 +61,15 @@ def _gate(area: int, w: int, h: int, gate: BlobGate) -> str | None:
 
 
 def _label_with_stats(mask: U8Image) -> tuple[int, np.ndarray, np.ndarray]:
-    """Algorithm 2 (one-pass connected components, 8-connectivity) over the foreground pixels
-    only (compiled: a scan eight pixels at a time, then union–find): (n, int32 labels, (n, 5)
-    int64 stats rows x, y, w, h, area) — the values of ``cv2.connectedComponentsWithStats``."""
-    flat = np.ascontiguousarray(mask).reshape(-1)
-    words = flat[: flat.size - flat.size % 8].view(np.uint64)
-    xy = foreground_pixels(flat, words, mask.shape[1])
+    """Algorithm 2 (one-pass connected components, 8-connectivity) over the foreground's runs
+    (compiled: :func:`~app.vision.blob_kernels.mask_runs`, then union–find over the runs):
+    (n, int32 labels, (n, 5) int64 stats rows x, y, w, h, area) — the values of
+    ``cv2.connectedComponentsWithStats``."""
+    runs = mask_runs(np.ascontiguousarray(mask))
     labels = np.zeros(mask.shape, np.int32)
-    if len(xy) == 0:
+    if len(runs) == 0:
         return 1, labels, np.zeros((1, 5), dtype=np.int64)
-    stats = label_pixels(xy, labels)
+    stats = label_runs(runs, labels)
     return len(stats), labels, stats
 
 
@@ -171,6 +170,7 @@ def detect_blobs(
         float(gate.max_aspect),
         float(gate.min_fill),
         gate.max_blobs,
+        MAX_REJECTED_REPORTED,
     )
     if count > gate.max_blobs:
         raise TooManyBlobs(int(count), gate.max_blobs)
