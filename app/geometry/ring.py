@@ -497,6 +497,9 @@ def seed_kernel(
     n = p.shape[0]
     adj = np.zeros((n, n), np.bool_)
     half = count // 2
+    sin_k, cos_k = np.empty(half + 1), np.empty(half + 1)  # of half the angle between slots
+    for k in range(1, half + 1):
+        sin_k[k], cos_k[k] = math.sin(math.pi * k / count), math.cos(math.pi * k / count)
     for i in range(n):
         for j in range(i + 1, n):
             d0, d1, d2 = p[i, 0] - p[j, 0], p[i, 1] - p[j, 1], p[i, 2] - p[j, 2]
@@ -507,7 +510,7 @@ def seed_kernel(
             rtol = rtol_frac * radius + 2.0 * sz
             itol = max(inlier_tol, 4.0 * sz)
             for k in range(1, half + 1):
-                s, c = math.sin(math.pi * k / count), math.cos(math.pi * k / count)
+                s, c = sin_k[k], cos_k[k]
                 tol = 2.0 * rtol * s + 2.0 * radius * abs(c) * alpha + 2.0 * itol
                 if abs(d - 2.0 * radius * s) <= tol:
                     adj[i, j] = True
@@ -834,10 +837,11 @@ def log10_nfa(
     z = float(circle.center[2])
     floor = max(0.3, 3.0 * float(params.sigma_z(z)))
     dist = distance_to_circle(points, circle) if distance_mm is None else distance_mm
+    resid = np.asarray(resid_deg).tolist()
     rho = max(
         floor,
-        float(dist.max()) if len(dist) else 0.0,
-        R * math.radians(float(np.abs(resid_deg).max())),
+        max(np.asarray(dist).tolist(), default=0.0),
+        R * math.radians(max(max(resid), -min(resid))),
     )
     delta = 2.0 * rho + max(floor, abs(circle.radius - R))
     chord = 2.0 * R * math.sin(math.pi * (N // 2) / N)
@@ -860,8 +864,8 @@ def _volume(p: FloatArray, params: RingParams) -> float:
     view at the candidates' median depth times their depth spread (if the field is known),
     at least their bounding box; every extent at least 4R."""
     floor = 4.0 * params.radius_mm
-    side = np.maximum(np.ptp(p, axis=0), floor)
-    volume = float(np.prod(side))
+    side = np.maximum(p.max(axis=0) - p.min(axis=0), floor)
+    volume = float(side.prod())
     if params.fov_tan is not None:
         z = statistics.median(p[:, 2].tolist())
         width = max(params.fov_tan[0] * z, floor)
@@ -975,7 +979,7 @@ def find_ring(
     """Locate the LED ring among ``points`` (N×3, mm, left camera frame) with the integrity
     tests of the module docstring. ``prior``: a recent lock (for 3-LED hypotheses)."""
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    index_map = np.flatnonzero(np.all(np.isfinite(pts), axis=1))
+    index_map = np.flatnonzero(np.isfinite(pts).all(axis=1))
     p = pts[index_map]
     n, N = len(p), params.led_count
     if n < params.min_leds:
@@ -996,13 +1000,16 @@ def find_ring(
             f"{params.radius_mm:.0f} mm ({n} candidate point(s))"
         )
     volume = _volume(p, params)
+    near_prior = -1  # candidates in the prior's neighbourhood (counted when first needed)
     for h in hyps:
         h.log10_nfa = log10_nfa(n, volume, h.circle, h.points, h.resid_deg, params, h.distance_mm)
         if prior is not None and agrees_with_prior(h.circle, prior):
             # a hypothesis predicted by a recent lock is tested only against its neighbourhood
-            near = np.linalg.norm(p - prior.center_mm, axis=1) <= params.radius_mm + prior.gate_mm
+            if near_prior < 0:
+                d = np.linalg.norm(p - prior.center_mm, axis=1)
+                near_prior = int(np.count_nonzero(d <= params.radius_mm + prior.gate_mm))
             local = log10_nfa(
-                int(near.sum()),
+                near_prior,
                 prior_volume_mm3(params, prior),
                 h.circle,
                 h.points,
@@ -1051,10 +1058,10 @@ def find_ring(
         )
     return RingFit(
         circle=best.circle,
-        indices=tuple(int(index_map[i]) for i in best.members),
-        slots=tuple(int(s) for s in best.slots),
+        indices=tuple(index_map[best.members].tolist()),
+        slots=tuple(best.slots.tolist()),
         offset_deg=best.offset_deg,
-        residual_deg=tuple(float(r) for r in best.resid_deg),
+        residual_deg=tuple(best.resid_deg.tolist()),
         log10_nfa=best.log10_nfa,
         candidates=n,
         hypotheses=len(hyps),
