@@ -100,29 +100,34 @@ def appearance_reasons(
     return out
 
 
+_NO_COLOR = (math.nan, math.nan, math.nan)
+
+
 @njit(cache=True, nogil=True)
 def _appearance_kernel(
-    area: np.ndarray,
-    peak: np.ndarray,
-    color: np.ndarray,
-    z: np.ndarray,
-    f_px: np.ndarray,
-    led_diameter_mm: float,
-    background_dn: np.ndarray,
-    bounds: np.ndarray,
+    left: np.ndarray,
+    right: np.ndarray,
+    left_index: np.ndarray,
+    right_index: np.ndarray,
+    z_left: np.ndarray,
+    z_right: np.ndarray,
+    params: np.ndarray,
 ) -> np.ndarray:  # pragma: no cover - compiled
-    """:func:`appearance_reasons`' tests for N pairs at once: ``area``, ``peak``, ``z`` (2, N)
-    (left row, right row), ``color`` (2, N, 3) BGR (NaN: not judged), ``f_px`` and
-    ``background_dn`` (2,), ``bounds`` the configuration's numbers in the order of
-    :func:`_bounds`. The same operations in the same order: the same verdicts."""
-    low, high, slack_px, size_ratio, peak_ratio, green_ratio, saturated = bounds
-    n = area.shape[1]
+    """:func:`appearance_reasons`' tests for the pairs ``left[left_index[k]] ↔
+    right[right_index[k]]`` (rows of :class:`BlobTable` values) at depths ``z_left[k]``,
+    ``z_right[k]`` (mm); ``params`` as :func:`_params` orders them. The same operations in the
+    same order: the same verdicts."""
+    f_l, f_r, led_d, bg_l, bg_r = params[0], params[1], params[2], params[3], params[4]
+    low, high, slack_px, size_ratio = params[5], params[6], params[7], params[8]
+    peak_ratio, green_ratio, saturated = params[9], params[10], params[11]
+    n = left_index.shape[0]
     ok = np.ones(n, np.bool_)
     for k in range(n):
-        rho_l = f_px[0] * 0.5 * led_diameter_mm / max(z[0, k], 1e-6)
-        rho_r = f_px[1] * 0.5 * led_diameter_mm / max(z[1, k], 1e-6)
-        r_l = math.sqrt(max(area[0, k], 0.0) / math.pi)
-        r_r = math.sqrt(max(area[1, k], 0.0) / math.pi)
+        bl, br = left[left_index[k]], right[right_index[k]]
+        rho_l = f_l * 0.5 * led_d / max(z_left[k], 1e-6)
+        rho_r = f_r * 0.5 * led_d / max(z_right[k], 1e-6)
+        r_l = math.sqrt(max(bl[0], 0.0) / math.pi)
+        r_r = math.sqrt(max(br[0], 0.0) / math.pi)
         if not (low * rho_l - slack_px <= r_l <= high * rho_l + slack_px):
             ok[k] = False
         if not (low * rho_r - slack_px <= r_r <= high * rho_r + slack_px):
@@ -131,22 +136,46 @@ def _appearance_kernel(
         slack = slack_px / max(min(rho_l, rho_r), 1e-9)
         if max(a, b) > size_ratio * min(a, b) + slack:
             ok[k] = False
-        pl = max(peak[0, k] - background_dn[0], 1.0)
-        pr = max(peak[1, k] - background_dn[1], 1.0)
+        pl = max(bl[1] - bg_l, 1.0)
+        pr = max(br[1] - bg_r, 1.0)
         if max(pl, pr) > peak_ratio * min(pl, pr):
             ok[k] = False
-        for s in range(2):
-            bb, g, rr = color[s, k, 0], color[s, k, 1], color[s, k, 2]
-            if np.isnan(bb) or max(bb, g, rr) >= saturated:
+        for row in (bl, br):
+            cb, cg, cr = row[2], row[3], row[4]
+            if np.isnan(cb) or max(cb, cg, cr) >= saturated:
                 continue
-            if g < green_ratio * max(bb, rr):
+            if cg < green_ratio * max(cb, cr):
                 ok[k] = False
     return ok
 
 
-def _bounds(cfg: AppearanceConfig) -> NDArray[np.float64]:
+@dataclass(frozen=True)
+class BlobTable:
+    """The appearance-relevant numbers of a list of blobs, one row per blob (aligned with the
+    list): area (px), peak (DN), mean colour B, G, R (DN; NaN where the blob has none)."""
+
+    values: NDArray[np.float64]  # (N, 5)
+
+    @classmethod
+    def of(cls, blobs: list[Blob]) -> BlobTable:
+        rows = [(b.area_px, b.peak, *(b.color_bgr or _NO_COLOR)) for b in blobs]
+        return cls(np.array(rows, dtype=np.float64).reshape(len(blobs), 5))
+
+
+def _params(
+    f_left_px: float,
+    f_right_px: float,
+    led_diameter_mm: float,
+    background_dn: tuple[float, float],
+    cfg: AppearanceConfig,
+) -> NDArray[np.float64]:
     return np.array(
         [
+            f_left_px,
+            f_right_px,
+            led_diameter_mm,
+            background_dn[0],
+            background_dn[1],
             cfg.size_low_frac,
             cfg.size_high_frac,
             cfg.size_slack_px,
@@ -154,29 +183,9 @@ def _bounds(cfg: AppearanceConfig) -> NDArray[np.float64]:
             cfg.stereo_peak_ratio,
             cfg.green_ratio,
             cfg.saturated_dn,
-        ]
+        ],
+        dtype=np.float64,
     )
-
-
-@dataclass(frozen=True)
-class BlobTable:
-    """The appearance-relevant numbers of a list of blobs as arrays (rows aligned with it):
-    area (px), peak (DN), mean colour (B, G, R) DN (NaN where the blob has none)."""
-
-    area_px: NDArray[np.float64]
-    peak: NDArray[np.float64]
-    color_bgr: NDArray[np.float64]  # (N, 3)
-
-    @classmethod
-    def of(cls, blobs: list[Blob]) -> BlobTable:
-        n = len(blobs)
-        area = np.array([b.area_px for b in blobs], dtype=np.float64).reshape(n)
-        peak = np.array([b.peak for b in blobs], dtype=np.float64).reshape(n)
-        color = np.full((n, 3), np.nan)
-        for k, b in enumerate(blobs):
-            if b.color_bgr is not None:
-                color[k] = b.color_bgr
-        return cls(area, peak, color)
 
 
 def appearance_ok(
@@ -198,21 +207,14 @@ def appearance_ok(
     n = len(left_index)
     if not cfg.enabled or n == 0:
         return np.ones(n, dtype=np.bool_)
-    area = np.stack([left.area_px[left_index], right.area_px[right_index]])
-    peak = np.stack([left.peak[left_index], right.peak[right_index]])
-    color = np.stack([left.color_bgr[left_index], right.color_bgr[right_index]])
-    z = np.stack(
-        [np.asarray(z_left_mm, dtype=np.float64), np.asarray(z_right_mm, dtype=np.float64)]
-    )
     return np.asarray(
         _appearance_kernel(
-            area,
-            peak,
-            color,
-            z,
-            np.array([f_left_px, f_right_px], dtype=np.float64),
-            float(led_diameter_mm),
-            np.array(background_dn, dtype=np.float64),
-            _bounds(cfg),
+            left.values,
+            right.values,
+            np.ascontiguousarray(left_index, dtype=np.int64),
+            np.ascontiguousarray(right_index, dtype=np.int64),
+            np.ascontiguousarray(z_left_mm, dtype=np.float64),
+            np.ascontiguousarray(z_right_mm, dtype=np.float64),
+            _params(f_left_px, f_right_px, led_diameter_mm, background_dn, cfg),
         )
     )

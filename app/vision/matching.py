@@ -13,6 +13,8 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from numba import njit
 from numpy.typing import NDArray
@@ -28,30 +30,41 @@ _PAIRWISE_BLOCK = 128  # numpy's pairwise-summation block (rows up to this are o
 @njit(cache=True, nogil=True)
 def _descriptor_kernel(a: np.ndarray, b: np.ndarray) -> np.ndarray:  # pragma: no cover
     """Eq. 14 for every pair, summed as numpy sums a row (pairwise: eight running partial sums
-    combined as a tree, then the remainder), so that the distances are numpy's to the bit."""
+    combined as a tree, then the remainder), so that the distances are numpy's to the bit.
+    The partial sums run over all right descriptors at once (vectorised)."""
     nl, nr, d = a.shape[0], b.shape[0], a.shape[1]
     out = np.empty((nl, nr))
-    r = np.empty(8)
-    head = d - d % 8
-    for i in range(nl):
-        for j in range(nr):
-            if d < 8:
+    if d < 8:
+        for i in range(nl):
+            for j in range(nr):
                 s = 0.0
                 for k in range(d):
                     t = a[i, k] - b[j, k]
                     s += t * t
-            else:
-                for k in range(8):
-                    t = a[i, k] - b[j, k]
-                    r[k] = t * t
-                for k0 in range(8, head, 8):
-                    for k in range(8):
-                        t = a[i, k0 + k] - b[j, k0 + k]
-                        r[k] += t * t
-                s = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]))
-                for k in range(head, d):
-                    t = a[i, k] - b[j, k]
-                    s += t * t
+                out[i, j] = np.sqrt(s)
+        return out
+    bt = np.ascontiguousarray(b.T)  # (d, NR)
+    acc = np.empty((8, nr))  # the eight partial sums of every right descriptor
+    head = d - d % 8
+    for i in range(nl):
+        for k in range(8):
+            aik, bk, ak = a[i, k], bt[k], acc[k]
+            for j in range(nr):
+                t = aik - bk[j]
+                ak[j] = t * t
+        for k0 in range(8, head, 8):
+            for k in range(8):
+                aik, bk, ak = a[i, k0 + k], bt[k0 + k], acc[k]
+                for j in range(nr):
+                    t = aik - bk[j]
+                    ak[j] += t * t
+        for j in range(nr):
+            s = ((acc[0, j] + acc[1, j]) + (acc[2, j] + acc[3, j])) + (
+                (acc[4, j] + acc[5, j]) + (acc[6, j] + acc[7, j])
+            )
+            for k in range(head, d):
+                t = a[i, k] - bt[k, j]
+                s += t * t
             out[i, j] = np.sqrt(s)
     return out
 
@@ -102,16 +115,45 @@ def epipolar_distances(F: FloatArray, x_left: FloatArray, x_right: FloatArray) -
 IntArray = NDArray[np.int64]
 
 
+@dataclass(frozen=True)
+class MatchArrays:
+    """Stereo matches as arrays: pair k is left blob ``left[k]`` ↔ right blob ``right[k]``,
+    with its descriptor distance (eq. 14) and epipolar distance (px)."""
+
+    left: IntArray
+    right: IntArray
+    descriptor_distance: FloatArray
+    epipolar_px: FloatArray
+
+    @classmethod
+    def of(
+        cls, left: IntArray, right: IntArray, desc_dist: FloatArray, epi: FloatArray
+    ) -> MatchArrays:
+        """The pairs ``left[k] ↔ right[k]`` of the (NL, NR) distance matrices."""
+        return cls(left, right, desc_dist[left, right], epi[left, right])
+
+    def __len__(self) -> int:
+        return len(self.left)
+
+    def records(self) -> list[Match]:
+        """One :class:`Match` per pair."""
+        return [
+            Match(left_index=i, right_index=j, descriptor_distance=d, epipolar_px=e)
+            for i, j, d, e in zip(
+                self.left.tolist(),
+                self.right.tolist(),
+                self.descriptor_distance.tolist(),
+                self.epipolar_px.tolist(),
+                strict=True,
+            )
+        ]
+
+
 def matches_from_indices(
     left: IntArray, right: IntArray, desc_dist: FloatArray, epi: FloatArray
 ) -> list[Match]:
     """:class:`Match` records of the index pairs ``left[k] ↔ right[k]``."""
-    d = desc_dist[left, right].tolist()
-    e = epi[left, right].tolist()
-    return [
-        Match(left_index=i, right_index=j, descriptor_distance=dk, epipolar_px=ek)
-        for i, j, dk, ek in zip(left.tolist(), right.tolist(), d, e, strict=True)
-    ]
+    return MatchArrays.of(left, right, desc_dist, epi).records()
 
 
 def match_min_distance_indices(desc_dist: FloatArray) -> tuple[IntArray, IntArray]:
@@ -150,6 +192,14 @@ def _gated_cost(
     return gate, cost
 
 
+def _median(values: list[float]) -> float:
+    """``np.median`` of a few finite values (the middle one, or the mean of the two middle
+    ones: the same float), without its overhead."""
+    v = sorted(values)
+    m = len(v) // 2
+    return v[m] if len(v) % 2 else (v[m - 1] + v[m]) / 2.0
+
+
 def _assign(cost: FloatArray, gate: np.ndarray) -> tuple[IntArray, IntArray]:
     rows, cols = linear_sum_assignment(cost)
     ok = gate[rows, cols]
@@ -179,7 +229,7 @@ def match_epipolar_indices(
     rows, cols = _assign(cost, gate)
     if len(rows) >= 2:
         # depth coherence, on the gated pairs only (the others stay at _BIG)
-        z_ref = float(np.median(depth_mm[rows, cols]))
+        z_ref = _median(depth_mm[rows, cols].tolist())
         gl, gr = np.nonzero(gate)
         dev = np.abs(np.log(depth_mm[gl, gr] / z_ref))
         cost[gl, gr] += dev / depth_coherence

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 from typing import Literal
 
 import numpy as np
@@ -31,11 +32,11 @@ from app.vision.appearance import (
 from app.vision.features import BAND_ROWS, BlobGate, TooManyBlobs, detect_blobs
 from app.vision.ihwt import describe
 from app.vision.matching import (
+    MatchArrays,
     descriptor_distances,
     epipolar_distances,
     match_epipolar_indices,
     match_min_distance_indices,
-    matches_from_indices,
 )
 from app.vision.preprocess import (
     BACKGROUND_COL_STEP,
@@ -120,7 +121,8 @@ class PipelineTrace:
 
     left: FeatureSet | None = None
     right: FeatureSet | None = None
-    matches: list[Match] = field(default_factory=list)
+    # the stereo matches (rows of ``xyz_mm``); ``matches`` holds them as records
+    match_arrays: MatchArrays | None = None
     xyz_mm: np.ndarray | None = None
     ring: RingFit | None = None
     thresholds: tuple[int, int] = (0, 0)
@@ -128,6 +130,11 @@ class PipelineTrace:
     backgrounds: tuple[tuple[float, float], tuple[float, float]] = ((0.0, 0.0), (0.0, 0.0))
     appearance_rejected: dict[int, list[str]] = field(default_factory=dict)  # match → reasons
     roll_deg: float | None = None
+
+    @cached_property
+    def matches(self) -> list[Match]:
+        """The stereo matches as records (built on first access from ``match_arrays``)."""
+        return [] if self.match_arrays is None else self.match_arrays.records()
 
 
 @dataclass
@@ -323,7 +330,7 @@ class NavigationPipeline:
             li, ri = match_epipolar_indices(
                 ddist, epi, depth, cfg.epipolar_tol_px, cfg.depth_range_mm
             )
-        matches = matches_from_indices(li, ri, ddist, epi)
+        matches = MatchArrays.of(li, ri, ddist, epi)
         t1 = time.perf_counter()
         self._stage_ms["match"] = (t1 - t0) * 1e3
         if len(matches) < cfg.min_leds:
@@ -338,7 +345,7 @@ class NavigationPipeline:
         good = (reproj <= cfg.max_reprojection_px) & (X[:, 2] > 0) & np.all(np.isfinite(X), axis=1)
         t2 = time.perf_counter()
         self._stage_ms["triangulate"] = (t2 - t1) * 1e3
-        self.trace.matches = matches
+        self.trace.match_arrays = matches
         self.trace.xyz_mm = X
         idx = np.flatnonzero(good)
         if len(idx) < cfg.min_leds:
@@ -385,19 +392,19 @@ class NavigationPipeline:
         self._track = _Track(ring.circle.center.copy(), ring.circle.normal.copy(), roll)
         leds = []
         for k, led_id in sorted(zip(ring.indices, ids.tolist(), strict=True), key=lambda t: t[1]):
-            m = matches[int(idx[k])]
-            bl = feats_l.blobs[m.left_index].centroid_px
-            br = feats_r.blobs[m.right_index].centroid_px
-            x = X[int(idx[k])]
+            j = int(idx[k])
+            bl = feats_l.blobs[int(matches.left[j])].centroid_px
+            br = feats_r.blobs[int(matches.right[j])].centroid_px
+            x = X[j]
             leds.append(
                 LedResult(
                     id=int(led_id),
                     left_px=(bl[0], bl[1]),
                     right_px=(br[0], br[1]),
                     xyz_mm=(float(x[0]), float(x[1]), float(x[2])),
-                    descriptor_distance=m.descriptor_distance,
-                    epipolar_px=m.epipolar_px,
-                    reprojection_px=float(reproj[int(idx[k])]),
+                    descriptor_distance=float(matches.descriptor_distance[j]),
+                    epipolar_px=float(matches.epipolar_px[j]),
+                    reprojection_px=float(reproj[j]),
                 )
             )
         return PoseResult(lock=True, reason=None, leds=leds, drogue=drogue_result(ring.circle))
