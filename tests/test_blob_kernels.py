@@ -10,7 +10,8 @@ import cv2
 import numpy as np
 import pytest
 
-from app.vision.features import BlobGate, _label_with_stats, extract_blobs
+from app.vision.blob_kernels import label_runs, mask_runs
+from app.vision.features import BlobGate, extract_blobs
 from app.vision.preprocess import background_level, binarize, choose_threshold, median_filter
 from tests.test_acquisition import _scene
 
@@ -67,6 +68,16 @@ def test_compiled_centroids_equal_opencv_moments(n: int, bg_offset: float) -> No
         # centroids: the same sums in float64 (summation order differs: ≤ 1e-9 px)
         assert abs(g[2] - r[2]) < 1e-9 and abs(g[3] - r[3]) < 1e-9
         assert abs(g[4] - r[4]) <= 1e-12 * r[4]
+
+
+def _label_with_stats(mask: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:
+    """The compiled labelling as OpenCV returns it: (n, int32 labels, (n, 5) stats)."""
+    labels = np.zeros(mask.shape, np.int32)
+    runs = mask_runs(mask)
+    if len(runs) == 0:
+        return 1, labels, np.zeros((1, 5), np.int64)
+    stats = label_runs(runs, labels)
+    return len(stats), labels, stats
 
 
 @pytest.mark.parametrize("density", [0.2, 0.45, 0.6])
@@ -152,10 +163,7 @@ def test_warmup_compiles_everything_frames_need() -> None:
     from app.vision.tracking import StereoTracker
 
     loops = [
-        blob_kernels.centroid_table,
-        blob_kernels.label_runs,
-        blob_kernels.mask_runs,
-        blob_kernels.gate_mask,
+        blob_kernels.extract_in_mask,
         blob_kernels.detect_in_boxes,
         preprocess.frame_summary,
         ihwt._describe_kernel,

@@ -130,10 +130,8 @@ def test_tracked_frames_do_no_full_frame_work(calib, monkeypatch) -> None:  # ty
         monkeypatch.setattr(mod, "to_gray", spy("to_gray", gray))
     for name in ("medianBlur", "threshold", "cvtColor"):
         monkeypatch.setattr(cv2, name, spy(name, getattr(cv2, name)))
-    # the labelling (Algorithm 2, compiled) and its input
-    monkeypatch.setattr(
-        features_mod, "_label_with_stats", spy("label", features_mod._label_with_stats)
-    )
+    # the labelling (Algorithm 2) and eq. 11, compiled, and the image they read
+    monkeypatch.setattr(features_mod, "extract_in_mask", spy("label", features_mod.extract_in_mask))
     tracker = StereoTracker(calib)
     per_frame = []
     for pair in _frames(calib, 1000.0, 4, RenderSettings(color=True)):

@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-# columns of the candidate table passed to :func:`centroid_table`
+# columns of a candidate row passed to :func:`_centroid`
 # label, x, y, w, h, area (image px), region (lx, ly, lx1, ly1) of its box in the label
 # array, origin (ox, oy) of that box in the image
 CAND_COLUMNS = 12
@@ -64,7 +64,12 @@ def _centroid(
     out: np.ndarray,
 ) -> None:  # pragma: no cover - compiled
     """Eq. 11 for one candidate row (``CAND_COLUMNS``) into ``out`` (u px, v px, mass, peak);
-    scratch buffers of at least the window's side (:func:`centroid_table`)."""
+    scratch buffers of at least the window's side.
+
+    Weights ``P_i = max(gray − background, 0)`` over the component dilated by ``pad`` px (a
+    (2·pad+1)² square, :func:`centroid_margin_px`), never on a neighbouring component's
+    pixels; (u, v) are pixel centres in the image. ``peak`` is the brightest gray value on the
+    component itself; a component of zero mass gets its bounding-box centre."""
     lab_id = cand[0]
     x, y, w, h, area = cand[1], cand[2], cand[3], cand[4], cand[5]
     lx, ly, lx1, ly1 = cand[6], cand[7], cand[8], cand[9]
@@ -126,7 +131,7 @@ def _centroid(
             lab = lrow[lx + wx0 + i]
             if lab != 0 and lab != lab_id:
                 continue
-            g = np.int64(grow[ox + wx0 + i])
+            g = int(grow[ox + wx0 + i])
             if g <= background:
                 continue
             n += 1
@@ -147,31 +152,6 @@ def _centroid(
 
 
 @njit(cache=True, nogil=True)
-def centroid_table(
-    gray: np.ndarray, labels: np.ndarray, cands: np.ndarray, background: float
-) -> np.ndarray:  # pragma: no cover - compiled
-    """Eq. 11 for every candidate row (see ``CAND_COLUMNS``): (k, 4) float64 rows
-    (u px, v px, mass, peak).
-
-    Weights ``P_i = max(gray − background, 0)`` over the component dilated by ``pad`` px (a
-    (2·pad+1)² square, :func:`centroid_margin_px`), never on a neighbouring component's
-    pixels; (u, v) are pixel centres in the image. ``peak`` is the brightest gray value on the
-    component itself; a component of zero mass gets its bounding-box centre.
-    """
-    k = cands.shape[0]
-    out = np.zeros((k, 4), np.float64)
-    big = 0  # scratch, allocated once for the largest window (w + 2·pad ≤ its side)
-    for c in range(k):
-        big = max(big, max(cands[c, 3], cands[c, 4]) + 2 * centroid_margin_px(cands[c, 5]))
-    horiz_buf = np.empty((big, big), np.uint8)  # the component's rows dilated horizontally
-    comp_row = np.empty(big, np.uint8)
-    cover = np.empty(big, np.int32)  # dilated rows within ±pad of the current row
-    for c in range(k):
-        _centroid(gray, labels, cands[c], background, horiz_buf, comp_row, cover, out[c])
-    return out
-
-
-@njit(cache=True, nogil=True)
 def _find(parent: np.ndarray, p: int) -> int:  # pragma: no cover - compiled
     root = p
     while parent[root] != root:
@@ -184,35 +164,54 @@ def _find(parent: np.ndarray, p: int) -> int:  # pragma: no cover - compiled
 
 
 @njit(cache=True, nogil=True)
+def _row_runs(
+    row: np.ndarray, y: int, runs: np.ndarray, k: int, write: bool
+) -> int:  # pragma: no cover - compiled
+    """Runs of the nonzero bytes of one mask row (eight zero bytes skipped at a time), written
+    into ``runs`` from row ``k`` if ``write``; returns the new run count."""
+    w = row.shape[0]
+    x = 0
+    inside = False
+    while x < w:
+        if not inside and x + 8 <= w:
+            zero = True
+            for b in range(8):
+                if row[x + b] != 0:
+                    zero = False
+                    break
+            if zero:
+                x += 8
+                continue
+        on = row[x] != 0
+        if on and not inside:
+            if write:
+                runs[k, 0], runs[k, 1] = y, x
+            inside = True
+        elif inside and not on:
+            if write:
+                runs[k, 2] = x - 1
+            k += 1
+            inside = False
+        x += 1
+    if inside:
+        if write:
+            runs[k, 2] = w - 1
+        k += 1
+    return k
+
+
+@njit(cache=True, nogil=True)
 def mask_runs(mask: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
     """(k, 3) int64 runs (row y, first x, last x, px) of the nonzero pixels of ``mask``, in
     raster order."""
-    h, w = mask.shape
+    empty = np.empty((0, 3), np.int64)
     count = 0
-    for y in range(h):
-        row = mask[y]
-        inside = False
-        for x in range(w):
-            on = row[x] != 0
-            if on and not inside:
-                count += 1
-            inside = on
+    for y in range(mask.shape[0]):
+        count = _row_runs(mask[y], y, empty, count, False)
     runs = np.empty((count, 3), np.int64)
     k = 0
-    for y in range(h):
-        row = mask[y]
-        inside = False
-        for x in range(w):
-            on = row[x] != 0
-            if on and not inside:
-                runs[k, 0], runs[k, 1] = y, x
-            elif inside and not on:
-                runs[k, 2] = x - 1
-                k += 1
-            inside = on
-        if inside:
-            runs[k, 2] = w - 1
-            k += 1
+    for y in range(mask.shape[0]):
+        k = _row_runs(mask[y], y, runs, k, True)
     return runs
 
 
@@ -448,6 +447,86 @@ def median_runs(
 
 
 @njit(cache=True, nogil=True)
+def _keep_components(
+    gray: np.ndarray,
+    labels: np.ndarray,
+    st: np.ndarray,
+    x0: int,
+    y0: int,
+    background: float,
+    gate: np.ndarray,
+    kept: np.ndarray,
+    cents: np.ndarray,
+    rejected: np.ndarray,
+    counts: np.ndarray,
+    horiz_buf: np.ndarray,
+    comp_row: np.ndarray,
+    cover: np.ndarray,
+) -> None:  # pragma: no cover - compiled
+    """Gate the components of ``labels`` (a box at (x0, y0) in the image; ``st``: their
+    :func:`label_runs` stats, row 0 unused) and compute eq. 11 for those that pass, appending
+    to ``kept``/``cents`` (up to their length) and ``rejected`` (idem); ``counts``: (kept,
+    rejected, passing) so far."""
+    h, w = gray.shape
+    bh, bw = labels.shape
+    st = st[1:]
+    for c in range(st.shape[0]):
+        st[c, 0] += x0
+        st[c, 1] += y0
+    ok = gate_mask(st, w, h, int(gate[0]), int(gate[1]), gate[2], gate[3])
+    cand = np.empty(CAND_COLUMNS, np.int64)
+    for c in range(st.shape[0]):
+        if not ok[c]:
+            if counts[1] < rejected.shape[0]:
+                rejected[counts[1]] = st[c]
+                counts[1] += 1
+            continue
+        counts[2] += 1
+        if counts[0] >= kept.shape[0]:
+            continue  # past max_blobs: refused, only counted
+        cand[0] = c + 1
+        cand[1:6] = st[c]
+        cand[6], cand[7], cand[8], cand[9] = 0, 0, bw, bh
+        cand[10], cand[11] = x0, y0
+        kept[counts[0]] = st[c]
+        _centroid(gray, labels, cand, background, horiz_buf, comp_row, cover, cents[counts[0]])
+        counts[0] += 1
+
+
+@njit(cache=True, nogil=True)
+def extract_in_mask(
+    gray: np.ndarray,
+    mask: np.ndarray,
+    x0: int,
+    y0: int,
+    background: float,
+    gate: np.ndarray,
+    max_blobs: int,
+    max_rejected: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:  # pragma: no cover - compiled
+    """Labelling (:func:`mask_runs`, :func:`label_runs`), the gate and eq. 11 of the
+    components of a binary ``mask`` that covers ``gray`` from (x0, y0) px: the outputs of
+    :func:`detect_in_boxes`."""
+    kept = np.empty((max_blobs, 5), np.int64)
+    cents = np.empty((max_blobs, 4))
+    rejected = np.empty((max_rejected, 5), np.int64)
+    counts = np.zeros(3, np.int64)
+    runs = mask_runs(mask)
+    if runs.shape[0] > 0:
+        labels = np.zeros(mask.shape, np.int32)
+        st = label_runs(runs, labels)
+        big = 0
+        for c in range(1, st.shape[0]):
+            big = max(big, max(st[c, 2], st[c, 3]) + 2 * centroid_margin_px(st[c, 4]))
+        _keep_components(
+            gray, labels, st, x0, y0, background, gate, kept, cents, rejected, counts,
+            np.empty((big, big), np.uint8), np.empty(big, np.uint8), np.empty(big, np.int32),
+        )  # fmt: skip
+    n_kept, n_rej = counts[0], counts[1]
+    return kept[:n_kept], cents[:n_kept], rejected[:n_rej], counts[2]
+
+
+@njit(cache=True, nogil=True)
 def detect_in_boxes(
     gray: np.ndarray,
     bands: np.ndarray,
@@ -455,21 +534,19 @@ def detect_in_boxes(
     threshold: int,
     ksize: int,
     background: float,
-    min_area: int,
-    max_area: int,
-    max_aspect: float,
-    min_fill: float,
+    gate: np.ndarray,
     max_blobs: int,
     max_rejected: int,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:  # pragma: no cover - compiled
     """The whole lean acquisition of one image in one compiled call: the bright tiles
     (:func:`hot_tile_boxes`) grown and merged (:func:`grow_and_merge_boxes`), then in each box
     eq. 10 + the median filter (:func:`median_runs`), Algorithm 2's labelling
-    (:func:`label_runs`), the gate (:func:`gate_mask`) and eq. 11 (:func:`centroid_table`).
+    (:func:`label_runs`), the gate (:func:`gate_mask`) and eq. 11 (:func:`_centroid`).
 
-    Returns (kept (k, 5) int64 x, y, w, h, area in image px; their (k, 4) float64 u px, v px,
-    mass, peak; the first ``max_rejected`` rejected (x, y, w, h, area) rows; the number of
-    kept components). Boxes in order, components in raster order within a box. Past
+    ``gate``: (min area px, max area px, max aspect, min fill) of ``BlobGate``. Returns (kept
+    (k, 5) int64 x, y, w, h, area in image px; their (k, 4) float64 u px, v px, mass, peak;
+    the first ``max_rejected`` rejected (x, y, w, h, area) rows; the number of components
+    passing the gate). Boxes in order, components in raster order within a box. Past
     ``max_blobs`` kept components nothing more is kept (the frame is refused)."""
     h, w = gray.shape
     kept = np.empty((max_blobs, 5), np.int64)
@@ -507,8 +584,7 @@ def detect_in_boxes(
     horiz_buf = np.empty((big_side, big_side), np.uint8)
     comp_row = np.empty(big_side, np.uint8)
     cover = np.empty(big_side, np.int32)
-    cand = np.empty(CAND_COLUMNS, np.int64)
-    n_kept = n_rej = total = 0
+    counts = np.zeros(3, np.int64)  # kept, rejected, all passing the gate
     for b in range(boxes.shape[0]):
         x0, y0 = boxes[b, 0], boxes[b, 1]
         bw, bh = boxes[b, 2] - x0, boxes[b, 3] - y0
@@ -517,25 +593,10 @@ def detect_in_boxes(
             continue
         labels = label_buf[: bh * bw].reshape(bh, bw)
         labels[:] = 0
-        st = label_runs(runs[:count], labels)[1:]
-        for c in range(st.shape[0]):
-            st[c, 0] += x0
-            st[c, 1] += y0
-        ok = gate_mask(st, w, h, min_area, max_area, max_aspect, min_fill)
-        for c in range(st.shape[0]):
-            if not ok[c]:
-                if n_rej < max_rejected:
-                    rejected[n_rej] = st[c]
-                    n_rej += 1
-                continue
-            total += 1
-            if total > max_blobs:
-                continue  # refused: only counted
-            cand[0] = c + 1
-            cand[1:6] = st[c]
-            cand[6], cand[7], cand[8], cand[9] = 0, 0, bw, bh
-            cand[10], cand[11] = x0, y0
-            kept[n_kept] = st[c]
-            _centroid(gray, labels, cand, background, horiz_buf, comp_row, cover, cents[n_kept])
-            n_kept += 1
+        st = label_runs(runs[:count], labels)
+        _keep_components(
+            gray, labels, st, x0, y0, background, gate, kept, cents, rejected, counts,
+            horiz_buf, comp_row, cover,
+        )  # fmt: skip
+    n_kept, n_rej, total = counts[0], counts[1], counts[2]
     return kept[:n_kept], cents[:n_kept], rejected[:n_rej], total

@@ -8,12 +8,9 @@ import cv2
 import numpy as np
 
 from app.vision.blob_kernels import (
-    centroid_table,
     detect_in_boxes,
-    gate_mask,
+    extract_in_mask,
     hot_tile_boxes,
-    label_runs,
-    mask_runs,
 )
 from app.vision.preprocess import U8Image, frame_summary
 from app.vision.types import Blob, RejectedBlob
@@ -60,17 +57,26 @@ def _gate(area: int, w: int, h: int, gate: BlobGate) -> str | None:
     return None
 
 
-def _label_with_stats(mask: U8Image) -> tuple[int, np.ndarray, np.ndarray]:
-    """Algorithm 2 (one-pass connected components, 8-connectivity) over the foreground's runs
-    (compiled: :func:`~app.vision.blob_kernels.mask_runs`, then union–find over the runs):
-    (n, int32 labels, (n, 5) int64 stats rows x, y, w, h, area) — the values of
-    ``cv2.connectedComponentsWithStats``."""
-    runs = mask_runs(np.ascontiguousarray(mask))
-    labels = np.zeros(mask.shape, np.int32)
-    if len(runs) == 0:
-        return 1, labels, np.zeros((1, 5), dtype=np.int64)
-    stats = label_runs(runs, labels)
-    return len(stats), labels, stats
+def gate_array(gate: BlobGate) -> np.ndarray:
+    """(min area px, max area px, max aspect, min fill) for the compiled loops."""
+    return np.array(
+        [gate.min_area_px, gate.max_area_px, gate.max_aspect, gate.min_fill], np.float64
+    )
+
+
+def _blobs(
+    found: tuple[np.ndarray, np.ndarray, np.ndarray, int], gate: BlobGate
+) -> tuple[list[Blob], list[RejectedBlob]]:
+    """Blobs and rejected blobs from a compiled extraction's outputs (kept rows, their
+    centroids, rejected rows, the number passing the gate); raises ``TooManyBlobs``."""
+    kept, cents, rej, count = found
+    if count > gate.max_blobs:
+        raise TooManyBlobs(int(count), gate.max_blobs)
+    blobs = [
+        Blob((cu, cv), area, (x, y, w, h), pk, m)
+        for (x, y, w, h, area), (cu, cv, m, pk) in zip(kept.tolist(), cents.tolist(), strict=True)
+    ]
+    return blobs, _rejected_blobs(rej, gate)
 
 
 def extract_blobs(
@@ -87,7 +93,8 @@ def extract_blobs(
     margin (so the blurred fringe of the LED below the threshold is counted symmetrically),
     which gives sub-pixel accuracy; coordinates are pixel centres (u right, v down), px.
     With ``crop``, only the bounding box of the foreground (widened by the largest centroid
-    margin) is labelled; without, the whole (small) mask, e.g. a tracker's mosaic.
+    margin) is labelled; without, the whole (small) mask, e.g. a tracker's mosaic. One
+    compiled call (:func:`app.vision.blob_kernels.extract_in_mask`).
     """
     gate = gate or BlobGate()
     height, width = gray.shape
@@ -99,19 +106,18 @@ def extract_blobs(
         m = ROI_MARGIN_PX
         x0, y0 = max(0, bx - m), max(0, by - m)
         x1, y1 = min(width, bx + bw + m), min(height, by + bh + m)
-    n, labels, stats = _label_with_stats(mask[y0:y1, x0:x1])
-    if n <= 1:
-        return [], []
-    st = stats[1:].copy()
-    st[:, 0] += x0
-    st[:, 1] += y0
-    ok, rejected = _gate_components(st, (width, height), gate)
-    kept = np.flatnonzero(ok)
-    if len(kept) > gate.max_blobs:
-        raise TooManyBlobs(len(kept), gate.max_blobs)
-    boxes = np.array([[0, 0, x1 - x0, y1 - y0, x0, y0]], np.int64)
-    table = _candidate_table(kept + 1, st[kept], np.repeat(boxes, len(kept), axis=0))
-    return _centroids(gray, labels, table, background), rejected
+    sub = np.ascontiguousarray(mask[y0:y1, x0:x1])
+    found = extract_in_mask(
+        gray,
+        sub,
+        x0,
+        y0,
+        float(background),
+        gate_array(gate),
+        gate.max_blobs,
+        MAX_REJECTED_REPORTED,
+    )
+    return _blobs(found, gate)
 
 
 BAND_ROWS = 16  # rows per band of :func:`band_maxima` (the tile side of :func:`bright_boxes`)
@@ -155,48 +161,20 @@ def detect_blobs(
     median filter's border handling at the image edge (inside the image it is background
     anyway). Blobs come box by box, in raster order within a box."""
     gate = gate or BlobGate()
-    height, width = gray.shape
     if bands is None:
         bands = band_maxima(gray)
-    kept, cents, rej, count = detect_in_boxes(
+    found = detect_in_boxes(
         gray,
         np.ascontiguousarray(bands),
         BAND_ROWS,
         int(threshold),
         int(median_ksize),
         float(background),
-        gate.min_area_px,
-        gate.max_area_px,
-        float(gate.max_aspect),
-        float(gate.min_fill),
+        gate_array(gate),
         gate.max_blobs,
         MAX_REJECTED_REPORTED,
     )
-    if count > gate.max_blobs:
-        raise TooManyBlobs(int(count), gate.max_blobs)
-    rejected = _rejected_blobs(rej, gate)
-    return [
-        Blob((cu, cv), area, (x, y, w, h), pk, m)
-        for (x, y, w, h, area), (cu, cv, m, pk) in zip(kept.tolist(), cents.tolist(), strict=True)
-    ], rejected
-
-
-def _gate_components(
-    st: np.ndarray, size: tuple[int, int], gate: BlobGate
-) -> tuple[np.ndarray, list[RejectedBlob]]:
-    """Area/aspect/fill/border gate on (x, y, w, h, area) rows (image px): (kept mask, the
-    first ``MAX_REJECTED_REPORTED`` rejected components with their reasons)."""
-    width, height = size
-    ok = gate_mask(
-        np.ascontiguousarray(st[:, :5], dtype=np.int64),
-        width,
-        height,
-        gate.min_area_px,
-        gate.max_area_px,
-        float(gate.max_aspect),
-        float(gate.min_fill),
-    )
-    return ok, _rejected_blobs(st[~ok], gate)
+    return _blobs(found, gate)
 
 
 def _rejected_blobs(st: np.ndarray, gate: BlobGate) -> list[RejectedBlob]:
@@ -207,25 +185,3 @@ def _rejected_blobs(st: np.ndarray, gate: BlobGate) -> list[RejectedBlob]:
         centre = (x + (w - 1) / 2.0, y + (h - 1) / 2.0)
         rejected.append(RejectedBlob(centroid_px=centre, area_px=area, reason=reason))
     return rejected
-
-
-def _candidate_table(labels: np.ndarray, stats: np.ndarray, boxes: np.ndarray) -> np.ndarray:
-    """Rows of :data:`app.vision.blob_kernels.CAND_COLUMNS`: label, (x, y, w, h, area) in
-    image px, the region (lx, ly, lx1, ly1) of its box in the label image and that box's
-    origin (ox, oy) in the image (``boxes`` rows)."""
-    return np.column_stack([labels, stats[:, :5], boxes]).astype(np.int64)
-
-
-def _centroids(
-    gray: U8Image, labels: np.ndarray, table: np.ndarray, background: float
-) -> list[Blob]:
-    """Eq. 11 centroid of each candidate row (:func:`_candidate_table`) over its dilated
-    support (px); the loop over candidates is compiled
-    (:func:`app.vision.blob_kernels.centroid_table`)."""
-    if len(table) == 0:
-        return []
-    res = centroid_table(gray, labels, np.ascontiguousarray(table), float(background)).tolist()
-    return [
-        Blob((cu, cv), area, (x, y, w, h), pk, m)
-        for (_, x, y, w, h, area, *_rest), (cu, cv, m, pk) in zip(table.tolist(), res, strict=True)
-    ]
