@@ -93,7 +93,7 @@ def test_compiled_seeds_equal_the_numpy_formulation() -> None:
     slot residuals), same sums of squared residuals."""
     seeded = rejected = 0
     for name, p, params in SETS:
-        triples, seeds, keys = ring.seed_kernel(p, *ring._ring_consts(params))
+        triples, seeds, keys = ring.seed_kernel(p, ring._ring_consts(params))
         ref_triples, ref_seeds, ref_keys = ring._seeds_reference(p, params)
         assert np.array_equal(triples, ref_triples), name
         assert sorted(seeds.tolist()) == sorted(ref_seeds.tolist()), name
@@ -130,11 +130,9 @@ def test_compiled_refinement_equals_fit_hypothesis_on_every_seed() -> None:
     found = refused = 0
     for name, p, params in SETS:
         consts = ring._ring_consts(params)
-        triples, seeds, _ = ring.seed_kernel(p, *consts)
+        triples, seeds, _ = ring.seed_kernel(p, consts)
         for t in seeds[:60]:
-            ok, members, slots, resid, dist, info = ring.hypothesis_kernel(
-                p, triples[t], *consts, float(params.max_view_angle_deg)
-            )
+            ok, members, slots, resid, dist, info = ring.hypothesis_kernel(p, triples[t], consts)
             ref = ring._fit_hypothesis(p, triples[t], params)
             assert ok == (ref is not None), name
             if ref is None:
@@ -164,7 +162,7 @@ def test_compiled_hypothesis_loop_equals_the_python_loop() -> None:
     several = 0
     for name, p, params in SETS:
         consts = ring._ring_consts(params)
-        triples, seeds, _ = ring.seed_kernel(p, *consts)
+        triples, seeds, _ = ring.seed_kernel(p, consts)
         got = ring._hypotheses(p, triples, seeds, params, consts)
         ref = ring._hypotheses_reference(p, triples, seeds, params)
         assert len(got) == len(ref), name
@@ -197,17 +195,12 @@ def test_find_ring_gives_what_the_reference_formulation_gives(
         cases.append((pts, params, prior))
     compiled = [_summary(find_ring(*case)) for case in cases]
 
-    def seeds_ref(p, radius, count, rtol_frac, inlier_tol, angle_tol, max_angle_tol, dsig):  # type: ignore[no-untyped-def]
-        params = RingParams(
-            radius_mm=radius,
-            led_count=count,
-            radius_tol_frac=rtol_frac,
-            inlier_tol_mm=inlier_tol,
-            angle_tol_deg=angle_tol,
-            max_angle_tol_deg=max_angle_tol,
-            depth_sigma_per_mm=dsig,
-        )
-        return ring._seeds_reference(p, params)
+    def seeds_ref(p, consts):  # type: ignore[no-untyped-def]
+        names = ("radius_mm", "led_count", "radius_tol_frac", "inlier_tol_mm", "angle_tol_deg")
+        names += ("max_angle_tol_deg", "depth_sigma_per_mm", "max_view_angle_deg")
+        values = dict(zip(names, consts.tolist(), strict=True))
+        values["led_count"] = int(values["led_count"])
+        return ring._seeds_reference(p, RingParams(**values))  # type: ignore[arg-type]
 
     monkeypatch.setattr(ring, "seed_kernel", seeds_ref)
     monkeypatch.setattr(
@@ -230,7 +223,7 @@ def test_degenerate_candidates() -> None:
     line = np.outer(np.linspace(0.0, 600.0, 12), [1.0, 0.5, 0.2]) + [0.0, 0.0, 3000.0]
     same = np.tile([10.0, 20.0, 3000.0], (6, 1))
     for p in (np.ascontiguousarray(line), same):
-        triples, seeds, _ = ring.seed_kernel(p, *ring._ring_consts(loose))
+        triples, seeds, _ = ring.seed_kernel(p, ring._ring_consts(loose))
         ref_triples, ref_seeds, _ = ring._seeds_reference(p, loose)
         assert np.array_equal(triples, ref_triples) and len(seeds) == len(ref_seeds) == 0
         assert not isinstance(find_ring(p, loose), RingFit)
@@ -244,8 +237,8 @@ def test_compiled_radius_only_count_equals_the_numpy_formulation() -> None:
     counts = []
     for name, p, params in SETS:
         consts = ring._ring_consts(params)
-        triples = ring.seed_kernel(p, *consts)[0]
-        got = ring.radius_only_kernel(p, triples, consts[0], consts[2], consts[3], consts[6])
+        triples = ring.seed_kernel(p, consts)[0]
+        got = ring.radius_only_kernel(p, triples, consts)
         assert got == ring._radius_only_count(p, params, triples), name
         counts.append((len(p) <= 30, got))
     assert {small for small, _ in counts} == {True, False}  # both kinds of triples

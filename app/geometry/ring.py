@@ -367,7 +367,8 @@ def _seed_slots(
 
 
 def _fit_hypothesis(p: FloatArray, members: np.ndarray, params: RingParams) -> _Hypothesis | None:
-    """Refine a seed: circle fit, slot offset, slot assignment over all points; iterate."""
+    """Refine a seed: circle fit, slot offset, slot assignment over all points; iterate (the
+    reference of :func:`hypothesis_kernel`)."""
     N = params.led_count
     current = np.sort(members)
     for _ in range(4):
@@ -430,17 +431,32 @@ _DEG = 180.0 / math.pi  # np.degrees' factor
 _RAD = math.pi / 180.0  # np.radians' factor
 
 
-def _ring_consts(params: RingParams) -> tuple[float, int, float, float, float, float, float]:
-    """The ring and its tolerances as the compiled loops take them (typed as warm-up typed)."""
-    return (
-        float(params.radius_mm),
-        int(params.led_count),
-        float(params.radius_tol_frac),
-        float(params.inlier_tol_mm),
-        float(params.angle_tol_deg),
-        float(params.max_angle_tol_deg),
-        float(params.depth_sigma_per_mm),
+def _ring_consts(params: RingParams) -> FloatArray:
+    """The ring and its tolerances as the compiled loops take them, 8 floats: radius (mm), LED
+    count, radius_tol_frac, inlier_tol_mm, angle_tol_deg, max_angle_tol_deg,
+    depth_sigma_per_mm (1/mm), max_view_angle_deg."""
+    return np.array(
+        [
+            params.radius_mm,
+            params.led_count,
+            params.radius_tol_frac,
+            params.inlier_tol_mm,
+            params.angle_tol_deg,
+            params.max_angle_tol_deg,
+            params.depth_sigma_per_mm,
+            params.max_view_angle_deg,
+        ],
+        dtype=np.float64,
     )
+
+
+@njit(cache=True, nogil=True)
+def _unpack(
+    rp: np.ndarray,
+) -> tuple[float, int, float, float, float, float, float, float]:  # pragma: no cover - compiled
+    """:func:`_ring_consts`' array as (radius, count, radius_tol_frac, inlier_tol, angle_tol,
+    max_angle_tol, depth_sigma_per_mm, max_view_deg)."""
+    return rp[0], int(rp[1]), rp[2], rp[3], rp[4], rp[5], rp[6], rp[7]
 
 
 @njit(cache=True, nogil=True)
@@ -480,20 +496,14 @@ def _circumcircle(p: np.ndarray, i: int, j: int, k: int) -> np.ndarray:  # pragm
 
 @njit(cache=True, nogil=True)
 def seed_kernel(
-    p: np.ndarray,
-    radius: float,
-    count: int,
-    rtol_frac: float,
-    inlier_tol: float,
-    angle_tol: float,
-    max_angle_tol: float,
-    dsig: float,
+    p: np.ndarray, rp: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover - compiled
     """Steps 1–2 of the module docstring in one loop: the chord-compatible triples i < j < k
     (T, 3) in lexicographic order (as :func:`_seed_triples` of :func:`_compatible_pairs`), and
     the rows of those that are seeds (circumcircle of the ring's radius, three distinct evenly
     spaced slots: :func:`_circumcircles`, :func:`_seed_slots`), best slot fit first (stable), with
-    their sums of squared slot residuals (deg²)."""
+    their sums of squared slot residuals (deg²). ``rp``: :func:`_ring_consts`."""
+    radius, count, rtol_frac, inlier_tol, angle_tol, max_angle_tol, dsig, max_view_deg = _unpack(rp)
     n = p.shape[0]
     adj = np.zeros((n, n), np.bool_)
     half = count // 2
@@ -597,21 +607,13 @@ def _fit_members(pts: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
 
 @njit(cache=True, nogil=True)
 def hypothesis_kernel(
-    p: np.ndarray,
-    seed: np.ndarray,
-    radius: float,
-    count: int,
-    rtol_frac: float,
-    inlier_tol: float,
-    angle_tol: float,
-    max_angle_tol: float,
-    dsig: float,
-    max_view_deg: float,
+    p: np.ndarray, seed: np.ndarray, rp: np.ndarray
 ) -> tuple[bool, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover
     """Step 3 for one seed, the arithmetic of :func:`_fit_hypothesis`: (found, members (sorted
     point indices), their slots, residuals (deg), distances from the circle (mm), and 16
     floats: the oriented fit (10, as :func:`circle_kernel`), offset (deg), cost, angle
     tolerance (deg), inlier tolerance (mm), points on the circle off the slots, range z)."""
+    radius, count, rtol_frac, inlier_tol, angle_tol, max_angle_tol, dsig, max_view_deg = _unpack(rp)
     n = p.shape[0]
     info = np.zeros(16)
     no = np.zeros(0, np.int64)
@@ -688,22 +690,13 @@ def _grown(a: np.ndarray, rows: int, fill: Any) -> np.ndarray:  # pragma: no cov
 
 @njit(cache=True, nogil=True)
 def refine_kernel(
-    p: np.ndarray,
-    triples: np.ndarray,
-    seeds: np.ndarray,
-    radius: float,
-    count: int,
-    rtol_frac: float,
-    inlier_tol: float,
-    angle_tol: float,
-    max_angle_tol: float,
-    dsig: float,
-    max_view_deg: float,
+    p: np.ndarray, triples: np.ndarray, seeds: np.ndarray, rp: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover
     """Step 3 over the seeds in order (the loop of :func:`find_ring`): a seed whose three points
     all belong to a hypothesis already found is skipped, a hypothesis found twice is kept once.
     Per distinct hypothesis (H rows, N = ``count`` columns, padded with −1 / 0): members,
     slots, residuals (deg), distances (mm), and :func:`hypothesis_kernel`'s 16 floats."""
+    count = int(rp[1])
     n = p.shape[0]
     cap = 8
     on = np.zeros((cap, n), np.bool_)  # the points of each hypothesis
@@ -722,18 +715,7 @@ def refine_kernel(
                 break
         if covered:
             continue  # already explained by a refined hypothesis
-        found, mem, sl, rs, dm, inf = hypothesis_kernel(
-            p,
-            triples[t],
-            radius,
-            count,
-            rtol_frac,
-            inlier_tol,
-            angle_tol,
-            max_angle_tol,
-            dsig,
-            max_view_deg,
-        )
+        found, mem, sl, rs, dm, inf = hypothesis_kernel(p, triples[t], rp)
         if not found:
             continue
         m = mem.shape[0]
@@ -897,12 +879,10 @@ def _hypotheses(
     triples: np.ndarray,
     seeds: np.ndarray,
     params: RingParams,
-    consts: tuple[float, int, float, float, float, float, float],
+    consts: FloatArray,
 ) -> list[_Hypothesis]:
     """The distinct refined hypotheses of the seeds (:func:`refine_kernel`), NFA not yet set."""
-    members, slots, resid, dist, info = refine_kernel(
-        p, triples, seeds, *consts, float(params.max_view_angle_deg)
-    )
+    members, slots, resid, dist, info = refine_kernel(p, triples, seeds, consts)
     hyps = []
     for h in range(len(members)):
         m = int(np.count_nonzero(members[h] >= 0))
@@ -930,16 +910,12 @@ def _hypotheses(
 
 @njit(cache=True, nogil=True)
 def radius_only_kernel(
-    p: np.ndarray,
-    triples: np.ndarray,
-    radius: float,
-    rtol_frac: float,
-    inlier_tol: float,
-    dsig: float,
+    p: np.ndarray, triples: np.ndarray, rp: np.ndarray
 ) -> int:  # pragma: no cover - compiled
     """:func:`_radius_only_count` in one loop: with ≤ 30 points every triple i < j < k (in
     lexicographic order), else ``triples``; the first 2000 circumcircles of the ring's radius;
-    the most points within the inlier tolerance of one of them."""
+    the most points within the inlier tolerance of one of them. ``rp``: :func:`_ring_consts`."""
+    radius, rtol_frac, inlier_tol, dsig = rp[0], rp[2], rp[3], rp[6]
     n = p.shape[0]
     every = n <= 30
     total = n * (n - 1) * (n - 2) // 6 if every else triples.shape[0]
@@ -985,10 +961,10 @@ def find_ring(
     if n < params.min_leds:
         return RingRejection(f"only {n} matched LED(s); need at least {params.min_leds}")
     consts = _ring_consts(params)
-    triples, seeds, _ = seed_kernel(p, *consts)
+    triples, seeds, _ = seed_kernel(p, consts)
     hyps = _hypotheses(p, triples, seeds[:MAX_SEEDS], params, consts) if len(seeds) else []
     if not hyps:
-        most = radius_only_kernel(p, triples, consts[0], consts[2], consts[3], consts[6])
+        most = radius_only_kernel(p, triples, consts)
         if most >= 4:
             return RingRejection(
                 f"{most} points lie on a ring of radius {params.radius_mm:.0f} mm but not on "
