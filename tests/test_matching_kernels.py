@@ -267,3 +267,16 @@ def test_matchers_on_tiny_inputs(n: int) -> None:
     ddist, epi, depth = np.zeros((n, 3)), np.zeros((n, 3)), np.full((n, 3), 1000.0)
     assert match_epipolar(ddist, epi, depth) == _ref_match_epipolar(ddist, epi, depth)
     assert match_min_distance(ddist, epi) == _ref_match_min_distance(ddist, epi)
+
+
+def test_matcher_with_a_zero_tolerance_behaves_as_the_replaced_code() -> None:
+    """tol_px = 0: nothing matches where no pair is exactly on its epipolar line; where one is,
+    its cost is 0/0 and the assignment refuses it, as before (no division error)."""
+    rng = np.random.default_rng(4)
+    ddist, epi, depth = rng.random((4, 5)), rng.uniform(0.1, 3.0, (4, 5)), np.full((4, 5), 900.0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        assert match_epipolar(ddist, epi, depth, 0.0) == _ref_match_epipolar(ddist, epi, depth, 0.0)
+        epi[1, 2] = 0.0
+        for matcher in (match_epipolar, _ref_match_epipolar):
+            with pytest.raises(ValueError):
+                matcher(ddist, epi, depth, 0.0)

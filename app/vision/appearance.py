@@ -103,7 +103,7 @@ def appearance_reasons(
 _NO_COLOR = (math.nan, math.nan, math.nan)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _appearance_kernel(
     left: np.ndarray,
     right: np.ndarray,

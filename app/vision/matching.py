@@ -169,7 +169,7 @@ def match_min_distance(desc_dist: FloatArray, epi: FloatArray) -> list[Match]:
     return matches_from_indices(*match_min_distance_indices(desc_dist), desc_dist, epi)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _gated_cost(
     desc_dist: np.ndarray,
     epi: np.ndarray,
