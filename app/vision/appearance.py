@@ -12,6 +12,11 @@ same LED at that depth:
   view-dependent);
 * **colour** (BGR input only) — green dominates (the LEDs are green, paper §3.1); saturated
   blobs are not judged.
+
+:func:`appearance_reasons` says why one pair fails (the text for the trace);
+:func:`appearance_ok` gives the verdicts for all matched pairs at once in a compiled loop (the
+same operations in the same order: the same verdicts), so that the pipeline builds the reason
+strings for the rejected pairs only.
 """
 
 from __future__ import annotations

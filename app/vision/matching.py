@@ -9,6 +9,11 @@
   depth, which resolves LEDs that share an epipolar line); pairs that neither side prefers
   (assignment leftovers) are dropped (mutual consistency). A pair that violates the epipolar
   gate is never matched.
+
+The per-candidate work runs in compiled loops (descriptor distances in numpy's summation
+order, the gate and its cost), so that the results equal the numpy formulations to the bit
+(``tests/test_matching_kernels.py`` keeps those as the reference); ``*_indices`` give the
+matches as index arrays, :class:`MatchArrays` / :class:`~app.vision.types.Match` as records.
 """
 
 from __future__ import annotations
