@@ -682,13 +682,6 @@ def hypothesis_kernel(
 
 
 @njit(cache=True, nogil=True)
-def _grown(a: np.ndarray, rows: int, fill: Any) -> np.ndarray:  # pragma: no cover - compiled
-    out = np.full((rows, a.shape[1]), fill, a.dtype)
-    out[: a.shape[0]] = a
-    return out
-
-
-@njit(cache=True, nogil=True)
 def refine_kernel(
     p: np.ndarray, triples: np.ndarray, seeds: np.ndarray, rp: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover
@@ -697,9 +690,7 @@ def refine_kernel(
     Per distinct hypothesis (H rows, N = ``count`` columns, padded with −1 / 0): members,
     slots, residuals (deg), distances (mm), and :func:`hypothesis_kernel`'s 16 floats."""
     count = int(rp[1])
-    n = p.shape[0]
-    cap = 8
-    on = np.zeros((cap, n), np.bool_)  # the points of each hypothesis
+    cap = seeds.shape[0]  # each seed adds at most one hypothesis
     members = np.full((cap, count), -1, np.int64)
     slots = np.full((cap, count), -1, np.int64)
     resid = np.zeros((cap, count))
@@ -707,10 +698,13 @@ def refine_kernel(
     info = np.zeros((cap, 16))
     h = 0
     for t in seeds:
-        a, b, c = triples[t, 0], triples[t, 1], triples[t, 2]
         covered = False
         for g in range(h):
-            if on[g, a] and on[g, b] and on[g, c]:
+            inside = 0
+            for q in range(count):
+                v = members[g, q]
+                inside += v == triples[t, 0] or v == triples[t, 1] or v == triples[t, 2]
+            if inside == 3:
                 covered = True
                 break
         if covered:
@@ -729,17 +723,6 @@ def refine_kernel(
                 break
         if seen:
             continue
-        if h == cap:  # grow
-            cap *= 2
-            on = _grown(on, cap, False)
-            members, slots = _grown(members, cap, -1), _grown(slots, cap, -1)
-            resid, dist, info = (
-                _grown(resid, cap, 0.0),
-                _grown(dist, cap, 0.0),
-                _grown(info, cap, 0.0),
-            )
-        for q in range(m):
-            on[h, mem[q]] = True
         members[h, :m], slots[h, :m], resid[h, :m], dist[h, :m] = mem, sl, rs, dm
         info[h] = inf
         h += 1
