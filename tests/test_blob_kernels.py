@@ -164,6 +164,7 @@ def test_warmup_compiles_everything_frames_need() -> None:
 
     loops = [
         blob_kernels.extract_in_mask,
+        blob_kernels.window_blobs,
         blob_kernels.detect_in_boxes,
         preprocess.frame_summary,
         ihwt._describe_kernel,

@@ -111,7 +111,9 @@ def _centroid(
         for i in range(ww):
             cover[i] += hz[i]
     # P_i = g − background > 0 summed as integers (g, g·i, g·j, count, i, j), exact: with an
-    # integer background the sums equal float sums of the weights bit for bit
+    # integer background the sums equal float sums of the weights bit for bit. Branch-free
+    # per row (SIMD), the rows' sums weighted by their row after
+    gthr = int(np.floor(background))  # g > background ⇔ g > ⌊background⌋ (g an integer)
     n = sg = sgi = sgj = si = sj = 0
     for j in range(wh):
         add, sub = j + pad, j - pad - 1
@@ -123,23 +125,24 @@ def _centroid(
             hz = horiz_buf[sub - r0]
             for i in range(ww):
                 cover[i] -= hz[i]
-        lrow = labels[ly + wy0 + j]
-        grow = gray[oy + wy0 + j]
+        lrow = labels[ly + wy0 + j, lx + wx0 : lx + wx0 + ww]
+        grow = gray[oy + wy0 + j, ox + wx0 : ox + wx0 + ww]
+        rn = rg = rgi = ri = 0
         for i in range(ww):
-            if cover[i] == 0:
-                continue
-            lab = lrow[lx + wx0 + i]
-            if lab != 0 and lab != lab_id:
-                continue
-            g = int(grow[ox + wx0 + i])
-            if g <= background:
-                continue
-            n += 1
-            sg += g
-            sgi += g * i
-            sgj += g * j
-            si += i
-            sj += j
+            lab = lrow[i]
+            g = int(grow[i])
+            # in the support, not on a neighbouring component, above the background
+            sel = int((cover[i] != 0) & ((lab == 0) | (lab == lab_id)) & (g > gthr))
+            rn += sel
+            rg += sel * g
+            rgi += sel * g * i
+            ri += sel * i
+        n += rn
+        sg += rg
+        sgi += rgi
+        si += ri
+        sgj += rg * j
+        sj += rn * j
     mass = sg - n * background
     if mass <= 0.0:
         out[0] = x + (w - 1) / 2.0
@@ -600,3 +603,95 @@ def detect_in_boxes(
         )  # fmt: skip
     n_kept, n_rej, total = counts[0], counts[1], counts[2]
     return kept[:n_kept], cents[:n_kept], rejected[:n_rej], total
+
+
+@njit(cache=True, nogil=True)
+def window_blobs(
+    gray: np.ndarray,
+    wins: np.ndarray,
+    thresholds: np.ndarray,
+    backgrounds: np.ndarray,
+    ksize: int,
+    gate: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover - compiled
+    """A tracker's windows: for each square window (x0, y0, side; px of ``gray``) with its
+    eq. 10 threshold and background, the pixels ≥ T, the median filter around them
+    (:func:`median_runs`; the window's edge replicated), the labelling (:func:`label_runs`),
+    the gate (``gate`` as in :func:`detect_in_boxes`) and eq. 11 of the components that do not
+    touch the window's edge (a component cut by the edge belongs to a neighbour or moved out).
+
+    Returns (count (k,) of such components per window, the first one's (k, 5) int64 x, y, w,
+    h, area and (k, 4) float64 u px, v px, mass, peak in ``gray`` px). Only a box around each
+    window's pixels ≥ T (grown by the centroid margin, as the acquisition's boxes) is labelled,
+    so the labels, the supports and the centroids are those of the whole window."""
+    h, w = gray.shape
+    k_all = wins.shape[0]
+    counts = np.zeros(k_all, np.int64)
+    stats = np.zeros((k_all, 5), np.int64)
+    cents = np.zeros((k_all, 4))
+    r = ksize // 2
+    big = 0
+    for k in range(k_all):
+        big = max(big, wins[k, 2])
+    big_side = big + 2 * centroid_margin_px(big * big)
+    runs = np.empty((big * big, 3), np.int64)
+    label_buf = np.empty(big * big, np.int32)
+    horiz_buf = np.empty((big_side, big_side), np.uint8)
+    comp_row = np.empty(big_side, np.uint8)
+    cover = np.empty(big_side, np.int32)
+    bright = np.empty(4, np.int64)
+    box = np.empty(4, np.int64)
+    cand = np.empty(CAND_COLUMNS, np.int64)
+    for k in range(k_all):
+        x0, y0, side = wins[k, 0], wins[k, 1], wins[k, 2]
+        x1, y1 = x0 + side, y0 + side
+        thr = thresholds[k]
+        if thr > 255:
+            continue  # nothing can reach it
+        thr8 = np.uint8(max(thr, 0))
+        # the box of the window's pixels ≥ T (rows first: a count per row, in uint8 SIMD)
+        bx0, by0, bx1, by1 = x1, y1, -1, -1
+        for y in range(y0, y1):
+            row = gray[y, x0:x1]
+            hits = np.int32(0)
+            for x in range(side):
+                hits += np.int32(row[x] >= thr8)
+            if hits == 0:
+                continue
+            by0 = min(by0, y)
+            by1 = y
+            for x in range(side):
+                if row[x] >= thr8:
+                    bx0 = min(bx0, x0 + x)
+                    bx1 = max(bx1, x0 + x)
+        if by1 < 0:
+            continue
+        bright[0], bright[1], bright[2], bright[3] = bx0, by0, bx1 + 1, by1 + 1
+        m = max(2, int(np.ceil(0.5 * np.sqrt((bx1 + 1 - bx0) * (by1 + 1 - by0))))) + r + 2
+        box[0], box[1] = max(x0, bx0 - m), max(y0, by0 - m)
+        box[2], box[3] = min(x1, bx1 + 1 + m), min(y1, by1 + 1 + m)
+        count = median_runs(gray, box, bright, thr, r, runs)
+        if count == 0:
+            continue
+        bw, bh = box[2] - box[0], box[3] - box[1]
+        labels = label_buf[: bh * bw].reshape(bh, bw)
+        labels[:] = 0
+        st = label_runs(runs[:count], labels)[1:]
+        for c in range(st.shape[0]):
+            st[c, 0] += box[0]
+            st[c, 1] += box[1]
+        ok = gate_mask(st, w, h, int(gate[0]), int(gate[1]), gate[2], gate[3])
+        for c in range(st.shape[0]):
+            sx, sy, sw, sh = st[c, 0], st[c, 1], st[c, 2], st[c, 3]
+            if not ok[c] or sx <= x0 or sy <= y0 or sx + sw >= x1 or sy + sh >= y1:
+                continue
+            counts[k] += 1
+            if counts[k] > 1:
+                continue
+            cand[0] = c + 1
+            cand[1:6] = st[c]
+            cand[6], cand[7], cand[8], cand[9] = 0, 0, bw, bh
+            cand[10], cand[11] = box[0], box[1]
+            stats[k] = st[c]
+            _centroid(gray, labels, cand, backgrounds[k], horiz_buf, comp_row, cover, cents[k])
+    return counts, stats, cents

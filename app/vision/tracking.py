@@ -9,9 +9,10 @@
   re-projecting its slot on the last fitted circle), and only a small window around each
   prediction is processed. The windows of both images are copied into one *mosaic* (left
   windows on the top row, right windows below, a zero column/row between windows), so that
-  graying (BGR input), the eq. 10 threshold (per image), the median filter, labelling and the
-  eq. 11 centroids (:func:`~app.vision.features.extract_blobs`) run once per frame pair on a
-  few per cent of the pixels. Window half-size: max(3·r, 12 px, the support) + |velocity|
+  graying (BGR input) runs once per frame pair on a few per cent of the pixels, and the eq. 10
+  threshold (per image), the median filter, labelling and the eq. 11 centroids run in one
+  compiled call around each window's bright pixels
+  (:func:`~app.vision.blob_kernels.window_blobs`). Window half-size: max(3·r, 12 px, the support) + |velocity|
   + 2 px (24 px of motion allowance while an LED's velocity is unknown), where the support is
   the blob, its centroid margin and, with ``describe``, its IHWT descriptor window; a blob
   whose support is not inside its window sends the frame to acquisition, so the centroids
@@ -61,7 +62,8 @@ from app.geometry.ring import (
 )
 from app.geometry.triangulation import refine_reprojection, triangulate_linear
 from app.vision.appearance import appearance_reasons, blob_color_bgr, equivalent_radius_px
-from app.vision.features import TooManyBlobs, extract_blobs
+from app.vision.blob_kernels import window_blobs
+from app.vision.features import gate_array
 from app.vision.ihwt import SAMPLES_PER_SUBSQUARE, describe
 from app.vision.ihwt import window_side_px as ihwt_window_side_px
 from app.vision.matching import epipolar_distances
@@ -75,9 +77,7 @@ from app.vision.pipeline import (
 )
 from app.vision.preprocess import (
     ImageError,
-    binarize,
     choose_threshold,
-    median_filter,
     to_gray,
 )
 from app.vision.result import LedResult, PoseResult, StageTimings
@@ -179,6 +179,7 @@ class StereoTracker:
         # the windows next_windows() planned for the next update (reused there, not redone)
         self._planned: tuple[list[_Window], list[_Window]] | None = None
         self._params: RingParams = self.pipeline._ring_params()
+        self._gate = gate_array(self.config.gate)
 
     def reset(self) -> None:
         """Forget the lock and the pipeline's track (a new, unrelated sequence)."""
@@ -401,11 +402,16 @@ class StereoTracker:
         right: np.ndarray,
         st: _State,
         planned: tuple[list[_Window], list[_Window]] | None = None,
-    ) -> tuple[list[_Window], list[_Window], np.ndarray, list[Blob], tuple[int, int]]:
+    ) -> tuple[
+        list[_Window], list[_Window], np.ndarray, dict[int, Blob], dict[int, Blob], tuple[int, int]
+    ]:
         """Crop every window of both images into one mosaic (left windows on the top row,
-        right windows below, one zero column/row between windows) and extract the blobs
-        there: one gray conversion, threshold, median and labelling for the whole frame pair.
-        """
+        right windows below, one zero column/row between windows) and find each window's
+        blob there: one gray conversion for the whole frame pair, then one compiled call
+        (:func:`~app.vision.blob_kernels.window_blobs`: eq. 10 with each image's threshold,
+        the median filter, labelling and eq. 11 around each window's bright pixels).
+        Returns (windows left/right, the gray mosaic, ids → blob (mosaic px) left/right,
+        the thresholds)."""
         cfg = self.config
         win_l, win_r = planned if planned is not None else self._plan(st)
         side = win_l[0].side
@@ -422,77 +428,40 @@ class StereoTracker:
         top, bottom = gray[:side], gray[side + 1 :]
         thr_l = self._threshold(top, left, st.background[0], st.thresholds[0])
         thr_r = self._threshold(bottom, right, st.background[1], st.thresholds[1])
-        if thr_l == thr_r:  # one call (the separator row is 0 in the mosaic either way)
-            binary = binarize(gray, thr_l)
-        else:
-            binary = np.zeros(gray.shape, np.uint8)
-            binary[:side] = binarize(top, thr_l)
-            binary[side + 1 :] = binarize(bottom, thr_r)
-        mask = median_filter(binary, cfg.median_ksize)
-        bg_l, bg_r = st.background[0][0], st.background[1][0]
-        try:
-            if bg_l == bg_r:
-                blobs, _ = extract_blobs(gray, mask, bg_l, cfg.gate, crop=False)
-            else:  # each half with its own background level
-                blobs, _ = extract_blobs(gray[:side], mask[:side], bg_l, cfg.gate, crop=False)
-                low, _ = extract_blobs(
-                    gray[side + 1 :], mask[side + 1 :], bg_r, cfg.gate, crop=False
-                )
-                blobs += [_shift(b, (0, side + 1)) for b in low]
-        except TooManyBlobs as exc:
-            raise _Fallback(str(exc)) from None
-        if mosaic.ndim == 3 and cfg.appearance.enabled:
-            blobs = [
-                replace(
-                    b,
-                    color_bgr=blob_color_bgr(mosaic, b, thr_l if b.bbox[1] < side else thr_r),
-                )
-                for b in blobs
-            ]
-        return win_l, win_r, gray, blobs, (thr_l, thr_r)
-
-    def _assign(self, windows: list[_Window], blobs: list[Blob], side_name: str) -> dict[int, Blob]:
-        """The one blob of each window (ids → blob, mosaic coordinates)."""
-        if not windows:
-            return {}
-        side, row = windows[0].side, windows[0].row
-        per: dict[int, list[Blob]] = {w.led_id: [] for w in windows}
-        for b in blobs:
-            x, y, bw, bh = b.bbox
-            if not row <= y < row + side:
-                continue
-            j = (x - 1) // (side + 1)
-            if not 0 <= j < len(windows):
-                continue
-            win = windows[j]
-            # blobs cut by the window's edge belong to a neighbour (or moved out): ignored
-            if x <= win.mx or y <= row or x + bw >= win.mx + side or y + bh >= row + side:
-                continue
-            per[win.led_id].append(b)
-        out: dict[int, Blob] = {}
-        for win in windows:
-            found = per[win.led_id]
-            if len(found) > 1:
-                raise _Fallback(
-                    f"{len(found)} LED-like blobs in the {side_name} window of LED {win.led_id}"
-                )
-            if not found:
+        wins = win_l + win_r
+        rows = np.array([[w.mx, w.row, side] for w in wins], np.int64)
+        thr = np.array([thr_l] * len(win_l) + [thr_r] * len(win_r), np.int64)
+        bgs = [st.background[0][0]] * len(win_l) + [st.background[1][0]] * len(win_r)
+        counts, stats, cents = window_blobs(
+            gray, rows, thr, np.array(bgs, np.float64), cfg.median_ksize, self._gate
+        )
+        got: list[dict[int, Blob]] = [{}, {}]
+        for k, ((x, y, w, h, area), (u, v, mass, peak), n) in enumerate(
+            zip(stats.tolist(), cents.tolist(), counts.tolist(), strict=True)
+        ):
+            win = wins[k]
+            side_name = "left" if k < len(win_l) else "right"
+            if n > 1:
+                raise _Fallback(f"{n} LED-like blobs in the {side_name} window of LED {win.led_id}")
+            if n == 0:
                 if win.expected:
                     raise _Fallback(f"LED {win.led_id} not found in its {side_name} window")
                 continue
-            b = found[0]
             # the centroid support and the descriptor window must lie inside the window
-            need = self._support_half(equivalent_radius_px(b.area_px))
-            u, v = b.centroid_px
+            need = self._support_half(equivalent_radius_px(area))
             if (
                 u - need < win.mx
                 or u + need > win.mx + side - 1
-                or v - need < row
-                or v + need > row + side - 1
+                or v - need < win.row
+                or v + need > win.row + side - 1
             ):
                 raise _Fallback(f"LED {win.led_id} is at the edge of its {side_name} window")
-            out[win.led_id] = b
-        return out
+            blob = Blob((u, v), area, (x, y, w, h), peak, mass)
+            if mosaic.ndim == 3 and cfg.appearance.enabled:
+                t = thr_l if k < len(win_l) else thr_r
+                blob = replace(blob, color_bgr=blob_color_bgr(mosaic, blob, t))
+            got[0 if k < len(win_l) else 1][win.led_id] = blob
+        return win_l, win_r, gray, got[0], got[1], (thr_l, thr_r)
 
     def _track_frame(
         self,
@@ -503,9 +472,7 @@ class StereoTracker:
         st = self._state
         assert st is not None
         cfg, cal = self.config, self.calibration
-        win_l, win_r, gray, blobs, (thr_l, thr_r) = self._extract(left, right, st, planned)
-        got_l = self._assign(win_l, blobs, "left")
-        got_r = self._assign(win_r, blobs, "right")
+        win_l, win_r, gray, got_l, got_r, (thr_l, thr_r) = self._extract(left, right, st, planned)
         led_ids = sorted(i for i in got_l if i in got_r)
         for i in set(got_l) ^ set(got_r):
             if i in st.leds:
@@ -643,13 +610,3 @@ class StereoTracker:
         slot_angles = offset + (360.0 / n) * slots.astype(np.float64)
         ids = led_ids_for_angles(slot_angles, roll, n, cfg.led_phase_deg)
         return circle, roll, [int(i) for i in ids]
-
-
-def _shift(blob: Blob, offset: tuple[int, int]) -> Blob:
-    """A mosaic blob in image coordinates."""
-    dx, dy = offset
-    x, y, w, h = blob.bbox
-    u, v = blob.centroid_px
-    return Blob(
-        (u + dx, v + dy), blob.area_px, (x + dx, y + dy, w, h), blob.peak, blob.mass, blob.color_bgr
-    )
