@@ -122,6 +122,8 @@ def test_descriptor_distances_equal_the_numpy_formulation_to_the_bit() -> None:
             got = descriptor_distances(a, b)
             assert got.shape == (len(a), len(b))
             assert np.array_equal(got, _ref_descriptor_distances(a, b)), d
+    with pytest.raises(ValueError, match="do not pair"):
+        descriptor_distances(np.zeros((3, 64)), np.zeros((3, 32)))
     # non-contiguous input (a column slice) gives the same
     a = _unit_rows(rng, 20, 128)[:, ::2]
     b = _unit_rows(rng, 17, 64)

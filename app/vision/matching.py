@@ -79,6 +79,8 @@ def descriptor_distances(desc_left: FloatArray, desc_right: FloatArray) -> Float
     numpy formulation ``sqrt(sum((l − r)², axis=-1))`` to the bit)."""
     a = np.ascontiguousarray(desc_left, dtype=np.float64)
     b = np.ascontiguousarray(desc_right, dtype=np.float64)
+    if a.ndim != 2 or b.ndim != 2 or a.shape[1] != b.shape[1]:
+        raise ValueError(f"descriptor arrays of shapes {a.shape} and {b.shape} do not pair")
     if a.shape[1] > _PAIRWISE_BLOCK:  # numpy splits longer rows recursively
         diff = a[:, None, :] - b[None, :, :]
         return np.asarray(np.sqrt(np.sum(diff * diff, axis=-1)))
