@@ -199,6 +199,21 @@ def test_appearance_verdicts_equal_the_per_pair_reasons() -> None:
             n_ok += bool(ok[k])
             n_rejected += not ok[k]
     assert n_ok > 100 and n_rejected > 100
+    with pytest.raises(ValueError, match="do not agree"):
+        one = np.zeros(1, np.int64)
+        appearance_ok(
+            BlobTable.of(left),
+            BlobTable.of(right),
+            one + len(left),
+            one,
+            z_l[:1],
+            z_r[:1],
+            f_l,
+            f_r,
+            d_led,
+            bg,
+            AppearanceConfig(),
+        )
 
 
 def test_pipeline_appearance_and_matches_equal_the_replaced_per_match_code(calib) -> None:
@@ -269,6 +284,8 @@ def test_matchers_on_tiny_inputs(n: int) -> None:
     ddist, epi, depth = np.zeros((n, 3)), np.zeros((n, 3)), np.full((n, 3), 1000.0)
     assert match_epipolar(ddist, epi, depth) == _ref_match_epipolar(ddist, epi, depth)
     assert match_min_distance(ddist, epi) == _ref_match_min_distance(ddist, epi)
+    with pytest.raises(ValueError, match="do not pair"):
+        match_epipolar(np.zeros((2, 3)), np.zeros((2, 3)), np.zeros((3, 2)))
 
 
 def test_matcher_with_a_zero_tolerance_behaves_as_the_replaced_code() -> None:

@@ -128,7 +128,10 @@ def _appearance_kernel(
     n = left_index.shape[0]
     ok = np.ones(n, np.bool_)
     for k in range(n):
-        bl, br = left[left_index[k]], right[right_index[k]]
+        i, j = left_index[k], right_index[k]
+        if i < 0 or j < 0 or i >= left.shape[0] or j >= right.shape[0]:
+            raise ValueError("pairs, depths and blob tables do not agree")
+        bl, br = left[i], right[j]
         rho_l = f_l * 0.5 * led_d / max(z_left[k], 1e-6)
         rho_r = f_r * 0.5 * led_d / max(z_right[k], 1e-6)
         r_l = math.sqrt(max(bl[0], 0.0) / math.pi)
@@ -212,12 +215,16 @@ def appearance_ok(
     n = len(left_index)
     if not cfg.enabled or n == 0:
         return np.ones(n, dtype=np.bool_)
+    li = np.ascontiguousarray(left_index, dtype=np.int64)
+    ri = np.ascontiguousarray(right_index, dtype=np.int64)
+    if len(ri) != n or len(z_left_mm) != n or len(z_right_mm) != n:
+        raise ValueError("pairs, depths and blob tables do not agree")
     return np.asarray(
         _appearance_kernel(
             left.values,
             right.values,
-            np.ascontiguousarray(left_index, dtype=np.int64),
-            np.ascontiguousarray(right_index, dtype=np.int64),
+            li,
+            ri,
             np.ascontiguousarray(z_left_mm, dtype=np.float64),
             np.ascontiguousarray(z_right_mm, dtype=np.float64),
             _params(f_left_px, f_right_px, led_diameter_mm, background_dn, cfg),

@@ -224,6 +224,11 @@ def match_epipolar_indices(
     """:func:`match_epipolar` as index arrays (left, right), in increasing left index."""
     if desc_dist.size == 0:
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    if epi.shape != desc_dist.shape or depth_mm.shape != desc_dist.shape:
+        raise ValueError(
+            f"distance matrices of shapes {desc_dist.shape}, {epi.shape}, {depth_mm.shape} "
+            "do not pair"
+        )
     gate, cost = _gated_cost(
         np.ascontiguousarray(desc_dist, dtype=np.float64),
         np.ascontiguousarray(epi, dtype=np.float64),
