@@ -97,7 +97,18 @@ def _problem(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarr
     out-of-range, infinite and NaN entries."""
     nl, nr = int(rng.integers(0, 30)), int(rng.integers(0, 30))
     tol = float(rng.choice([0.5, 2.0, 3.0]))
-    if rng.random() < 0.4:  # ties everywhere
+    kind = rng.random()
+    if kind < 0.25:  # gated pairs that share no row or column (one LED ring, no clutter)
+        ddist = descriptor_distances(_unit_rows(rng, nl, 64), _unit_rows(rng, nr, 64))
+        epi = rng.uniform(1.01 * tol, 5.0 * tol, (nl, nr))
+        m = int(rng.integers(0, min(nl, nr) + 1))
+        rows, cols = rng.choice(nl, m, replace=False), rng.choice(nr, m, replace=False)
+        epi[rows, cols] = rng.uniform(0.0, tol, m)
+        depth = 1000.0 * np.exp(rng.normal(0.0, 0.3, (nl, nr)))
+        depth[rng.random((nl, nr)) < 0.1] = 60.0  # some of them out of range
+        if m and rng.random() < 0.1:
+            ddist[rows[0], cols[0]] = np.nan  # the assignment refuses it (as before)
+    elif kind < 0.55:  # ties everywhere
         ddist = rng.integers(0, 3, (nl, nr)).astype(np.float64)
         epi = rng.choice([0.0, 0.5 * tol, tol, 2.0 * tol], (nl, nr))
         depth = rng.choice([500.0, 1000.0, 2000.0, np.inf], (nl, nr))
@@ -132,16 +143,23 @@ def test_descriptor_distances_equal_the_numpy_formulation_to_the_bit() -> None:
 
 def test_matchers_equal_the_replaced_code_ties_included() -> None:
     rng = np.random.default_rng(1)
-    n_matched = 0
-    for _ in range(400):
+    n_matched = n_refused = 0
+    for _ in range(500):
         ddist, epi, depth, tol = _problem(rng)
         with np.errstate(invalid="ignore"):
-            ref = _ref_match_epipolar(ddist, epi, depth, tol)
+            try:
+                ref = _ref_match_epipolar(ddist, epi, depth, tol)
+            except ValueError:  # a NaN cost inside the gate
+                n_refused += 1
+                with pytest.raises(ValueError):
+                    match_epipolar(ddist, epi, depth, tol)
+                continue
         got = match_epipolar(ddist, epi, depth, tol)
         assert got == ref
         assert match_min_distance(ddist, epi) == _ref_match_min_distance(ddist, epi)
         n_matched += len(ref)
     assert n_matched > 1000  # the problems do match (not only empty lists)
+    assert n_refused >= 3
 
 
 # ------------------------------------------------------------------ appearance

@@ -18,6 +18,7 @@ matches as index arrays, :class:`MatchArrays` / :class:`~app.vision.types.Match`
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -29,6 +30,7 @@ from app.geometry.calibration import FloatArray
 from app.vision.types import Match
 
 _BIG = 1e6
+_DISJOINT_COST_MAX = 1e3  # a pair's cost bound for the disjoint-gate shortcut (≪ _BIG)
 _PAIRWISE_BLOCK = 128  # numpy's pairwise-summation block (rows up to this are one block)
 
 
@@ -185,18 +187,31 @@ def _gated_cost(
     z_lo: float,
     z_hi: float,
     big: float,
-) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled
-    """The epipolar/depth gate and the cost ``desc + epi / tol`` inside it (``big`` outside)."""
+) -> tuple[np.ndarray, np.ndarray, bool]:  # pragma: no cover - compiled
+    """The epipolar/depth gate and the cost ``desc + epi / tol`` inside it (``big`` outside),
+    and whether the gated pairs are disjoint (no two share a row or a column) with finite
+    costs below ``_DISJOINT_COST_MAX``."""
     nl, nr = desc_dist.shape
     gate = np.empty((nl, nr), np.bool_)
     cost = np.empty((nl, nr))
+    col_count = np.zeros(nr, np.int64)
+    disjoint = True
     for i in range(nl):
+        row_count = 0
         for j in range(nr):
             z = depth[i, j]
             g = epi[i, j] <= tol_px and z >= z_lo and z <= z_hi and np.isfinite(z)
             gate[i, j] = g
-            cost[i, j] = desc_dist[i, j] + epi[i, j] / tol_px if g else big
-    return gate, cost
+            if g:
+                c = desc_dist[i, j] + epi[i, j] / tol_px
+                cost[i, j] = c
+                row_count += 1
+                col_count[j] += 1
+                if row_count > 1 or col_count[j] > 1 or not c < _DISJOINT_COST_MAX:
+                    disjoint = False
+            else:
+                cost[i, j] = big
+    return gate, cost, disjoint
 
 
 def _median(values: list[float]) -> float:
@@ -205,6 +220,14 @@ def _median(values: list[float]) -> float:
     v = sorted(values)
     m = len(v) // 2
     return v[m] if len(v) % 2 else (v[m - 1] + v[m]) / 2.0
+
+
+def _coherence_bounded(z_lo: float, z_hi: float, depth_coherence: float) -> bool:
+    """Whether the depth-coherence term stays below ``_DISJOINT_COST_MAX`` for any pair in
+    the depth range (|log(z / z_ref)| ≤ log(z_hi / z_lo), z_ref being a gated depth)."""
+    if not (0.0 < z_lo <= z_hi and depth_coherence > 0.0):
+        return False
+    return math.log(z_hi / z_lo) / depth_coherence < _DISJOINT_COST_MAX
 
 
 def _assign(cost: FloatArray, gate: np.ndarray) -> tuple[IntArray, IntArray]:
@@ -229,15 +252,22 @@ def match_epipolar_indices(
             f"distance matrices of shapes {desc_dist.shape}, {epi.shape}, {depth_mm.shape} "
             "do not pair"
         )
-    gate, cost = _gated_cost(
+    z_lo, z_hi = float(depth_range_mm[0]), float(depth_range_mm[1])
+    gate, cost, disjoint = _gated_cost(
         np.ascontiguousarray(desc_dist, dtype=np.float64),
         np.ascontiguousarray(epi, dtype=np.float64),
         np.ascontiguousarray(depth_mm, dtype=np.float64),
         float(tol_px),
-        float(depth_range_mm[0]),
-        float(depth_range_mm[1]),
+        z_lo,
+        z_hi,
         _BIG,
     )
+    if disjoint and _coherence_bounded(z_lo, z_hi, depth_coherence):
+        # No two gated pairs compete and every cost (with the depth term) is far below _BIG:
+        # both assignments take every gated pair and each is its row's best (the result of
+        # the general path below, without running it).
+        rows, cols = np.nonzero(gate)
+        return rows.astype(np.int64), cols.astype(np.int64)
     rows, cols = _assign(cost, gate)
     if len(rows) >= 2:
         # depth coherence, on the gated pairs only (the others stay at _BIG)
