@@ -166,8 +166,15 @@ class BlobTable:
 
     @classmethod
     def of(cls, blobs: list[Blob]) -> BlobTable:
-        rows = [(b.area_px, b.peak, *(b.color_bgr or _NO_COLOR)) for b in blobs]
-        return cls(np.array(rows, dtype=np.float64).reshape(len(blobs), 5))
+        values = np.empty((len(blobs), 5))
+        values[:, 0] = [b.area_px for b in blobs]
+        values[:, 1] = [b.peak for b in blobs]
+        colors = [b.color_bgr for b in blobs]
+        if any(c is not None for c in colors):
+            values[:, 2:] = [c or _NO_COLOR for c in colors]
+        else:  # gray input
+            values[:, 2:] = math.nan
+        return cls(values)
 
 
 def _params(
