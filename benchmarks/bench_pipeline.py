@@ -163,14 +163,30 @@ def measure(calib: StereoCalibration, frames: list[RenderedPair], repeats: int) 
     }
 
 
-def stage_tables(calib: StereoCalibration, pair: RenderedPair, repeats: int) -> None:
-    """Stage medians of the pipeline and two component comparisons with OpenCV."""
+def stage_tables(
+    calib: StereoCalibration, scenes: dict[str, list[RenderedPair]], repeats: int
+) -> None:
+    """Stage medians of the full-frame pipeline per scene (its own stage timers, every frame
+    of the sequence ``repeats`` times) and two component comparisons with OpenCV."""
+    medians: dict[str, dict[str, float]] = {}
+    for name, frames in scenes.items():
+        pipe = NavigationPipeline(calib)
+        runs = [
+            pipe.process(f.left, f.right).timing_ms.model_dump()
+            for _ in range(repeats)
+            for f in frames
+        ]
+        medians[name] = {k: statistics.median(r[k] for r in runs) for k in runs[0]}
+    print(
+        f"\nFull-frame pipeline stages, {calib.image_size[0]}×{calib.image_size[1]} at 1 m "
+        "(median ms per pair, both images):\n"
+    )
+    print("| stage | " + " | ".join(scenes) + " |\n|---|" + "---|" * len(scenes))
+    for k in next(iter(medians.values())):
+        print(f"| {k} | " + " | ".join(f"{medians[n][k]:.3f}" for n in scenes) + " |")
+    pair = next(iter(scenes.values()))[0]
     pipe = NavigationPipeline(calib)
-    runs = [pipe.process(pair.left, pair.right).timing_ms.model_dump() for _ in range(repeats)]
-    print("\nPipeline stages, one 1280×1024 pair at 1 m (median ms over both images):\n")
-    print("| stage | median ms |\n|---|---|")
-    for k in runs[0]:
-        print(f"| {k} | {statistics.median(r[k] for r in runs):.3f} |")
+    pipe.process(pair.left, pair.right)
 
     def timed(fn, n: int) -> float:  # type: ignore[no-untyped-def]
         fn()
@@ -186,19 +202,20 @@ def stage_tables(calib: StereoCalibration, pair: RenderedPair, repeats: int) -> 
     blobs, gray = trace.left.blobs, pair.left
     kps = [cv2.KeyPoint(b.centroid_px[0], b.centroid_px[1], 16.0) for b in blobs]
     sift = cv2.SIFT_create()
-    t_ihwt = timed(lambda: describe(gray, blobs), repeats)
-    t_sift = timed(lambda: sift.compute(gray, kps), repeats)
+    n = max(10, repeats * 10)
+    t_ihwt = timed(lambda: describe(gray, blobs), n)
+    t_sift = timed(lambda: sift.compute(gray, kps), n)
     ml = [m.left_index for m in trace.matches]
     mr = [m.right_index for m in trace.matches]
     xl = undistort_pixels(calib.left, np.array([blobs[i].centroid_px for i in ml]))
     xr = undistort_pixels(calib.right, np.array([trace.right.blobs[i].centroid_px for i in mr]))
     P1, P2 = calib.P_left, calib.P_right
-    t_lin = timed(lambda: triangulate_linear(P1, P2, xl, xr), repeats * 10)
+    t_lin = timed(lambda: triangulate_linear(P1, P2, xl, xr), n * 10)
     t_ref = timed(
         lambda: refine_reprojection(P1, P2, xl, xr, triangulate_linear(P1, P2, xl, xr)),
-        repeats * 10,
+        n * 10,
     )
-    t_cv = timed(lambda: cv2.triangulatePoints(P1, P2, xl.T.copy(), xr.T.copy()), repeats * 10)
+    t_cv = timed(lambda: cv2.triangulatePoints(P1, P2, xl.T.copy(), xr.T.copy()), n * 10)
     print("\n| operation | ours (ms) | OpenCV (ms) | ratio |\n|---|---|---|---|")
     for name, a, b in (
         (f"describe {len(blobs)} points: IHWT vs SIFT.compute", t_ihwt, t_sift),
@@ -247,8 +264,11 @@ def main() -> None:
                 f"| {m.get('tracked', 0)} / {m.get('acquired', 0)} / {m.get('lost', 0)} "
                 f"| {r['worst']:.2e} | {r['sets_differ']} |"
             )
-    frames = sequence(paper, args.depth, 1, RenderSettings())
-    stage_tables(paper, frames[0], max(10, args.repeats * 10))
+    stage_tables(
+        paper,
+        {name: sequence(paper, args.depth, args.frames, settings) for name, settings in scenes},
+        args.repeats,
+    )
 
 
 if __name__ == "__main__":
