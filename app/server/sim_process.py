@@ -299,7 +299,9 @@ def _worker_main(
         except OSError:
             ring = None
     from app.sim.docking import DockingSimulation
+    from app.sim.warmup import compile_kernels
 
+    compile_kernels()  # the compiled loops loaded (disk cache) before the first deadline
     gc.collect()
     gc.freeze()  # the modules out of the cyclic collector's sight (its pauses stay short)
     state = _WorkerState(ring, epoch, image_period_s)
