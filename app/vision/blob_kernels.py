@@ -278,6 +278,42 @@ def label_runs(runs: np.ndarray, labels: np.ndarray) -> np.ndarray:  # pragma: n
 
 
 @njit(cache=True, nogil=True)
+def bright_box(
+    gray: np.ndarray, rect: np.ndarray, threshold: int, out: np.ndarray
+) -> bool:  # pragma: no cover - compiled
+    """The box (x0, y0, x1, y1, half-open, px) of the pixels ≥ ``threshold`` inside ``rect``
+    (same form) into ``out``; ``False`` when there is none. Rows first: a uint8 SIMD count
+    per row, the columns only on rows that have such pixels."""
+    x0, y0, x1, y1 = rect[0], rect[1], rect[2], rect[3]
+    if threshold > 255:
+        return False  # nothing can reach it
+    thr8 = np.uint8(max(threshold, 0))
+    bx0, by0, bx1, by1 = x1, y1, -1, -1
+    for y in range(y0, y1):
+        row = gray[y, x0:x1]
+        hits = np.int32(0)
+        for x in range(x1 - x0):
+            hits += np.int32(row[x] >= thr8)
+        if hits == 0:
+            continue
+        by0 = min(by0, y)
+        by1 = y
+        for x in range(x1 - x0):
+            if row[x] >= thr8:
+                bx0 = min(bx0, x0 + x)
+                bx1 = max(bx1, x0 + x)
+    out[0], out[1], out[2], out[3] = bx0, by0, bx1 + 1, by1 + 1
+    return by1 >= 0
+
+
+@njit(cache=True, nogil=True)
+def grow_margin_px(area: int, reach: int) -> int:  # pragma: no cover - compiled
+    """How far a box of bright pixels (``area`` px) is grown: the largest centroid margin a
+    blob inside it can need, max(2, ⌈½√area⌉), plus ``reach`` px (the median filter's)."""
+    return max(2, int(np.ceil(0.5 * np.sqrt(area)))) + reach
+
+
+@njit(cache=True, nogil=True)
 def hot_tile_boxes(
     gray: np.ndarray, bands: np.ndarray, band_rows: int, threshold: int
 ) -> np.ndarray:  # pragma: no cover - compiled
@@ -300,6 +336,7 @@ def hot_tile_boxes(
                 hot[by, tx] = -1
     boxes = np.zeros((nb * nt, 4), np.int64)
     stack = np.empty((nb * nt, 2), np.int64)
+    rect = np.empty(4, np.int64)
     k = 0
     for by in range(nb):
         for tx in range(nt):
@@ -323,22 +360,9 @@ def hot_tile_boxes(
                             top += 1
                             stack[top, 0], stack[top, 1] = ny, nx
             # the cluster's tile box in px, shrunk to its pixels ≥ threshold
-            x0, y0 = tx0 * t, ty0 * t
-            x1, y1 = min(w, (tx1 + 1) * t), min(h, (ty1 + 1) * t)
-            bx0, by0, bx1, by1 = x1, y1, -1, -1
-            for y in range(y0, y1):
-                row = gray[y]
-                for x in range(x0, x1):
-                    if row[x] >= threshold:
-                        if x < bx0:
-                            bx0 = x
-                        if x > bx1:
-                            bx1 = x
-                        if y < by0:
-                            by0 = y
-                        by1 = y
-            boxes[k - 1, 0], boxes[k - 1, 1] = bx0, by0
-            boxes[k - 1, 2], boxes[k - 1, 3] = bx1 + 1, by1 + 1
+            rect[0], rect[1] = tx0 * t, ty0 * t
+            rect[2], rect[3] = min(w, (tx1 + 1) * t), min(h, (ty1 + 1) * t)
+            bright_box(gray, rect, threshold, boxes[k - 1])
     return boxes[:k]
 
 
@@ -354,7 +378,7 @@ def grow_and_merge_boxes(
     g = np.empty((n, 4), np.int64)
     for i in range(n):
         area = (boxes[i, 2] - boxes[i, 0]) * (boxes[i, 3] - boxes[i, 1])
-        m = max(2, int(np.ceil(0.5 * np.sqrt(area)))) + reach
+        m = grow_margin_px(area, reach)
         g[i, 0] = max(0, boxes[i, 0] - m)
         g[i, 1] = max(0, boxes[i, 1] - m)
         g[i, 2] = min(width, boxes[i, 2] + m)
@@ -641,35 +665,18 @@ def window_blobs(
     cover = np.empty(big_side, np.int32)
     bright = np.empty(4, np.int64)
     box = np.empty(4, np.int64)
+    rect = np.empty(4, np.int64)
     cand = np.empty(CAND_COLUMNS, np.int64)
     for k in range(k_all):
         x0, y0, side = wins[k, 0], wins[k, 1], wins[k, 2]
         x1, y1 = x0 + side, y0 + side
         thr = thresholds[k]
-        if thr > 255:
-            continue  # nothing can reach it
-        thr8 = np.uint8(max(thr, 0))
-        # the box of the window's pixels ≥ T (rows first: a count per row, in uint8 SIMD)
-        bx0, by0, bx1, by1 = x1, y1, -1, -1
-        for y in range(y0, y1):
-            row = gray[y, x0:x1]
-            hits = np.int32(0)
-            for x in range(side):
-                hits += np.int32(row[x] >= thr8)
-            if hits == 0:
-                continue
-            by0 = min(by0, y)
-            by1 = y
-            for x in range(side):
-                if row[x] >= thr8:
-                    bx0 = min(bx0, x0 + x)
-                    bx1 = max(bx1, x0 + x)
-        if by1 < 0:
+        rect[0], rect[1], rect[2], rect[3] = x0, y0, x1, y1
+        if not bright_box(gray, rect, thr, bright):
             continue
-        bright[0], bright[1], bright[2], bright[3] = bx0, by0, bx1 + 1, by1 + 1
-        m = max(2, int(np.ceil(0.5 * np.sqrt((bx1 + 1 - bx0) * (by1 + 1 - by0))))) + r + 2
-        box[0], box[1] = max(x0, bx0 - m), max(y0, by0 - m)
-        box[2], box[3] = min(x1, bx1 + 1 + m), min(y1, by1 + 1 + m)
+        m = grow_margin_px((bright[2] - bright[0]) * (bright[3] - bright[1]), r + 2)
+        box[0], box[1] = max(x0, bright[0] - m), max(y0, bright[1] - m)
+        box[2], box[3] = min(x1, bright[2] + m), min(y1, bright[3] + m)
         count = median_runs(gray, box, bright, thr, r, runs)
         if count == 0:
             continue
