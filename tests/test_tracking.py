@@ -181,6 +181,37 @@ def test_fake_led_in_a_window_falls_back(calib) -> None:  # type: ignore[no-unty
         assert _max_diff_mm(full, res) <= TOL_MM
 
 
+def test_dimmed_led_fails_the_appearance_test_and_falls_back(calib) -> None:  # type: ignore[no-untyped-def]
+    """One LED dimmed to 40 % in the left image only (a partly occluded LED, or a reflection
+    standing in for it): the tracked frame's stereo appearance check sends it to acquisition,
+    naming the LED, and the result is the full frame's with the same history."""
+    frames = list(_frames(calib, 1000.0, 4, RenderSettings()))
+    tracker = StereoTracker(calib)
+    ref = NavigationPipeline(calib)
+    for pair in frames[:3]:
+        ref.process(pair.left, pair.right)
+        tracker.update(pair.left, pair.right)
+    assert tracker.last_mode == "tracked"
+    pair = frames[3]
+    same_history = copy.deepcopy(ref)
+    led = ref.process(pair.left, pair.right).leds[1]
+    left = pair.left.copy()
+    u, v = (int(round(c)) for c in led.left_px)
+    patch = left[v - 12 : v + 13, u - 12 : u + 13].astype(np.float64)
+    bg = float(np.median(left))
+    left[v - 12 : v + 13, u - 12 : u + 13] = np.clip(bg + 0.4 * (patch - bg), 0, 255).astype(
+        np.uint8
+    )
+    res = tracker.update(left, pair.right)
+    assert tracker.last_mode in ("acquired", "lost")
+    assert tracker.last_fallback is not None
+    assert tracker.last_fallback.startswith(f"LED {led.id} fails the appearance test")
+    full = same_history.process(left, pair.right)
+    assert res.lock == full.lock
+    if full.lock:
+        assert _max_diff_mm(full, res) <= TOL_MM
+
+
 def test_jump_of_200_px_falls_back_and_relocks(calib) -> None:  # type: ignore[no-untyped-def]
     tracker = StereoTracker(calib)
     ref = NavigationPipeline(calib)

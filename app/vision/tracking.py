@@ -61,7 +61,13 @@ from app.geometry.ring import (
     view_angle_deg,
 )
 from app.geometry.triangulation import refine_reprojection, triangulate_linear
-from app.vision.appearance import appearance_reasons, blob_color_bgr, equivalent_radius_px
+from app.vision.appearance import (
+    BlobTable,
+    appearance_ok,
+    appearance_reasons,
+    blob_color_bgr,
+    equivalent_radius_px,
+)
 from app.vision.blob_kernels import window_blobs
 from app.vision.features import gate_array
 from app.vision.ihwt import SAMPLES_PER_SUBSQUARE, describe
@@ -514,26 +520,24 @@ class StereoTracker:
             and X[:, 2].min() > 0
         ):
             raise _Fallback("a tracked LED does not triangulate consistently")
-        # --- appearance
+        # --- appearance (the pipeline's verdict, all pairs at once; reasons on failure only)
         if cfg.appearance.enabled:
-            z_l = X[:, 2].tolist()
-            z_r = (X @ cal.R[2] + float(cal.T[2])).tolist()  # depth in the right camera
+            z_l = X[:, 2]
+            z_r = X @ cal.R[2] + float(cal.T[2])  # depth in the right camera
             f_l, f_r = cal.left.fx, cal.right.fx
             bgs = (st.background[0][0], st.background[1][0])
-            for k, i in enumerate(led_ids):
+            pair = np.arange(n_led, dtype=np.int64)
+            ok = appearance_ok(
+                BlobTable.of(bl), BlobTable.of(br), pair, pair, z_l, z_r, f_l, f_r,
+                cfg.led_diameter_mm, bgs, cfg.appearance,
+            )  # fmt: skip
+            if not ok.all():
+                k = int(np.flatnonzero(~ok)[0])
                 reasons = appearance_reasons(
-                    bl[k],
-                    br[k],
-                    z_l[k],
-                    z_r[k],
-                    f_l,
-                    f_r,
-                    cfg.led_diameter_mm,
-                    bgs,
-                    cfg.appearance,
-                )
-                if reasons:
-                    raise _Fallback(f"LED {i} fails the appearance test: {reasons[0]}")
+                    bl[k], br[k], float(z_l[k]), float(z_r[k]), f_l, f_r,
+                    cfg.led_diameter_mm, bgs, cfg.appearance,
+                )  # fmt: skip
+                raise _Fallback(f"LED {led_ids[k]} fails the appearance test: {reasons[0]}")
         # --- ring, integrity, ids
         circle, roll, slot_ids = self._ring_checks(X, st)
         if slot_ids != led_ids:
