@@ -31,6 +31,7 @@ from app.vision.appearance import (
 )
 from app.vision.features import BAND_ROWS, BlobGate, TooManyBlobs, detect_blobs
 from app.vision.ihwt import describe
+from app.vision.local_centroid import LocalCentroidConfig, refine_blobs
 from app.vision.matching import (
     MatchArrays,
     descriptor_distances,
@@ -92,6 +93,8 @@ class PipelineConfig:
     threshold: ThresholdMode = "auto"  # eq. 10: int DN, "auto" (half-max) or "otsu"
     median_ksize: int = 3
     gate: BlobGate = field(default_factory=BlobGate)
+    # local-support centroids (app.vision.local_centroid); disabled: the paper's eq. 11
+    centroid: LocalCentroidConfig = field(default_factory=LocalCentroidConfig)
     # IHWT window side = factor × blob equivalent radius; None → per matcher: ours 8 (the LED
     # and its fringe), the paper's 80 (§4.3: "as the area described becomes larger, the
     # description is more detailed": a window spanning the neighbouring LEDs).
@@ -193,6 +196,7 @@ class NavigationPipeline:
         t1 = time.perf_counter()
         # binarise, median-filter, label and centroid only around the bright pixels
         blobs, rejected = detect_blobs(gray, threshold, bg, cfg.gate, cfg.median_ksize, bands)
+        blobs = refine_blobs(gray, blobs, cfg.centroid)
         if image.ndim == 3 and cfg.appearance.enabled:
             blobs = [replace(b, color_bgr=blob_color_bgr(image, b, threshold)) for b in blobs]
         t2 = time.perf_counter()

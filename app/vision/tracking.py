@@ -72,6 +72,7 @@ from app.vision.blob_kernels import window_blobs
 from app.vision.features import gate_array
 from app.vision.ihwt import SAMPLES_PER_SUBSQUARE, describe
 from app.vision.ihwt import window_side_px as ihwt_window_side_px
+from app.vision.local_centroid import refine_blobs, window_pad_px
 from app.vision.matching import epipolar_distances
 from app.vision.pipeline import (
     NavigationPipeline,
@@ -301,6 +302,9 @@ class StereoTracker:
         eq. 11 centroid margin and (with descriptors) the IHWT descriptor window."""
         area = math.pi * radius_px * radius_px
         support = radius_px + 2.0 + max(2.0, 0.5 * math.sqrt(area)) + 2.0
+        # the local centroid's window and its background ring (app.vision.local_centroid)
+        side = int(math.ceil(2.0 * radius_px)) + 1
+        support = max(support, radius_px + 1.0 + window_pad_px(side, side) + 2.0)
         if self.describe:
             cfg = self.config
             win = ihwt_window_side_px(area, self.pipeline.window_factor, cfg.min_window_px)
@@ -467,6 +471,13 @@ class StereoTracker:
                 t = thr_l if k < len(win_l) else thr_r
                 blob = replace(blob, color_bgr=blob_color_bgr(mosaic, blob, t))
             got[0 if k < len(win_l) else 1][win.led_id] = blob
+        # the local-support centroids of all windows' blobs in one compiled call
+        for found in got:
+            ids = list(found)
+            for led_id, blob in zip(
+                ids, refine_blobs(gray, [found[i] for i in ids], cfg.centroid), strict=True
+            ):
+                found[led_id] = blob
         return win_l, win_r, gray, got[0], got[1], (thr_l, thr_r)
 
     def _track_frame(

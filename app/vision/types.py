@@ -20,6 +20,10 @@ class Blob:
     peak: float  # max gray level in the component
     mass: float  # sum of background-subtracted gray (eq. 11 denominator)
     color_bgr: tuple[float, ...] | None = None  # mean (B, G, R) DN over the blob, colour input
+    # 1σ centroid noise (u, v) px of the local-support centroid (app.vision.local_centroid);
+    # None: eq. 11's centroid, not measured; NaN: the local centroid could not be measured
+    centroid_sigma_px: tuple[float, float] | None = None
+    local_bg: float | None = None  # local background level (DN) around the blob
 
 
 @dataclass(frozen=True)

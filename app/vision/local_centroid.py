@@ -1,0 +1,219 @@
+"""Local-support LED centroids that survive reflections (a refinement of paper eq. 11).
+
+Eq. 11 weights each pixel by its brightness above the frame's *global* background over the
+blob dilated by a margin of ≈ ½√area px (:mod:`app.vision.blob_kernels`). On polished metal
+in daylight that margin takes in the LED's own reflection on the rim, glint streaks and bright
+sky, and these differ between the two views: a disparity error of a few tenths of a pixel.
+Here each detected blob is measured again on its own terms:
+
+* **local background** ``b``: the median of a one-pixel ring of pixels just outside a window
+  around the blob (the blob's box grown by ``pad`` = max(3, ⌈½·max(w, h)⌉) px);
+* **local peak** ``p``: the brightest pixel of the blob's box (``saturated_dn`` and above
+  count as saturated: a flat top);
+* **support**: the pixels ≥ ``b + support_frac·(p − b)`` 8-connected to the peak pixel inside
+  the window — relative to the blob's own peak, so the same rule holds in both images whatever
+  their exposure, and a reflection or glint dimmer than the level, or separated from the LED by
+  a darker gap, is not part of it. A saturated blob's level is taken from the saturation level
+  (its flat top and the flanks above the level);
+* **centroid**: Σ wᵢ·xᵢ / Σ wᵢ with wᵢ = Iᵢ − level over the support (pixel centres, px);
+* **noise** (the error bound's input, :mod:`app.geometry.uncertainty`): first-order
+  propagation of independent pixel noise through the weighted mean,
+  σ_u² = Σ σᵢ²·(uᵢ − ū)² / (Σ wᵢ)² with σᵢ² = σ_read² + k_shot·max(Iᵢ − b, 0) (DN²; a saturated
+  pixel carries no noise), plus a floor ``floor_px`` in quadrature for what the model does not
+  describe (demosaicing, blur, sub-pixel structure).
+
+A support that reaches the window's edge (a blob merged with something larger) or a blob with
+no contrast keeps its eq. 11 centroid and gets σ = NaN: the caller treats it as unmeasured.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+from numba import njit
+from numpy.typing import NDArray
+
+from app.vision.types import Blob
+
+# columns of :func:`local_centroids`' output
+OUT_U, OUT_V, OUT_SIGMA_U, OUT_SIGMA_V, OUT_BACKGROUND, OUT_LEVEL, OUT_SATURATED, OUT_AREA = range(
+    8
+)
+OUT_COLUMNS = 8
+
+
+@dataclass(frozen=True)
+class LocalCentroidConfig:
+    """Parameters of the local-support centroid (DN, px)."""
+
+    enabled: bool = True  # False: the paper's eq. 11 centroid as is
+    support_frac: float = 0.2  # support: pixels ≥ b + frac·(peak − b)
+    saturated_dn: float = 250.0  # a pixel at or above this is saturated (flat top)
+    read_sigma_dn: float = 1.5  # pixel noise floor (DN, 1σ)
+    shot_var_per_dn: float = 0.032  # shot-noise variance per DN of signal (DN²/DN ≈ 255/full well)
+    floor_px: float = 0.03  # centroid error the noise model leaves out (px, 1σ)
+    weights_from_level: bool = True  # weights I − level (True) or I − local background
+
+    def params(self) -> NDArray[np.float64]:
+        return np.array(
+            [
+                self.support_frac,
+                self.saturated_dn,
+                self.read_sigma_dn,
+                self.shot_var_per_dn,
+                self.floor_px,
+                1.0 if self.weights_from_level else 0.0,
+            ],
+            dtype=np.float64,
+        )
+
+
+def window_pad_px(w: int, h: int) -> int:
+    """Margin (px) of the local window around a blob box of w × h px."""
+    return max(3, (max(w, h) + 1) // 2)
+
+
+@njit(cache=True, nogil=True)
+def _pad(w: int, h: int) -> int:  # pragma: no cover - compiled
+    return max(3, (max(w, h) + 1) // 2)
+
+
+@njit(cache=True, nogil=True)
+def _ring_median(gray: np.ndarray, x0: int, y0: int, x1: int, y1: int) -> float:  # pragma: no cover
+    """Median of the pixels on the one-pixel border just outside [x0, x1) × [y0, y1),
+    clipped to the image (NaN when none is inside)."""
+    h, w = gray.shape
+    vals = np.empty(2 * (x1 - x0 + 2) + 2 * (y1 - y0), np.float64)
+    n = 0
+    for y in (y0 - 1, y1):
+        if 0 <= y < h:
+            for x in range(max(0, x0 - 1), min(w, x1 + 1)):
+                vals[n] = gray[y, x]
+                n += 1
+    for x in (x0 - 1, x1):
+        if 0 <= x < w:
+            for y in range(max(0, y0), min(h, y1)):
+                vals[n] = gray[y, x]
+                n += 1
+    if n == 0:
+        return np.nan
+    return float(np.median(vals[:n]))
+
+
+@njit(cache=True, nogil=True)
+def local_centroids(
+    gray: np.ndarray, boxes: np.ndarray, params: np.ndarray
+) -> np.ndarray:  # pragma: no cover - compiled
+    """For each (x, y, w, h) row of ``boxes`` (a blob's bounding box, image px) the local
+    centroid (module docstring): rows of ``OUT_COLUMNS`` (u, v, σ_u, σ_v px, local background
+    DN, support level DN, saturated pixels, support area px); u, v NaN when not measured."""
+    frac, sat, read_sigma, shot_k, floor_px = params[0], params[1], params[2], params[3], params[4]
+    height, width = gray.shape
+    n = boxes.shape[0]
+    out = np.full((n, OUT_COLUMNS), np.nan)
+    for k in range(n):
+        bx, by, bw, bh = boxes[k, 0], boxes[k, 1], boxes[k, 2], boxes[k, 3]
+        pad = _pad(bw, bh)
+        x0, y0 = max(0, bx - pad), max(0, by - pad)
+        x1, y1 = min(width, bx + bw + pad), min(height, by + bh + pad)
+        bg = _ring_median(gray, x0, y0, x1, y1)
+        # the peak on the blob's own box
+        peak = -1.0
+        px = py = 0
+        for y in range(by, by + bh):
+            for x in range(bx, bx + bw):
+                if gray[y, x] > peak:
+                    peak = float(gray[y, x])
+                    px, py = x, y
+        if not (peak - bg >= 2.0):
+            continue
+        top = sat if peak >= sat else peak
+        level = bg + frac * (top - bg)
+        wbase = level if params[5] > 0 else bg
+        # 8-connected flood fill from the peak over pixels ≥ level, inside the window
+        ww, wh = x1 - x0, y1 - y0
+        seen = np.zeros((wh, ww), np.bool_)
+        stack = np.empty(ww * wh, np.int64)
+        sp = 0
+        stack[sp] = (py - y0) * ww + (px - x0)
+        sp += 1
+        seen[py - y0, px - x0] = True
+        edge = False
+        sw = swu = swv = 0.0
+        count = 0
+        n_sat = 0
+        while sp > 0:
+            sp -= 1
+            idx = stack[sp]
+            j, i = idx // ww, idx % ww
+            g = float(gray[y0 + j, x0 + i])
+            wgt = g - wbase
+            sw += wgt
+            swu += wgt * (x0 + i)
+            swv += wgt * (y0 + j)
+            count += 1
+            if g >= sat:
+                n_sat += 1
+            if i == 0 or j == 0 or i == ww - 1 or j == wh - 1:
+                edge = True
+            for dj in (-1, 0, 1):
+                for di in (-1, 0, 1):
+                    jj, ii = j + dj, i + di
+                    if 0 <= jj < wh and 0 <= ii < ww and not seen[jj, ii]:
+                        if gray[y0 + jj, x0 + ii] >= level:
+                            seen[jj, ii] = True
+                            stack[sp] = jj * ww + ii
+                            sp += 1
+        out[k, OUT_BACKGROUND] = bg
+        out[k, OUT_LEVEL] = level
+        out[k, OUT_SATURATED] = n_sat
+        out[k, OUT_AREA] = count
+        if edge or sw <= 0.0:
+            continue
+        cu, cv = swu / sw, swv / sw
+        # first-order noise of the weighted mean (the level held fixed)
+        vu = vv = 0.0
+        for j in range(wh):
+            for i in range(ww):
+                if seen[j, i]:
+                    g = float(gray[y0 + j, x0 + i])
+                    if g >= sat:
+                        continue
+                    var = read_sigma * read_sigma + shot_k * max(g - bg, 0.0)
+                    du, dv = x0 + i - cu, y0 + j - cv
+                    vu += var * du * du
+                    vv += var * dv * dv
+        out[k, OUT_U] = cu
+        out[k, OUT_V] = cv
+        out[k, OUT_SIGMA_U] = np.sqrt(vu / (sw * sw) + floor_px * floor_px)
+        out[k, OUT_SIGMA_V] = np.sqrt(vv / (sw * sw) + floor_px * floor_px)
+    return out
+
+
+def measure_blobs(
+    gray: NDArray[np.uint8], blobs: list[Blob], cfg: LocalCentroidConfig
+) -> NDArray[np.float64]:
+    """:func:`local_centroids` for these blobs (rows aligned with ``blobs``)."""
+    if not blobs:
+        return np.zeros((0, OUT_COLUMNS))
+    boxes = np.array([b.bbox for b in blobs], dtype=np.int64).reshape(-1, 4)
+    return np.asarray(local_centroids(gray, boxes, cfg.params()))
+
+
+def refine_blobs(
+    gray: NDArray[np.uint8], blobs: list[Blob], cfg: LocalCentroidConfig
+) -> list[Blob]:
+    """The blobs with their local centroids, σ and local background (eq. 11's centroid and
+    σ = NaN where the local one is not measured); ``cfg.enabled`` False: unchanged."""
+    if not cfg.enabled or not blobs:
+        return blobs
+    table = measure_blobs(gray, blobs, cfg)
+    out = []
+    for b, row in zip(blobs, table.tolist(), strict=True):
+        u, v, su, sv, bg = row[OUT_U], row[OUT_V], row[OUT_SIGMA_U], row[OUT_SIGMA_V], row[4]
+        if u == u:  # measured (not NaN)
+            out.append(replace(b, centroid_px=(u, v), centroid_sigma_px=(su, sv), local_bg=bg))
+        else:
+            out.append(replace(b, centroid_sigma_px=(float("nan"), float("nan")), local_bg=bg))
+    return out
