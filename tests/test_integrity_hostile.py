@@ -106,7 +106,9 @@ def test_whitish_glints_are_rejected_by_colour(calib):
     pipe = NavigationPipeline(calib)
     res = pipe.process(pair.left, pair.right)
     assert res.lock and not is_wrong_lock(res, pair)
+    # refused by the colour gate before matching, or by the appearance test after it
     reasons = [r for rs in pipe.trace.appearance_rejected.values() for r in rs]
+    reasons += [b.reason for fs in (pipe.trace.left, pipe.trace.right) for b in fs.rejected]
     assert sum("not green" in r for r in reasons) >= 10
 
 

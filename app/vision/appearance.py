@@ -43,6 +43,8 @@ class AppearanceConfig:
     stereo_peak_ratio: float = 1.6  # max/min of the background-subtracted peaks
     green_ratio: float = 1.4  # G ≥ ratio·max(B, R) over the blob (colour input)
     saturated_dn: float = 250.0
+    # colour input: refuse clearly non-green blobs before matching (else only after it)
+    colour_gate: bool = True
 
 
 def equivalent_radius_px(area_px: float) -> float:
@@ -50,15 +52,45 @@ def equivalent_radius_px(area_px: float) -> float:
     return math.sqrt(max(float(area_px), 0.0) / math.pi)
 
 
-def blob_color_bgr(image: NDArray[np.uint8], blob: Blob, threshold: int) -> tuple[float, ...]:
-    """Mean (B, G, R) over the blob's pixels at or above the gray threshold (colour input)."""
+def blob_color_bgr(
+    image: NDArray[np.uint8], blob: Blob, threshold: int, saturated_dn: float = 250.0
+) -> tuple[float, ...]:
+    """The blob's colour (B, G, R, DN) as its light above the local background: over the
+    blob's box grown by 2 px, the mean excess over the box border's per-channel median of the
+    pixels that are bright (gray ≥ background + 10 % of the peak's excess) and unsaturated in
+    every channel — a saturated LED is judged on its unsaturated flanks, where a green LED
+    stays green and a sun glint is white or yellow. With no such pixel, the mean over the
+    pixels at or above the gray threshold (saturated: not judged)."""
     x, y, w, h = blob.bbox
-    patch = image[y : y + h, x : x + w, :3].astype(np.float64)
+    height, width = image.shape[:2]
+    x0, y0 = max(0, x - 2), max(0, y - 2)
+    x1, y1 = min(width, x + w + 2), min(height, y + h + 2)
+    patch = image[y0:y1, x0:x1, :3].astype(np.float64)
     gray = patch @ np.array([0.114, 0.587, 0.299])
+    border = np.concatenate([patch[0], patch[-1], patch[1:-1, 0], patch[1:-1, -1]])
+    bg = np.median(border, axis=0)
+    bg_gray = float(bg @ np.array([0.114, 0.587, 0.299]))
+    level = bg_gray + 0.1 * (float(gray.max()) - bg_gray)
+    sel = (gray >= level) & (patch.max(axis=2) < saturated_dn)
+    if np.count_nonzero(sel) >= 2:
+        excess = np.maximum(patch[sel].mean(axis=0) - bg, 0.0)
+        return tuple(float(v) for v in excess)
     sel = gray >= threshold
     if not np.any(sel):
         return (0.0, 0.0, 0.0)
     return tuple(float(v) for v in patch[sel].mean(axis=0))
+
+
+def colour_reason(blob: Blob, cfg: AppearanceConfig) -> str | None:
+    """Why a blob's colour is not an LED's (None: green, or not judged: gray input or
+    saturated) — the colour gate before matching and the appearance test's colour rule."""
+    col = blob.color_bgr
+    if not cfg.enabled or col is None or max(col) >= cfg.saturated_dn:
+        return None
+    bb, g, rr = col
+    if g < cfg.green_ratio * max(bb, rr):
+        return f"not green (B, G, R = {bb:.0f}, {g:.0f}, {rr:.0f})"
+    return None
 
 
 def appearance_reasons(
@@ -96,12 +128,9 @@ def appearance_reasons(
     if max(pl, pr) > cfg.stereo_peak_ratio * min(pl, pr):
         out.append(f"left/right peak levels differ ({left.peak:.0f} vs {right.peak:.0f} DN)")
     for side, blob in (("left", left), ("right", right)):
-        col = blob.color_bgr
-        if col is None or max(col) >= cfg.saturated_dn:
-            continue
-        bb, g, rr = col
-        if g < cfg.green_ratio * max(bb, rr):
-            out.append(f"{side} blob is not green (B, G, R = {bb:.0f}, {g:.0f}, {rr:.0f})")
+        why = colour_reason(blob, cfg)
+        if why is not None:
+            out.append(f"{side} blob is {why}")
     return out
 
 

@@ -28,8 +28,15 @@ from app.vision.appearance import (
     appearance_ok,
     appearance_reasons,
     blob_color_bgr,
+    colour_reason,
 )
-from app.vision.features import BAND_ROWS, BlobGate, TooManyBlobs, detect_blobs
+from app.vision.features import (
+    BAND_ROWS,
+    MAX_REJECTED_REPORTED,
+    BlobGate,
+    TooManyBlobs,
+    detect_blobs,
+)
 from app.vision.ihwt import describe
 from app.vision.local_centroid import LocalCentroidConfig, refine_blobs
 from app.vision.matching import (
@@ -51,7 +58,7 @@ from app.vision.preprocess import (
     validate_image,
 )
 from app.vision.result import DrogueResult, LedResult, PoseResult, StageTimings
-from app.vision.types import FeatureSet, Match
+from app.vision.types import Blob, FeatureSet, Match, RejectedBlob
 
 OUR_WINDOW_FACTOR = 8.0
 PAPER_WINDOW_FACTOR = 80.0
@@ -198,7 +205,19 @@ class NavigationPipeline:
         blobs, rejected = detect_blobs(gray, threshold, bg, cfg.gate, cfg.median_ksize, bands)
         blobs = refine_blobs(gray, blobs, cfg.centroid)
         if image.ndim == 3 and cfg.appearance.enabled:
-            blobs = [replace(b, color_bgr=blob_color_bgr(image, b, threshold)) for b in blobs]
+            sat = cfg.appearance.saturated_dn
+            blobs = [replace(b, color_bgr=blob_color_bgr(image, b, threshold, sat)) for b in blobs]
+            # the colour gate: a blob that is clearly not green (a white or yellow sun glint)
+            # never reaches the matcher
+            kept: list[Blob] = []
+            for b in blobs:
+                why = colour_reason(b, cfg.appearance)
+                if why is None:
+                    kept.append(b)
+                elif len(rejected) < MAX_REJECTED_REPORTED:
+                    rejected.append(RejectedBlob(b.centroid_px, b.area_px, why))
+            if cfg.appearance.colour_gate:
+                blobs = kept
         t2 = time.perf_counter()
         desc = describe(gray, blobs, self.window_factor, cfg.min_window_px)
         t3 = time.perf_counter()

@@ -469,7 +469,8 @@ class StereoTracker:
             blob = Blob((u, v), area, (x, y, w, h), peak, mass)
             if mosaic.ndim == 3 and cfg.appearance.enabled:
                 t = thr_l if k < len(win_l) else thr_r
-                blob = replace(blob, color_bgr=blob_color_bgr(mosaic, blob, t))
+                sat = cfg.appearance.saturated_dn
+                blob = replace(blob, color_bgr=blob_color_bgr(mosaic, blob, t, sat))
             got[0 if k < len(win_l) else 1][win.led_id] = blob
         # the local-support centroids of all windows' blobs in one compiled call
         for found in got:
