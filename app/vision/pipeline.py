@@ -30,6 +30,7 @@ from app.vision.appearance import (
     blob_color_bgr,
     colour_reason,
 )
+from app.vision.error_bound import ErrorBoundConfig, bound_result, isotropic_sigma_px
 from app.vision.features import (
     BAND_ROWS,
     MAX_REJECTED_REPORTED,
@@ -102,6 +103,8 @@ class PipelineConfig:
     gate: BlobGate = field(default_factory=BlobGate)
     # local-support centroids (app.vision.local_centroid); disabled: the paper's eq. 11
     centroid: LocalCentroidConfig = field(default_factory=LocalCentroidConfig)
+    # covariance, protection levels and the residual test of every lock (app.vision.error_bound)
+    error_bound: ErrorBoundConfig = field(default_factory=ErrorBoundConfig)
     # IHWT window side = factor × blob equivalent radius; None → per matcher: ours 8 (the LED
     # and its fringe), the paper's 80 (§4.3: "as the area described becomes larger, the
     # description is more detailed": a window spanning the neighbouring LEDs).
@@ -245,7 +248,7 @@ class NavigationPipeline:
         """Run the whole pipeline on one stereo pair (uint8, gray or BGR)."""
         t_start = time.perf_counter()
         self._stage_ms = dict.fromkeys(
-            ("preprocess", "extract", "describe", "match", "triangulate", "pose"), 0.0
+            ("preprocess", "extract", "describe", "match", "triangulate", "pose", "bound"), 0.0
         )
         self.trace = PipelineTrace()
         left, right = check_pair(self.calibration, left, right)
@@ -414,11 +417,14 @@ class NavigationPipeline:
         self.trace.roll_deg = roll
         self._track = _Track(ring.circle.center.copy(), ring.circle.normal.copy(), roll)
         leds = []
+        rows: list[tuple[Blob, Blob, np.ndarray]] = []
         for k, led_id in sorted(zip(ring.indices, ids.tolist(), strict=True), key=lambda t: t[1]):
             j = int(idx[k])
-            bl = feats_l.blobs[int(matches.left[j])].centroid_px
-            br = feats_r.blobs[int(matches.right[j])].centroid_px
+            blob_l = feats_l.blobs[int(matches.left[j])]
+            blob_r = feats_r.blobs[int(matches.right[j])]
+            bl, br = blob_l.centroid_px, blob_r.centroid_px
             x = X[j]
+            rows.append((blob_l, blob_r, x))
             leds.append(
                 LedResult(
                     id=int(led_id),
@@ -430,4 +436,22 @@ class NavigationPipeline:
                     reprojection_px=float(reproj[j]),
                 )
             )
-        return PoseResult(lock=True, reason=None, leds=leds, drogue=drogue_result(ring.circle))
+        drogue = drogue_result(ring.circle)
+        t3 = time.perf_counter()
+        bounded = bound_result(
+            cal,
+            np.array([r[0].centroid_px for r in rows]),
+            np.array([r[1].centroid_px for r in rows]),
+            [(isotropic_sigma_px(r[0]), isotropic_sigma_px(r[1])) for r in rows],
+            np.array([r[2] for r in rows]),
+            ring.circle,
+            leds,
+            drogue,
+            cfg.error_bound,
+        )
+        self._stage_ms["bound"] = (time.perf_counter() - t3) * 1e3
+        if isinstance(bounded, str):
+            self._track = None
+            return PoseResult(lock=False, reason=bounded)
+        leds, drogue = bounded
+        return PoseResult(lock=True, reason=None, leds=leds, drogue=drogue)

@@ -16,6 +16,17 @@ class LedResult(BaseModel):
     descriptor_distance: float
     epipolar_px: float
     reprojection_px: float
+    sigma_px: tuple[float, float] | None = Field(
+        default=None,
+        description="1σ centroid noise (px) in the left and right image (local-support centroid; "
+        "None: not measured, e.g. the paper's eq. 11 centroid)",
+    )
+    cov_mm2: list[list[float]] | None = Field(
+        default=None, description="3×3 covariance of xyz_mm (mm², left camera frame) from sigma_px"
+    )
+    protection_level_mm: float | None = Field(
+        default=None, description="radius (mm) the LED's 3-D error exceeds with probability ≤ 1e-3"
+    )
 
 
 class DrogueResult(BaseModel):
@@ -23,6 +34,18 @@ class DrogueResult(BaseModel):
     normal: tuple[float, float, float]
     radius_mm: float
     rms_mm: float
+    center_cov_mm2: list[list[float]] | None = Field(
+        default=None,
+        description="3×3 covariance of center_mm (mm²) propagated through the circle fit",
+    )
+    protection_level_mm: float | None = Field(
+        default=None,
+        description="radius (mm) the centre's 3-D error exceeds with probability ≤ 1e-3",
+    )
+    fit_chi2: float | None = Field(
+        default=None, description="the lock's residuals against its covariance (χ² statistic)"
+    )
+    fit_dof: int | None = Field(default=None, description="degrees of freedom of fit_chi2")
 
 
 class StageTimings(BaseModel):
@@ -32,6 +55,7 @@ class StageTimings(BaseModel):
     match: float = 0.0
     triangulate: float = 0.0
     pose: float = 0.0
+    bound: float = 0.0  # covariances, protection levels and the residual test
     total: float = 0.0
 
 

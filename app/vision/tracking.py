@@ -69,6 +69,7 @@ from app.vision.appearance import (
     equivalent_radius_px,
 )
 from app.vision.blob_kernels import window_blobs
+from app.vision.error_bound import bound_result, isotropic_sigma_px
 from app.vision.features import gate_array
 from app.vision.ihwt import SAMPLES_PER_SUBSQUARE, describe
 from app.vision.ihwt import window_side_px as ihwt_window_side_px
@@ -588,7 +589,15 @@ class StereoTracker:
                 zip(led_ids, desc_dist.tolist(), epi.tolist(), reproj.tolist(), strict=True)
             )
         ]
-        return PoseResult(lock=True, reason="tracked", leds=results, drogue=drogue_result(circle))
+        sigmas = [
+            (isotropic_sigma_px(a), isotropic_sigma_px(b)) for a, b in zip(bl, br, strict=True)
+        ]
+        bounded = bound_result(
+            cal, pl, pr, sigmas, X, circle, results, drogue_result(circle), cfg.error_bound
+        )
+        if isinstance(bounded, str):
+            raise _Fallback(bounded)
+        return PoseResult(lock=True, reason="tracked", leds=bounded[0], drogue=bounded[1])
 
     def _ring_checks(self, X: np.ndarray, st: _State) -> tuple[Circle3D, float, list[int]]:
         """The ring tests of :func:`app.geometry.ring.find_ring` on the tracked points, with

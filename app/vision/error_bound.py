@@ -1,0 +1,166 @@
+"""The error bound reported with every lock (pipeline and tracker alike).
+
+From each ring LED's centroid noise σ (px, :mod:`app.vision.local_centroid`, per image) the
+first-order covariances of the triangulated LEDs (eqs. 15–16) and of the fitted drogue centre
+(§5.2), their protection levels (radii the 3-D error exceeds with probability ≤ ``p_exceed``)
+and a χ² test that the lock's own residuals are what that noise allows
+(:mod:`app.geometry.uncertainty`). A lock that fails the test is refused: its centroids are
+disturbed by something the noise model does not describe (a reflection merged with an LED,
+a glint taken for one), so its covariance would be a lie.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from app.geometry.calibration import StereoCalibration
+from app.geometry.circle_fit import Circle3D, FitError
+from app.geometry.uncertainty import (
+    fit_consistency,
+    led_protection_levels_mm,
+    point_covariances,
+    protection_level_mm,
+    ring_covariance,
+)
+from app.vision.result import DrogueResult, LedResult
+from app.vision.types import Blob
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class ErrorBoundConfig:
+    """Protection-level probability and the residual test's false-refusal probability."""
+
+    enabled: bool = True
+    p_exceed: float = 1e-3  # P(error > protection level)
+    alpha: float = 1e-3  # P(refusing an honest lock) of the residual test
+    refuse_inconsistent: bool = True
+
+
+@dataclass(frozen=True)
+class LockBound:
+    """A lock's covariances (mm²), protection levels (mm) and residual test."""
+
+    led_cov_mm2: FloatArray  # (N, 3, 3), rows as the LEDs passed in
+    led_pl_mm: FloatArray  # (N,)
+    center_cov_mm2: FloatArray  # (3, 3)
+    center_pl_mm: float
+    chi2: float
+    dof: int
+    p_value: float
+    consistent: bool
+
+    def refusal(self) -> str:
+        """The no-lock reason of an inconsistent lock."""
+        return (
+            f"fit residuals exceed what the centroid noise allows (χ² = {self.chi2:.1f} for "
+            f"{self.dof} dof, p = {self.p_value:.1e})"
+        )
+
+
+def isotropic_sigma_px(blob: Blob) -> float:
+    """One σ (px) of a blob's centroid: the RMS of its (σ_u, σ_v); NaN when not measured."""
+    s = blob.centroid_sigma_px
+    if s is None:
+        return math.nan
+    return math.sqrt(0.5 * (s[0] * s[0] + s[1] * s[1]))
+
+
+def lock_bound(
+    calib: StereoCalibration,
+    left_px: FloatArray,
+    right_px: FloatArray,
+    sigma_left_px: FloatArray,
+    sigma_right_px: FloatArray,
+    xyz_mm: FloatArray,
+    circle: Circle3D,
+    cfg: ErrorBoundConfig,
+) -> LockBound | None:
+    """The bound of a lock on these N ring LEDs (distorted centroids px, their σ px, their
+    triangulated points mm and the fitted circle); None when a σ is not measured."""
+    sl = np.asarray(sigma_left_px, dtype=np.float64)
+    sr = np.asarray(sigma_right_px, dtype=np.float64)
+    if not cfg.enabled or not (np.all(np.isfinite(sl)) and np.all(np.isfinite(sr))):
+        return None
+    X = np.asarray(xyz_mm, dtype=np.float64)
+    try:
+        covs = point_covariances(calib, left_px, right_px, X, sl, sr)
+        ring = ring_covariance(X, covs, circle)
+        test = fit_consistency(calib, left_px, right_px, X, sl, sr, circle, alpha=cfg.alpha)
+    except (FitError, np.linalg.LinAlgError, ValueError):
+        return None
+    return LockBound(
+        led_cov_mm2=covs,
+        led_pl_mm=led_protection_levels_mm(covs, cfg.p_exceed, method="eigen"),
+        center_cov_mm2=ring.center_cov_mm2,
+        center_pl_mm=protection_level_mm(ring.center_cov_mm2, cfg.p_exceed),
+        chi2=float(test.statistic),
+        dof=int(test.dof),
+        p_value=float(test.p_value),
+        consistent=bool(test.consistent),
+    )
+
+
+def with_bound(
+    leds: list[LedResult],
+    drogue: DrogueResult,
+    bound: LockBound,
+    sigmas_px: list[tuple[float, float]],
+) -> tuple[list[LedResult], DrogueResult]:
+    """The result records with the bound's numbers (``leds`` in the bound's row order)."""
+    out = [
+        led.model_copy(
+            update={
+                "sigma_px": sigmas_px[k],
+                "cov_mm2": bound.led_cov_mm2[k].tolist(),
+                "protection_level_mm": float(bound.led_pl_mm[k]),
+            }
+        )
+        for k, led in enumerate(leds)
+    ]
+    dro = drogue.model_copy(
+        update={
+            "center_cov_mm2": bound.center_cov_mm2.tolist(),
+            "protection_level_mm": bound.center_pl_mm,
+            "fit_chi2": bound.chi2,
+            "fit_dof": bound.dof,
+        }
+    )
+    return out, dro
+
+
+def bound_result(
+    calib: StereoCalibration,
+    left_px: FloatArray,
+    right_px: FloatArray,
+    sigmas_px: list[tuple[float, float]],
+    xyz_mm: FloatArray,
+    circle: Circle3D,
+    leds: list[LedResult],
+    drogue: DrogueResult,
+    cfg: ErrorBoundConfig,
+) -> tuple[list[LedResult], DrogueResult] | str:
+    """A lock's records with its bound (rows: the ring LEDs' distorted centroids px in both
+    images, their (left, right) σ px, their points mm and ``leds``, all in the same order),
+    the records unchanged where no σ is measured, or the no-lock reason when its residuals are
+    inconsistent and ``cfg.refuse_inconsistent``."""
+    bound = lock_bound(
+        calib,
+        np.asarray(left_px, dtype=np.float64),
+        np.asarray(right_px, dtype=np.float64),
+        np.array([s[0] for s in sigmas_px]),
+        np.array([s[1] for s in sigmas_px]),
+        xyz_mm,
+        circle,
+        cfg,
+    )
+    if bound is None:
+        return leds, drogue
+    if not bound.consistent and cfg.refuse_inconsistent:
+        return bound.refusal()
+    return with_bound(leds, drogue, bound, sigmas_px)
