@@ -40,7 +40,9 @@ from app.vision.types import Blob
 OUT_U, OUT_V, OUT_SIGMA_U, OUT_SIGMA_V, OUT_BACKGROUND, OUT_LEVEL, OUT_SATURATED, OUT_AREA = range(
     8
 )
-OUT_COLUMNS = 8
+OUT_X0, OUT_Y0, OUT_X1, OUT_Y1 = range(8, 12)  # the pixels read (the background ring included)
+OUT_COLUMNS = 12
+GROW_ATTEMPTS = 3  # windows of pad, 2·pad and 4·pad
 
 
 @dataclass(frozen=True)
@@ -102,92 +104,118 @@ def _ring_median(gray: np.ndarray, x0: int, y0: int, x1: int, y1: int) -> float:
 
 
 @njit(cache=True, nogil=True)
+def _measure(
+    gray: np.ndarray,
+    bx: int,
+    by: int,
+    bw: int,
+    bh: int,
+    pad: int,
+    params: np.ndarray,
+    out: np.ndarray,
+) -> bool:  # pragma: no cover - compiled
+    """The local centroid of one blob box in a window grown by ``pad`` px into ``out`` (a row
+    of ``OUT_COLUMNS``); False when the support reaches the window's edge."""
+    frac, sat, read_sigma, shot_k, floor_px = params[0], params[1], params[2], params[3], params[4]
+    height, width = gray.shape
+    x0, y0 = max(0, bx - pad), max(0, by - pad)
+    x1, y1 = min(width, bx + bw + pad), min(height, by + bh + pad)
+    out[OUT_X0], out[OUT_Y0], out[OUT_X1], out[OUT_Y1] = x0 - 1, y0 - 1, x1 + 1, y1 + 1
+    bg = _ring_median(gray, x0, y0, x1, y1)
+    # the peak on the blob's own box
+    peak = -1.0
+    px = py = 0
+    for y in range(by, by + bh):
+        for x in range(bx, bx + bw):
+            if gray[y, x] > peak:
+                peak = float(gray[y, x])
+                px, py = x, y
+    out[OUT_BACKGROUND] = bg
+    if not (peak - bg >= 2.0):
+        return True  # no contrast: nothing to grow for
+    top = sat if peak >= sat else peak
+    level = bg + frac * (top - bg)
+    wbase = level if params[5] > 0 else bg
+    # 8-connected flood fill from the peak over pixels ≥ level, inside the window
+    ww, wh = x1 - x0, y1 - y0
+    seen = np.zeros((wh, ww), np.bool_)
+    stack = np.empty(ww * wh, np.int64)
+    sp = 0
+    stack[sp] = (py - y0) * ww + (px - x0)
+    sp += 1
+    seen[py - y0, px - x0] = True
+    edge = False
+    sw = swu = swv = 0.0
+    count = 0
+    n_sat = 0
+    while sp > 0:
+        sp -= 1
+        idx = stack[sp]
+        j, i = idx // ww, idx % ww
+        g = float(gray[y0 + j, x0 + i])
+        wgt = g - wbase
+        sw += wgt
+        swu += wgt * (x0 + i)
+        swv += wgt * (y0 + j)
+        count += 1
+        if g >= sat:
+            n_sat += 1
+        if i == 0 or j == 0 or i == ww - 1 or j == wh - 1:
+            edge = True
+        for dj in (-1, 0, 1):
+            for di in (-1, 0, 1):
+                jj, ii = j + dj, i + di
+                if 0 <= jj < wh and 0 <= ii < ww and not seen[jj, ii]:
+                    if gray[y0 + jj, x0 + ii] >= level:
+                        seen[jj, ii] = True
+                        stack[sp] = jj * ww + ii
+                        sp += 1
+    out[OUT_LEVEL] = level
+    out[OUT_SATURATED] = n_sat
+    out[OUT_AREA] = count
+    if edge:
+        return False
+    if sw <= 0.0:
+        return True
+    cu, cv = swu / sw, swv / sw
+    # first-order noise of the weighted mean (the level held fixed)
+    vu = vv = 0.0
+    for j in range(wh):
+        for i in range(ww):
+            if seen[j, i]:
+                g = float(gray[y0 + j, x0 + i])
+                if g >= sat:
+                    continue
+                var = read_sigma * read_sigma + shot_k * max(g - bg, 0.0)
+                du, dv = x0 + i - cu, y0 + j - cv
+                vu += var * du * du
+                vv += var * dv * dv
+    out[OUT_U] = cu
+    out[OUT_V] = cv
+    out[OUT_SIGMA_U] = np.sqrt(vu / (sw * sw) + floor_px * floor_px)
+    out[OUT_SIGMA_V] = np.sqrt(vv / (sw * sw) + floor_px * floor_px)
+    return True
+
+
+@njit(cache=True, nogil=True)
 def local_centroids(
     gray: np.ndarray, boxes: np.ndarray, params: np.ndarray
 ) -> np.ndarray:  # pragma: no cover - compiled
     """For each (x, y, w, h) row of ``boxes`` (a blob's bounding box, image px) the local
     centroid (module docstring): rows of ``OUT_COLUMNS`` (u, v, σ_u, σ_v px, local background
-    DN, support level DN, saturated pixels, support area px); u, v NaN when not measured."""
-    frac, sat, read_sigma, shot_k, floor_px = params[0], params[1], params[2], params[3], params[4]
-    height, width = gray.shape
+    DN, support level DN, saturated pixels, support area px, the pixels read: x0, y0, x1, y1
+    half-open); u, v NaN when not measured. A support that reaches its window's edge is
+    measured again in a window twice and four times as wide (a large LED that the threshold
+    cut down to its core) before it is given up."""
     n = boxes.shape[0]
     out = np.full((n, OUT_COLUMNS), np.nan)
     for k in range(n):
         bx, by, bw, bh = boxes[k, 0], boxes[k, 1], boxes[k, 2], boxes[k, 3]
         pad = _pad(bw, bh)
-        x0, y0 = max(0, bx - pad), max(0, by - pad)
-        x1, y1 = min(width, bx + bw + pad), min(height, by + bh + pad)
-        bg = _ring_median(gray, x0, y0, x1, y1)
-        # the peak on the blob's own box
-        peak = -1.0
-        px = py = 0
-        for y in range(by, by + bh):
-            for x in range(bx, bx + bw):
-                if gray[y, x] > peak:
-                    peak = float(gray[y, x])
-                    px, py = x, y
-        if not (peak - bg >= 2.0):
-            continue
-        top = sat if peak >= sat else peak
-        level = bg + frac * (top - bg)
-        wbase = level if params[5] > 0 else bg
-        # 8-connected flood fill from the peak over pixels ≥ level, inside the window
-        ww, wh = x1 - x0, y1 - y0
-        seen = np.zeros((wh, ww), np.bool_)
-        stack = np.empty(ww * wh, np.int64)
-        sp = 0
-        stack[sp] = (py - y0) * ww + (px - x0)
-        sp += 1
-        seen[py - y0, px - x0] = True
-        edge = False
-        sw = swu = swv = 0.0
-        count = 0
-        n_sat = 0
-        while sp > 0:
-            sp -= 1
-            idx = stack[sp]
-            j, i = idx // ww, idx % ww
-            g = float(gray[y0 + j, x0 + i])
-            wgt = g - wbase
-            sw += wgt
-            swu += wgt * (x0 + i)
-            swv += wgt * (y0 + j)
-            count += 1
-            if g >= sat:
-                n_sat += 1
-            if i == 0 or j == 0 or i == ww - 1 or j == wh - 1:
-                edge = True
-            for dj in (-1, 0, 1):
-                for di in (-1, 0, 1):
-                    jj, ii = j + dj, i + di
-                    if 0 <= jj < wh and 0 <= ii < ww and not seen[jj, ii]:
-                        if gray[y0 + jj, x0 + ii] >= level:
-                            seen[jj, ii] = True
-                            stack[sp] = jj * ww + ii
-                            sp += 1
-        out[k, OUT_BACKGROUND] = bg
-        out[k, OUT_LEVEL] = level
-        out[k, OUT_SATURATED] = n_sat
-        out[k, OUT_AREA] = count
-        if edge or sw <= 0.0:
-            continue
-        cu, cv = swu / sw, swv / sw
-        # first-order noise of the weighted mean (the level held fixed)
-        vu = vv = 0.0
-        for j in range(wh):
-            for i in range(ww):
-                if seen[j, i]:
-                    g = float(gray[y0 + j, x0 + i])
-                    if g >= sat:
-                        continue
-                    var = read_sigma * read_sigma + shot_k * max(g - bg, 0.0)
-                    du, dv = x0 + i - cu, y0 + j - cv
-                    vu += var * du * du
-                    vv += var * dv * dv
-        out[k, OUT_U] = cu
-        out[k, OUT_V] = cv
-        out[k, OUT_SIGMA_U] = np.sqrt(vu / (sw * sw) + floor_px * floor_px)
-        out[k, OUT_SIGMA_V] = np.sqrt(vv / (sw * sw) + floor_px * floor_px)
+        for attempt in range(GROW_ATTEMPTS):
+            out[k, :] = np.nan
+            if _measure(gray, bx, by, bw, bh, pad << attempt, params, out[k]):
+                break
     return out
 
 
@@ -201,19 +229,25 @@ def measure_blobs(
     return np.asarray(local_centroids(gray, boxes, cfg.params()))
 
 
-def refine_blobs(
-    gray: NDArray[np.uint8], blobs: list[Blob], cfg: LocalCentroidConfig
-) -> list[Blob]:
-    """The blobs with their local centroids, σ and local background (eq. 11's centroid and
-    σ = NaN where the local one is not measured); ``cfg.enabled`` False: unchanged."""
-    if not cfg.enabled or not blobs:
-        return blobs
-    table = measure_blobs(gray, blobs, cfg)
+def with_local_centroids(blobs: list[Blob], table: NDArray[np.float64]) -> list[Blob]:
+    """The blobs with the local centroids, σ and local background of ``table``
+    (:func:`measure_blobs`; eq. 11's centroid and σ = NaN where it is not measured)."""
     out = []
     for b, row in zip(blobs, table.tolist(), strict=True):
-        u, v, su, sv, bg = row[OUT_U], row[OUT_V], row[OUT_SIGMA_U], row[OUT_SIGMA_V], row[4]
+        u, v, su, sv = row[OUT_U], row[OUT_V], row[OUT_SIGMA_U], row[OUT_SIGMA_V]
+        bg = row[OUT_BACKGROUND]
         if u == u:  # measured (not NaN)
             out.append(replace(b, centroid_px=(u, v), centroid_sigma_px=(su, sv), local_bg=bg))
         else:
             out.append(replace(b, centroid_sigma_px=(float("nan"), float("nan")), local_bg=bg))
     return out
+
+
+def refine_blobs(
+    gray: NDArray[np.uint8], blobs: list[Blob], cfg: LocalCentroidConfig
+) -> list[Blob]:
+    """The blobs with their local centroids (:func:`with_local_centroids`);
+    ``cfg.enabled`` False: unchanged (the paper's eq. 11)."""
+    if not cfg.enabled or not blobs:
+        return blobs
+    return with_local_centroids(blobs, measure_blobs(gray, blobs, cfg))

@@ -55,6 +55,7 @@ from app.vision.preprocess import (
     background_from_histogram,
     choose_threshold,
     frame_summary,
+    noise_sigma,
     to_gray,
     validate_image,
 )
@@ -200,8 +201,11 @@ class NavigationPipeline:
         # one pass over the frame: the band maxima (the peak of eq. 10's "auto" rule and the
         # bright bands) and the background's histogram
         bands, hist = frame_summary(gray, BAND_ROWS, BACKGROUND_ROW_STEP, BACKGROUND_COL_STEP)
-        stats = background_from_histogram(hist)
-        bg = stats[0]
+        # the background level (median) and the sensor's noise σ from neighbouring pixels'
+        # differences: the MAD of the values would measure a sunlit scene, not the noise,
+        # and lift the 6σ floor of eq. 10's threshold above unsaturated LEDs
+        bg = background_from_histogram(hist)[0]
+        stats = (bg, noise_sigma(gray))
         threshold = choose_threshold(gray, cfg.threshold, stats, float(bands.max()))
         t1 = time.perf_counter()
         # binarise, median-filter, label and centroid only around the bright pixels

@@ -73,7 +73,15 @@ from app.vision.error_bound import bound_result, isotropic_sigma_px
 from app.vision.features import gate_array
 from app.vision.ihwt import SAMPLES_PER_SUBSQUARE, describe
 from app.vision.ihwt import window_side_px as ihwt_window_side_px
-from app.vision.local_centroid import refine_blobs, window_pad_px
+from app.vision.local_centroid import (
+    OUT_X0,
+    OUT_X1,
+    OUT_Y0,
+    OUT_Y1,
+    measure_blobs,
+    window_pad_px,
+    with_local_centroids,
+)
 from app.vision.matching import epipolar_distances
 from app.vision.pipeline import (
     NavigationPipeline,
@@ -473,13 +481,22 @@ class StereoTracker:
                 sat = cfg.appearance.saturated_dn
                 blob = replace(blob, color_bgr=blob_color_bgr(mosaic, blob, t, sat))
             got[0 if k < len(win_l) else 1][win.led_id] = blob
-        # the local-support centroids of all windows' blobs in one compiled call
-        for found in got:
-            ids = list(found)
-            for led_id, blob in zip(
-                ids, refine_blobs(gray, [found[i] for i in ids], cfg.centroid), strict=True
-            ):
-                found[led_id] = blob
+        # the local-support centroids of all windows' blobs in one compiled call; the pixels
+        # each reads must lie in its own window (else they are not the full frame's)
+        if cfg.centroid.enabled:
+            bounds = {w.led_id + (0 if k < len(win_l) else 1 << 20): w for k, w in enumerate(wins)}
+            for s, found in enumerate(got):
+                ids = list(found)
+                table = measure_blobs(gray, [found[i] for i in ids], cfg.centroid)
+                for i, row in zip(ids, table.tolist(), strict=True):
+                    w = bounds[i + (s << 20)]
+                    x0, y0, x1, y1 = row[OUT_X0], row[OUT_Y0], row[OUT_X1], row[OUT_Y1]
+                    if x0 < w.mx or y0 < w.row or x1 > w.mx + side or y1 > w.row + side:
+                        raise _Fallback(f"LED {i}'s centroid support leaves its window")
+                for i, blob in zip(
+                    ids, with_local_centroids([found[i] for i in ids], table), strict=True
+                ):
+                    found[i] = blob
         return win_l, win_r, gray, got[0], got[1], (thr_l, thr_r)
 
     def _track_frame(
