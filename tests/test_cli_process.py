@@ -29,7 +29,16 @@ def test_process_json_contract(pair_dir, capsys):
     out = json.loads(capsys.readouterr().out)
     assert set(out) == {"lock", "reason", "leds", "drogue", "timing_ms"}
     assert out["lock"] is True and out["reason"] is None
-    assert set(out["drogue"]) == {"center_mm", "normal", "radius_mm", "rms_mm"}
+    assert set(out["drogue"]) == {
+        "center_mm",
+        "normal",
+        "radius_mm",
+        "rms_mm",
+        "center_cov_mm2",
+        "protection_level_mm",
+        "fit_chi2",
+        "fit_dof",
+    }
     assert set(out["timing_ms"]) == {
         "preprocess",
         "extract",
@@ -37,6 +46,7 @@ def test_process_json_contract(pair_dir, capsys):
         "match",
         "triangulate",
         "pose",
+        "bound",
         "total",
     }
     assert len(out["leds"]) == 5
@@ -48,8 +58,15 @@ def test_process_json_contract(pair_dir, capsys):
         "descriptor_distance",
         "epipolar_px",
         "reprojection_px",
+        "sigma_px",
+        "cov_mm2",
+        "protection_level_mm",
     }
-    assert np.linalg.norm(np.array(out["drogue"]["center_mm"]) - truth.center_mm) < 0.5
+    err = np.linalg.norm(np.array(out["drogue"]["center_mm"]) - truth.center_mm)
+    assert err < 0.5
+    # the error bound: a 99.9 % protection level that holds and is not vacuous at 1.1 m
+    assert err <= out["drogue"]["protection_level_mm"] < 5.0
+    assert out["drogue"]["fit_dof"] == 9 and 0.0 <= out["drogue"]["fit_chi2"] < 30.0
 
 
 def test_process_human_summary(pair_dir, capsys):

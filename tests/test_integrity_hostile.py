@@ -103,9 +103,21 @@ def test_too_many_blobs_is_refused_not_trimmed(calib):
 def test_whitish_glints_are_rejected_by_colour(calib):
     c, n = random_pose(np.random.default_rng(5), 1500.0, 20.0)
     pair = render_pair(calib, c, n, RenderSettings(glints=20, color=True), seed=5)
-    pipe = NavigationPipeline(calib)
+    # on eq. 9's gray the whitish glints are LED-like blobs that the colour test must refuse
+    pipe = NavigationPipeline(calib, PipelineConfig(colour_detect="gray"))
     res = pipe.process(pair.left, pair.right)
     assert res.lock and not is_wrong_lock(res, pair)
+    # on the green excess (the default) they do not even become candidates
+    green = NavigationPipeline(calib)
+    res_g = green.process(pair.left, pair.right)
+    assert res_g.lock and not is_wrong_lock(res_g, pair)
+
+    def candidates(p: NavigationPipeline) -> int:  # blobs, the colour gate's refusals included
+        fs = p.trace.left
+        assert fs is not None
+        return len(fs.blobs) + sum("not green" in b.reason for b in fs.rejected)
+
+    assert candidates(green) + 10 <= candidates(pipe)
     # refused by the colour gate before matching, or by the appearance test after it
     reasons = [r for rs in pipe.trace.appearance_rejected.values() for r in rs]
     reasons += [b.reason for fs in (pipe.trace.left, pipe.trace.right) for b in fs.rejected]

@@ -240,10 +240,13 @@ def test_pipeline_appearance_and_matches_equal_the_replaced_per_match_code(calib
     x = stereo_center_x_mm(calib, 1000.0)
     settings = RenderSettings(color=True, glints=30, mono_glints=10)
     pair = render_pair(calib, np.array([x, 0.0, 1000.0]), tilted_normal(10.0, 30.0), settings)
-    # the colour gate off: the whitish glints reach the matcher and the appearance test
+    # eq. 9's gray and the colour gate off: the whitish glints reach the matcher and the
+    # appearance test
     appearance = AppearanceConfig(colour_gate=False)
     for matcher in ("epipolar", "paper"):
-        pipe = NavigationPipeline(calib, PipelineConfig(matcher=matcher, appearance=appearance))
+        pipe = NavigationPipeline(
+            calib, PipelineConfig(matcher=matcher, appearance=appearance, colour_detect="gray")
+        )
         assert pipe.process(pair.left, pair.right).lock
         tr, cfg = pipe.trace, pipe.config
         assert tr.left is not None and tr.right is not None and tr.xyz_mm is not None

@@ -125,10 +125,13 @@ def test_tracked_frames_do_no_full_frame_work(calib, monkeypatch) -> None:  # ty
 
         return wrapped
 
+    # graying: eq. 9 or the green excess of a colour frame (preprocess.detection_image)
     gray = preprocess_mod.to_gray
-    for mod in (preprocess_mod, pipeline_mod, tracking_mod):
-        monkeypatch.setattr(mod, "to_gray", spy("to_gray", gray))
-    for name in ("medianBlur", "threshold", "cvtColor"):
+    monkeypatch.setattr(preprocess_mod, "to_gray", spy("to_gray", gray))
+    detect = preprocess_mod.detection_image
+    for mod in (pipeline_mod, tracking_mod):
+        monkeypatch.setattr(mod, "detection_image", spy("to_gray", detect))
+    for name in ("medianBlur", "threshold", "cvtColor", "split"):
         monkeypatch.setattr(cv2, name, spy(name, getattr(cv2, name)))
     # eq. 10, the median filter, the labelling (Algorithm 2) and eq. 11, compiled, and the
     # image they read: the acquisition's and the tracker's

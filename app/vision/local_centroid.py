@@ -42,7 +42,10 @@ OUT_U, OUT_V, OUT_SIGMA_U, OUT_SIGMA_V, OUT_BACKGROUND, OUT_LEVEL, OUT_SATURATED
 )
 OUT_X0, OUT_Y0, OUT_X1, OUT_Y1 = range(8, 12)  # the pixels read (the background ring included)
 OUT_COLUMNS = 12
-GROW_ATTEMPTS = 3  # windows of pad, 2·pad and 4·pad
+# (support fraction at least, window pad multiple) tried in turn until the support is bounded:
+# a wider window for an LED that the threshold cut down to its core, then higher levels for
+# an LED next to something brighter than its own low level (a sunlit rim, the canopy)
+ATTEMPTS = np.array([[0.0, 1], [0.0, 2], [0.35, 1], [0.5, 1], [0.5, 2], [0.5, 4]], np.float64)
 
 
 @dataclass(frozen=True)
@@ -205,17 +208,21 @@ def local_centroids(
     centroid (module docstring): rows of ``OUT_COLUMNS`` (u, v, σ_u, σ_v px, local background
     DN, support level DN, saturated pixels, support area px, the pixels read: x0, y0, x1, y1
     half-open); u, v NaN when not measured. A support that reaches its window's edge is
-    measured again in a window twice and four times as wide (a large LED that the threshold
-    cut down to its core) before it is given up."""
+    measured again as ``ATTEMPTS`` lists (wider windows, higher levels) before it is given
+    up."""
     n = boxes.shape[0]
     out = np.full((n, OUT_COLUMNS), np.nan)
+    params = params.copy()
+    frac0 = params[0]
     for k in range(n):
         bx, by, bw, bh = boxes[k, 0], boxes[k, 1], boxes[k, 2], boxes[k, 3]
         pad = _pad(bw, bh)
-        for attempt in range(GROW_ATTEMPTS):
+        for a in range(ATTEMPTS.shape[0]):
             out[k, :] = np.nan
-            if _measure(gray, bx, by, bw, bh, pad << attempt, params, out[k]):
+            params[0] = max(frac0, ATTEMPTS[a, 0])
+            if _measure(gray, bx, by, bw, bh, pad * int(ATTEMPTS[a, 1]), params, out[k]):
                 break
+    params[0] = frac0
     return out
 
 

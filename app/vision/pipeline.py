@@ -50,13 +50,14 @@ from app.vision.matching import (
 from app.vision.preprocess import (
     BACKGROUND_COL_STEP,
     BACKGROUND_ROW_STEP,
+    ColourDetect,
     ImageError,
     ThresholdMode,
     background_from_histogram,
     choose_threshold,
+    detection_image,
     frame_summary,
     noise_sigma,
-    to_gray,
     validate_image,
 )
 from app.vision.result import DrogueResult, LedResult, PoseResult, StageTimings
@@ -99,6 +100,9 @@ def drogue_result(circle: Circle3D) -> DrogueResult:
 class PipelineConfig:
     """Tunable parameters. Lengths in mm, image quantities in px."""
 
+    # colour input: find and measure the LEDs on eq. 9's gray ("gray", the paper) or on the
+    # green excess G − max(B, R) ("green", app.vision.preprocess.green_excess)
+    colour_detect: ColourDetect = "green"
     threshold: ThresholdMode = "auto"  # eq. 10: int DN, "auto" (half-max) or "otsu"
     median_ksize: int = 3
     gate: BlobGate = field(default_factory=BlobGate)
@@ -196,7 +200,7 @@ class NavigationPipeline:
     # ------------------------------------------------------------------ stages
     def _features(self, image: np.ndarray) -> tuple[FeatureSet, int, tuple[float, float]]:
         cfg = self.config
-        gray = to_gray(image)
+        gray = detection_image(image, cfg.colour_detect)
         t0 = time.perf_counter()
         # one pass over the frame: the band maxima (the peak of eq. 10's "auto" rule and the
         # bright bands) and the background's histogram

@@ -45,6 +45,31 @@ def to_gray(image: U8Image) -> U8Image:
     return np.asarray(cv2.cvtColor(image, cv2.COLOR_BGR2GRAY), dtype=np.uint8)
 
 
+ColourDetect = Literal["gray", "green"]
+
+
+def green_excess(image: U8Image, saturated_dn: int = 250) -> U8Image:
+    """The LED image of a colour frame: G − max(B, R) per pixel (clipped at 0; DN), and 255
+    where all three channels are saturated (a core with no colour left). The LEDs are green
+    (paper §3.1): their light stands out here while white or yellow sun glints, grey metal,
+    canopy and sky vanish (a glint's fully saturated core stays as a small blob; its white
+    flanks fail the colour test). In a sunlit frame a green LED can be no brighter than the
+    sky in eq. 9's gray, so gray alone misses it."""
+    b, g, r = cv2.split(image[:, :, :3])
+    brighter = cv2.max(b, r)
+    excess = cv2.subtract(g, brighter)
+    _, sat = cv2.threshold(cv2.min(g, brighter), saturated_dn - 1, 255, cv2.THRESH_BINARY)
+    return np.asarray(cv2.max(excess, sat), dtype=np.uint8)
+
+
+def detection_image(image: U8Image, mode: ColourDetect = "green") -> U8Image:
+    """The single-channel image the LEDs are found and measured on: a gray frame as it is; a
+    colour frame by eq. 9 (``"gray"``, the paper) or :func:`green_excess` (``"green"``)."""
+    if image.ndim == 2 or mode == "gray":
+        return to_gray(image)
+    return green_excess(image)
+
+
 BACKGROUND_ROW_STEP = 8  # the background's subsample: every 8th row ...
 BACKGROUND_COL_STEP = 4  # ... and every 4th column (1/32 of the pixels)
 

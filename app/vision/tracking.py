@@ -94,7 +94,7 @@ from app.vision.pipeline import (
 from app.vision.preprocess import (
     ImageError,
     choose_threshold,
-    to_gray,
+    detection_image,
 )
 from app.vision.result import LedResult, PoseResult, StageTimings
 from app.vision.types import Blob
@@ -443,7 +443,7 @@ class StereoTracker:
                 mosaic[w.row : w.row + side, w.mx : w.mx + side] = image[
                     w.y0 : w.y0 + side, w.x0 : w.x0 + side
                 ]
-        gray = to_gray(mosaic)
+        gray = detection_image(mosaic, cfg.colour_detect)
         top, bottom = gray[:side], gray[side + 1 :]
         thr_l = self._threshold(top, left, st.background[0], st.thresholds[0])
         thr_r = self._threshold(bottom, right, st.background[1], st.thresholds[1])
