@@ -25,7 +25,6 @@ from app.geometry.uncertainty import (
     fit_consistency,
     led_protection_levels_mm,
     point_covariances,
-    protection_level_mm,
     ring_covariance,
 )
 from app.vision.result import DrogueResult, LedResult
@@ -103,11 +102,16 @@ def lock_bound(
         ring = ring_covariance(X, covs, circle)
     except (FitError, np.linalg.LinAlgError, ValueError):
         return None
+    # the LEDs' and the centre's levels in one call: sqrt(λ_max·χ²₃(1 − p)), conservative by
+    # construction (≤ 1.23× the exact quantile of :func:`protection_level_mm`, 4× cheaper)
+    levels = led_protection_levels_mm(
+        np.concatenate([covs, ring.center_cov_mm2[None]]), cfg.p_exceed, method="eigen"
+    )
     return LockBound(
         led_cov_mm2=covs,
-        led_pl_mm=led_protection_levels_mm(covs, cfg.p_exceed, method="eigen"),
+        led_pl_mm=levels[:-1],
         center_cov_mm2=ring.center_cov_mm2,
-        center_pl_mm=protection_level_mm(ring.center_cov_mm2, cfg.p_exceed),
+        center_pl_mm=float(levels[-1]),
         chi2=float(test.statistic),
         dof=int(test.dof),
         p_value=float(test.p_value),
