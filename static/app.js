@@ -123,6 +123,9 @@ function render(changed) {
   const c = rec.control;
   for (const k of ["throttle", "aileron", "elevator", "rudder"]) $("c-" + k).textContent = c ? fmt(c[k], 4) : "–";
   $("nleds").textContent = rec.pose ? rec.pose.leds.length : "–";
+  const dro = rec.pose && rec.pose.lock ? rec.pose.drogue : null;
+  $("pl").textContent = dro && dro.protection_level_mm != null ? fmt(dro.protection_level_mm, 2) : "–";
+  $("chi2").textContent = dro && dro.fit_chi2 != null ? fmt(dro.fit_chi2, 1) + " / " + dro.fit_dof : "–";
   // the miss is set on the one tick that crosses the drogue plane: show the last crossing's
   $("miss").textContent = lastMiss ? fmt(lastMiss.miss, 3) + (lastMiss.captured ? " ✓" : " ✗") : "–";
   $("miss").title = lastMiss ? "last drogue-plane crossing: run " + lastMiss.run + (lastMiss.captured ? ", captured" : ", missed") : "";
@@ -274,7 +277,8 @@ function wireUpload() {
       if (res.drogue) {
         const d = res.drogue;
         summary += "; drogue centre (" + d.center_mm.map((v) => fmt(v, 1)).join(", ") + ") mm, normal (" +
-          d.normal.map((v) => fmt(v, 3)).join(", ") + "), radius " + fmt(d.radius_mm, 1) + " mm, rms " + fmt(d.rms_mm, 2) + " mm";
+          d.normal.map((v) => fmt(v, 3)).join(", ") + "), radius " + fmt(d.radius_mm, 1) + " mm, rms " + fmt(d.rms_mm, 2) + " mm" +
+          (d.protection_level_mm != null ? ", error < " + fmt(d.protection_level_mm, 2) + " mm (99.9 %)" : "");
       }
       summary += "; pipeline " + fmt(res.timing_ms.total, 1) + " ms";
       $("upload-summary").textContent = summary;
