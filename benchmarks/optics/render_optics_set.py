@@ -8,6 +8,8 @@ Run with a Python that has ``mitsuba`` (the project's optional extra ``render``)
     PYTHONPATH=. python benchmarks/optics/render_optics_set.py --set holdout \
         --out tests/data/optics/holdout
     PYTHONPATH=. python benchmarks/optics/render_optics_set.py --jitter   # MC-noise check
+    PYTHONPATH=. python benchmarks/optics/render_optics_set.py --refresh-visibility \
+        --out tests/data/optics/dev    # redo the ray casts of a set's manifest only
 
 Camera path (see ``tests/test_optics_set.py`` for the check against the calibration): each
 camera is rendered as an ideal pinhole (Mitsuba ``perspective``: square pixels, focal fx, no
@@ -25,10 +27,17 @@ Rᵀ·diag(−1, −1, 1) at −Rᵀ·T. The principal point is set by ``princip
 +0.5, OpenCV's at integers).
 
 Scene units are mm, the left camera frame is the world frame (x right, y down, z forward).
-The whole frame is rendered at a low sample count (direct light only) and small windows
-around every LED and the glint bolt are rendered again at a high sample count and pasted in,
-so that sampling noise does not move the LED centroids. Every case is rendered in a child
-process (Mitsuba's memory grows with every render), one child at a time.
+Direct light only (``direct`` integrator; ``scalar_rgb``: the LLVM variants abort on this
+machine's libLLVM). The whole frame is rendered at SPP_FRAME, by day the drogue's box again at
+SPP_DROGUE, and the result is denoised (a cross-bilateral filter guided by a render of the
+same geometry lit from the camera, see :func:`denoise`: the sky light on the fabric is the
+noisy term, and it would dominate the PNG size); windows around every LED and the glint bolt
+are then rendered at SPP_WINDOW and pasted in unfiltered, so that sampling noise does not
+move the LED centroids (≈ 0.01 px, ``--jitter``). The LEDs sit in black housings with a
+black bezel: a polished rim that can see the dome mirrors it right next to the LED blob.
+Visibility and the visible dome's centroid come from ray casts (:func:`visibility`). Every
+case is rendered in a child process (Mitsuba's memory grows with every render), one child at
+a time.
 """
 
 from __future__ import annotations
@@ -79,6 +88,11 @@ DENOISE = {
     "sigma_dn": 25.0,
     "hot_dn": 600.0,
 }
+
+BEZEL_RADIUS_D = 1.25  # LED bezel radius in LED diameters
+# the housing's floor sits just in front of the rim's front face (−0.1 d), so that no part of
+# the polished rim is visible inside the housing next to the dome
+HOUSING_DEPTH_D = 0.06
 
 RINGS = {
     "lab": {"radius_mm": 75.0, "count": 5, "led_diameter_mm": 5.0, "ranges_mm": (1000, 2500)},
@@ -388,6 +402,20 @@ def torus_mesh(center, normal, e_up, e_right, major, minor, nu=384, nv=32):
     return verts.reshape(-1, 3), nrm.reshape(-1, 3), grid_faces(nu, nv, True)
 
 
+def annulus_mesh(center, normal, r_in, r_out, nu=96):
+    """Flat ring between radii r_in and r_out in the plane through ``center`` ⊥ ``normal``."""
+    rot = frame_to(normal)
+    phi = 2 * np.pi * np.arange(nu) / nu
+    ring = np.column_stack([np.cos(phi), np.sin(phi), np.zeros(nu)]) @ rot.T
+    verts = np.concatenate([center + r_in * ring, center + r_out * ring])
+    nrm = np.tile(unit(normal), (2 * nu, 1))
+    faces = []
+    for i in range(nu):
+        j = (i + 1) % nu
+        faces += [(i, j, nu + j), (i, nu + j, nu + i)]
+    return verts, nrm, np.array(faces)
+
+
 def frustum_mesh(center, normal, e_up, e_right, r0, r1, length, nu=192, nv=12):
     """Cone frustum from radius r0 at ``center`` to radius r1 at ``center − length·normal``;
     normals point inwards (towards the axis)."""
@@ -678,14 +706,24 @@ def build_scene_dict(case: dict[str, Any], guide=None) -> dict[str, Any]:
             del scene[f"led_{k}"]["emitter"]
         scene[f"housing_{k}"] = {
             "type": "cylinder",
-            "p0": [float(x) for x in p - n * 0.6 * d],
+            "p0": [float(x) for x in p - n * HOUSING_DEPTH_D * d],
             "p1": [float(x) for x in p + n * 0.03 * d],
             "radius": 0.62 * d,
             "bsdf": black,
         }
         scene[f"housingbase_{k}"] = {
             "type": "disk",
-            "to_world": _to_world(rot_n, p - n * 0.6 * d, (0.62 * d,) * 3),
+            "to_world": _to_world(rot_n, p - n * HOUSING_DEPTH_D * d, (0.62 * d,) * 3),
+            "bsdf": black,
+        }
+        # black bezel (an annulus) around the housing's lip: without it the polished rim next
+        # to the LED shows the dome's mirror image, which merges with the LED blob (up to
+        # 0.9 px); it leaves the dome's visible part as the housing alone does
+        v, nr, f = annulus_mesh(p + n * 0.03 * d, n, 0.62 * d, BEZEL_RADIUS_D * d)
+        write_ply(tmp / f"bezel_{k}.ply", v, nr, f)
+        scene[f"bezel_{k}"] = {
+            "type": "ply",
+            "filename": str(tmp / f"bezel_{k}.ply"),
             "bsdf": black,
         }
     # polished rim (torus) and bolts
@@ -899,11 +937,12 @@ def window_for(
     return x0, y0, x1 - x0, y1 - y0
 
 
-def visibility(scene, cam: IdealCamera, g: dict[str, Any], k: int, rings: int = 24):
-    """Ray-cast LED k from the camera centre over a uniform grid of its silhouette disc.
+def visibility(scene, cam: IdealCamera, g: dict[str, Any], k: int, n_grid: int = 64):
+    """Ray-cast LED k from the camera centre over a square grid (``n_grid`` across) of its
+    silhouette disc.
 
-    Returns (fraction of rays whose first hit is LED k's dome or its own housing, i.e. not
-    hidden by anything else; the real-image centroid of the dome points these rays hit,
+    Returns (fraction of rays whose first hit is LED k's dome or its own housing or bezel,
+    i.e. not hidden by anything else; the real-image centroid of the rays that hit the dome,
     i.e. where a uniform-radiance dome's blob centre lies, px, or None)."""
     import mitsuba as mi
 
@@ -911,27 +950,63 @@ def visibility(scene, cam: IdealCamera, g: dict[str, Any], k: int, rings: int = 
     rho = 0.5 * g["d"] * 0.999
     w = unit(p - cam.center)
     b = frame_to(w)
-    pts = [np.zeros(2)]
-    for i in range(1, rings + 1):
-        m = 6 * i
-        a = 2 * np.pi * (np.arange(m) + 0.5 * i) / m
-        pts += list((i / rings) * np.column_stack([np.cos(a), np.sin(a)]))
-    own = {f"led_{k}", f"housing_{k}", f"housingbase_{k}"}
+    t = (np.arange(n_grid) + 0.5) / n_grid * 2.0 - 1.0
+    aa, bb = np.meshgrid(t, t)
+    inside = aa**2 + bb**2 <= 1.0
+    own = {f"led_{k}", f"housing_{k}", f"housingbase_{k}", f"bezel_{k}"}
     ok = 0
     hits = []
     origin = mi.Point3f(*cam.center.tolist())
-    for ab in pts:
-        q = p + rho * (ab[0] * b[:, 0] + ab[1] * b[:, 1])
+    for a, c in zip(aa[inside], bb[inside], strict=True):
+        q = p + rho * (a * b[:, 0] + c * b[:, 1])
         dvec = unit(q - cam.center)
         si = scene.ray_intersect(mi.Ray3f(origin, mi.Vector3f(*dvec.tolist())))
         if si.is_valid():
             sid = si.shape.id()
-            if sid in own:
+            # Mitsuba merges meshes sharing a BSDF (the bezels lose their ids): a hit inside
+            # the LED's own housing and bezel volume counts as the LED's own
+            rel = np.array([si.p[0], si.p[1], si.p[2]]) - p
+            axial = float(rel @ g["n"])
+            radial = float(np.linalg.norm(rel - axial * g["n"]))
+            in_mount = radial <= (BEZEL_RADIUS_D + 1e-3) * g["d"] and (
+                -(HOUSING_DEPTH_D + 0.01) * g["d"] <= axial <= 0.04 * g["d"]
+            )
+            if sid in own or in_mount:
                 ok += 1
             if sid == f"led_{k}":
-                hits.append([float(si.p[0]), float(si.p[1]), float(si.p[2])])
+                hits.append(q)
     cen = cam.project_real(np.array(hits)).mean(axis=0).tolist() if hits else None
-    return ok / len(pts), cen
+    return ok / int(inside.sum()), cen
+
+
+def refresh_visibility(out_dir: Path) -> None:
+    """Recompute every case's ray-cast visibility and dome centroids in a set's manifest (the
+    images are not touched)."""
+    import mitsuba as mi
+
+    mi.set_variant(VARIANT)
+    mi.set_log_level(mi.LogLevel.Error)
+    cams = cameras(load_calibration())
+    path = out_dir / "manifest.json"
+    man = json.loads(path.read_text())
+    for rec in man["cases"]:
+        with tempfile.TemporaryDirectory() as tmpd:
+            case = dict(rec, _tmpdir=tmpd)
+            scene = mi.load_dict(build_scene_dict(case))
+            g = led_geometry(case)
+            truth = rec["truth"]
+            for cam in cams:
+                vv = [visibility(scene, cam, g, k) for k in range(len(g["leds"]))]
+                truth["led_visible_fraction"][cam.name] = [v[0] for v in vv]
+                truth["led_dome_centroid_px"][cam.name] = [v[1] for v in vv]
+            frac = truth["led_visible_fraction"]
+            truth["led_visible"] = [
+                bool(a >= 1.0 and b >= 1.0)
+                for a, b in zip(frac["left"], frac["right"], strict=True)
+            ]
+            del scene
+    path.write_text(json.dumps(man, indent=1) + "\n")
+    print(f"{path}: visibility refreshed for {len(man['cases'])} cases")
 
 
 def render_case(case: dict[str, Any], out_dir: Path, cams) -> dict[str, Any]:
@@ -1202,7 +1277,7 @@ def jitter_check(n_seeds: int = 3) -> dict[str, Any]:
             scene = mi.load_dict(build_scene_dict(case))
             g = led_geometry(case)
             cam = cams[0]
-            win = window_for(cam, g["leds"][0:1], 0.62 * g["d"], 8.0)
+            win = window_for(cam, g["leds"][0:1], 0.62 * g["d"], 10.0)
             p = cam.project_ideal(g["leds"][0:1])[0] - np.array(win[:2])
             for spp in (SPP_FRAME, SPP_WINDOW):
                 cents = []
@@ -1232,10 +1307,13 @@ def jitter_check(n_seeds: int = 3) -> dict[str, Any]:
 
 
 def _centroid(img: np.ndarray, p: np.ndarray, radius: float) -> np.ndarray:
+    """Centroid within ``radius`` of ``p`` above a plane fitted to a ring around it."""
     yy, xx = np.mgrid[0 : img.shape[0], 0 : img.shape[1]]
     rr = np.hypot(xx - p[0], yy - p[1])
-    ring = (rr > radius + 1.0) & (rr < radius + 3.0)
-    bg = float(np.median(img[ring])) if ring.any() else 0.0
+    ring = (rr > radius + 1.0) & (rr < radius + 4.0)
+    a = np.column_stack([np.ones(ring.sum()), xx[ring], yy[ring]])
+    coef = np.linalg.lstsq(a, img[ring], rcond=None)[0]
+    bg = coef[0] + coef[1] * xx + coef[2] * yy
     wgt = np.where(rr <= radius, np.clip(img - bg, 0, None), 0.0)
     return np.array([(wgt * xx).sum() / wgt.sum(), (wgt * yy).sum() / wgt.sum()])
 
@@ -1273,12 +1351,18 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--batch", type=int, default=6, help="cases per child process")
     ap.add_argument("--only", type=str, default=None, help="comma-separated case indices")
     ap.add_argument("--jitter", action="store_true", help="MC-noise centroid check")
+    ap.add_argument(
+        "--refresh-visibility", action="store_true", help="redo the ray casts of --out's manifest"
+    )
     ap.add_argument("--worker", type=Path, default=None, help=argparse.SUPPRESS)
     ap.add_argument("--indices", type=str, default="", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
 
     if args.worker is not None:
         worker(args.worker, [int(x) for x in args.indices.split(",") if x], args.out)
+        return 0
+    if args.refresh_visibility:
+        refresh_visibility(args.out)
         return 0
     if args.jitter:
         print(json.dumps(jitter_check(), indent=1))
