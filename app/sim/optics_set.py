@@ -39,6 +39,20 @@ BAYER_RGGB_TO_BGR = getattr(cv2, "COLOR_BayerRGGB2BGR", cv2.COLOR_BayerBG2BGR)
 Sensor = Literal["mono", "bayer_rggb"]
 
 
+# the set's conditions, one per case (the renderer's plan and the tests share them)
+CONDITIONS: tuple[str, ...] = (
+    "night_mono",
+    "night_bayer",
+    "sun_mono",
+    "sun_bayer",
+    "glint_mono",
+    "glint_bayer",
+    "occluded2",
+    "defocus",
+    "motion",
+)
+
+
 @dataclass(frozen=True)
 class BlurInfo:
     """Optical blur applied to the linear ideal images (after the distortion remap)."""

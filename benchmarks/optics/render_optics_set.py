@@ -65,6 +65,7 @@ if str(REPO) not in sys.path:
 
 from app.geometry.calibration import CameraIntrinsics, StereoCalibration  # noqa: E402
 from app.sim.led_ring import LedRing, random_pose, ring_basis, ring_points  # noqa: E402
+from app.sim.optics_set import CONDITIONS  # noqa: E402
 
 RENDERER_VERSION = "optics-render-1"
 VARIANT = "scalar_rgb"
@@ -98,17 +99,6 @@ RINGS = {
     "lab": {"radius_mm": 75.0, "count": 5, "led_diameter_mm": 5.0, "ranges_mm": (1000, 2500)},
     "flight": {"radius_mm": 305.0, "count": 5, "led_diameter_mm": 20.0, "ranges_mm": (2500, 10000)},
 }
-CONDITIONS = (
-    "night_mono",
-    "night_bayer",
-    "sun_mono",
-    "sun_bayer",
-    "glint_mono",
-    "glint_bayer",
-    "occluded2",
-    "defocus",
-    "motion",
-)
 SET_SEEDS = {"dev": 20250601, "holdout": 9173311, "projection_check": 4242}
 DEV_RANGES_MM = (1000.0, 1600.0, 2300.0, 3000.0, 4500.0, 6500.0, 9500.0)
 
