@@ -128,7 +128,9 @@ def run(args: argparse.Namespace) -> int:
 
     # the navigation core's compiled loops: compiled once per install and cached on disk;
     # done here so that the first ticks (in the worker) do not wait for the compiler
-    print("aar-dock: preparing the navigation kernels (first run after install: ~1 min)", flush=True)
+    print(
+        "aar-dock: preparing the navigation kernels (first run after install: ~1 min)", flush=True
+    )
     compile_kernels()
 
     app = create_app(settings)
