@@ -21,10 +21,11 @@ import pytest
 from scipy import stats
 
 from app.geometry.calibration import CameraIntrinsics, StereoCalibration
-from app.geometry.circle_fit import Circle3D, fit_circle_3d
+from app.geometry.circle_fit import Circle3D, FitError, fit_circle_3d
 from app.geometry.uncertainty import (
     fit_consistency,
     led_protection_levels_mm,
+    lock_terms,
     point_covariances,
     protection_level_mm,
     ring_covariance,
@@ -250,6 +251,84 @@ def test_ring_covariance_normal_sign_follows_the_circle():
     b = ring_covariance(s["Xt"][0], s["pcov"][0], flipped)
     np.testing.assert_allclose(a.normal_cov, b.normal_cov, rtol=1e-6, atol=1e-15)
     np.testing.assert_allclose(a.center_cov_mm2, b.center_cov_mm2, rtol=1e-6)
+
+
+def _fd_fit_jacobian(pts: np.ndarray, ref_normal: np.ndarray, step: float = 1e-3) -> np.ndarray:
+    """∂(centre, normal signed like ref_normal, radius)/∂(3N coordinates) of fit_circle_3d by
+    central differences (7×3N): the reference the closed form replaced."""
+
+    def theta(p):
+        c = fit_circle_3d(p)
+        nrm = c.normal if c.normal @ ref_normal >= 0 else -c.normal
+        return np.concatenate([c.center, nrm, [c.radius]])
+
+    jac = np.empty((7, pts.size))
+    for j in range(pts.size):
+        hi, lo = pts.copy().reshape(-1), pts.copy().reshape(-1)
+        hi[j] += step
+        lo[j] -= step
+        jac[:, j] = (theta(hi.reshape(-1, 3)) - theta(lo.reshape(-1, 3))) / (2 * step)
+    return jac
+
+
+@pytest.mark.parametrize("name", list(SCENES))
+@pytest.mark.parametrize("keep", [(0, 1, 2, 3, 4), (0, 1, 3, 4), (0, 2, 3)])
+def test_ring_covariance_is_the_circle_fit_propagated(name, keep):
+    """The closed-form Jacobian of the plane + circle fit equals central differences of
+    fit_circle_3d at the points' closest points on the circle (any LED subset, noisy points)."""
+    s = scene(name)
+    X = s["Xt"][0][list(keep)]
+    circle = fit_circle_3d(X)
+    c, nrm = circle.center, circle.normal / np.linalg.norm(circle.normal)
+    d = X - c
+    q = d - np.outer(d @ nrm, nrm)
+    on = c + circle.radius * q / np.linalg.norm(q, axis=1)[:, None]
+    jac = _fd_fit_jacobian(on, circle.normal).reshape(7, len(X), 3)
+    rng = np.random.default_rng(7)
+    m = rng.normal(size=(len(X), 3, 3))
+    pcov = m @ m.transpose(0, 2, 1) + 0.1 * np.eye(3)  # any SPD point covariances (mm²)
+    want = np.einsum("aki,kij,bkj->ab", jac, pcov, jac)
+    got = ring_covariance(X, pcov, circle)
+    scale = np.abs(want).max()
+    np.testing.assert_allclose(got.center_cov_mm2, want[0:3, 0:3], atol=1e-6 * scale)
+    np.testing.assert_allclose(
+        got.normal_cov, want[3:6, 3:6], atol=1e-6 * abs(want[3:6, 3:6]).max()
+    )
+    assert got.radius_var_mm2 == pytest.approx(want[6, 6], rel=1e-5)
+
+
+@pytest.mark.parametrize("name", list(SCENES))
+@pytest.mark.parametrize("keep", [(0, 1, 2, 3, 4), (0, 2, 3)])
+def test_lock_terms_in_one_call_equal_the_three_functions(name, keep):
+    s = scene(name)
+    k = list(keep)
+    X, pl, pr = s["Xt"][1][k], s["pl"][1][k], s["pr"][1][k]
+    sl, sr, sys_px = SIGMA_L[k], SIGMA_R[k], 0.1
+    circle = fit_circle_3d(X)
+    terms = lock_terms(CALIB, pl, pr, X, sl, sr, circle, systematic_px=sys_px)
+    sl_b, sr_b = np.hypot(sl, sys_px), np.hypot(sr, sys_px)
+    covs = point_covariances(CALIB, pl, pr, X, sl_b, sr_b)
+    np.testing.assert_allclose(terms.led_cov_mm2, covs, rtol=1e-9)
+    centre = ring_covariance(X, covs, circle).center_cov_mm2
+    np.testing.assert_allclose(
+        terms.center_cov_mm2, centre, rtol=1e-8, atol=1e-12 * abs(centre).max()
+    )
+    test = fit_consistency(CALIB, pl, pr, X, sl, sr, circle)
+    assert terms.dof == test.dof == 3 * len(k) - 6
+    assert terms.chi2 == pytest.approx(test.statistic, rel=1e-9)
+
+
+def test_lock_terms_refuse_what_is_not_a_circle():
+    s = scene("1.0m")
+    X, pl, pr = s["Xt"][0], s["pl"][0], s["pr"][0]
+    circle = fit_circle_3d(X)
+    at_centre = np.repeat(circle.center[None], 5, axis=0)  # no radial direction: no circle
+    with pytest.raises(FitError):
+        lock_terms(CALIB, pl, pr, at_centre, SIGMA_L, SIGMA_R, circle)
+    with pytest.raises(FitError):
+        lock_terms(CALIB, pl[:2], pr[:2], X[:2], SIGMA_L[:2], SIGMA_R[:2], circle)
+    with pytest.raises(ValueError):
+        lock_terms(CALIB, pl, pr, X, SIGMA_L, SIGMA_R, fit_circle_3d(X), systematic_px=np.nan)
 
 
 # ---- protection levels ---------------------------------------------------------------------

@@ -11,8 +11,8 @@ against Monte-Carlo runs of an independent OpenCV path.
   (undistorted) pixels through the 2×2 Jacobian of the undistortion (inverse of eq. 7) at the
   measured pixel; J is the 4×3 Jacobian of the ideal projections (eqs. 4–5) at X.
 * :func:`ring_covariance` — the point covariances propagated through the plane + circle fit
-  (§5.2, eqs. 17–18's role, :func:`~app.geometry.circle_fit.fit_circle_3d`), Jacobian by
-  central differences.
+  (§5.2, eqs. 17–18's role, :func:`~app.geometry.circle_fit.fit_circle_3d`), its Jacobian in
+  closed form at the points' closest points on the circle.
 * :func:`protection_level_mm` / :func:`led_protection_levels_mm` — radius PL with
   P(‖e‖ > PL) = p_exceed for e ~ N(0, Σ) in 3-D: the exact quantile of the generalised χ²
   ‖e‖² = Σ λᵢ zᵢ² (see :func:`protection_level_mm`).
@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from functools import lru_cache
 from typing import Literal
 
 import numpy as np
@@ -38,10 +37,8 @@ from numpy.polynomial.legendre import leggauss
 from scipy.special import chdtrc, chdtri
 
 from app.geometry.calibration import FloatArray, StereoCalibration
-from app.geometry.circle_fit import Circle3D, FitError, circle_kernel
+from app.geometry.circle_fit import Circle3D, FitError, plane_axes
 
-FD_STEP_MM = 1e-3  # central-difference step of the circle-fit Jacobian (mm)
-FIT_ITERATIONS = 10  # Gauss–Newton iterations of the circle fit (as fit_circle_3d)
 _MINOR_ROWS = np.array([[1, 2, 3], [0, 2, 3], [0, 1, 3], [0, 1, 2]])  # rows kept per minor
 
 
@@ -297,57 +294,52 @@ def _circle_residuals(
 
 
 @njit(cache=True, nogil=True)
-def _fit_params(
-    pts: np.ndarray, ref_normal: np.ndarray, iterations: int
-) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled
-    """(θ 7 = centre, normal signed like ref_normal, radius; residuals 2N of the points from
-    their own fit). NaN when the fit fails."""
-    out = circle_kernel(pts, iterations)
-    theta = np.empty(7)
-    if out[9] != 0.0:
-        theta[:] = np.nan
-        return theta, np.full(2 * pts.shape[0], np.nan)
-    theta[0:3] = out[0:3]
-    s = 1.0 if out[3:6] @ ref_normal >= 0.0 else -1.0
-    theta[3:6] = s * out[3:6]
-    theta[6] = out[6]
-    return theta, _circle_residuals(pts, theta[0:3], theta[3:6], theta[6])
-
-
-@njit(cache=True, nogil=True)
 def _fit_jacobians(
-    pts: np.ndarray, ref_normal: np.ndarray, step: float, iterations: int
+    pts: np.ndarray, c: np.ndarray, nrm: np.ndarray, radius: float
 ) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled
-    """Central differences w.r.t. the 3N coordinates: (∂θ/∂p 7×3N, ∂ρ/∂p 2N×3N), ρ the
-    points' residuals from their own refitted circle."""
+    """(∂θ/∂p 7×3N, ∂ρ/∂p 2N×3N) of the plane + circle fit at points ON the circle (c, unit
+    nrm, radius): θ = (centre, normal signed like nrm, radius), ρ the points' residuals from
+    their own refitted circle. NaN when the points do not define a circle.
+
+    At zero residual the fit is first-order the least-squares solution of the linearised
+    residuals (the TLS plane is the least-squares plane of the off-plane offsets; Kåsa +
+    Gauss–Newton in it the least-squares circle of the radial distances; the plane's tilt
+    moves the radial distances at second order only). With u_k the unit radial of point k,
+    (e1, e2) in-plane axes and ψ = (δc 3, tilt t1, t2, δr):
+    off_k = n·δp_k − n·δc + r·(t1 u_k·e1 + t2 u_k·e2), radial_k = u_k·δp_k − u_k·δc − δr,
+    i.e. ρ = A ψ + B δp; the fit takes ψ = −(AᵀA)⁻¹AᵀB δp, and ∂ρ/∂p = B + A ∂ψ/∂p.
+    (Tested against central differences of :func:`~app.geometry.circle_fit.fit_circle_3d`.)
+    """
     n = pts.shape[0]
-    jt = np.empty((7, 3 * n))
-    jr = np.empty((2 * n, 3 * n))
-    work = pts.copy()
-    for j in range(3 * n):
-        p, k = j // 3, j % 3
-        x0 = work[p, k]
-        work[p, k] = x0 + step
-        tp, rp = _fit_params(work, ref_normal, iterations)
-        work[p, k] = x0 - step
-        tm, rm = _fit_params(work, ref_normal, iterations)
-        work[p, k] = x0
-        jt[:, j] = (tp - tm) / (2.0 * step)
-        jr[:, j] = (rp - rm) / (2.0 * step)
-    return jt, jr
-
-
-@lru_cache(maxsize=4)
-def _cached_jacobians(key: bytes, n: int, step_mm: float) -> tuple[FloatArray, FloatArray]:
-    """:func:`_fit_jacobians` of the points and reference normal packed in ``key`` (read-only
-    results: :func:`ring_covariance` and :func:`fit_consistency` of one lock share them)."""
-    flat = np.frombuffer(key, dtype=np.float64)
-    pts, ref = flat[: 3 * n].reshape(n, 3).copy(), flat[3 * n :].copy()
-    jt, jr = _fit_jacobians(pts, ref, step_mm, FIT_ITERATIONS)
-    if not (np.all(np.isfinite(jt)) and np.all(np.isfinite(jr))):
-        raise FitError("the circle fit is degenerate at these points")
-    jt.setflags(write=False)
-    jr.setflags(write=False)
+    e1, e2 = plane_axes(nrm)
+    A = np.zeros((2 * n, 6))
+    B = np.zeros((2 * n, 3 * n))
+    for k in range(n):
+        u = (pts[k] - c) / radius
+        for i in range(3):
+            A[2 * k, i] = -nrm[i]
+            A[2 * k + 1, i] = -u[i]
+            B[2 * k, 3 * k + i] = nrm[i]
+            B[2 * k + 1, 3 * k + i] = u[i]
+        A[2 * k, 3] = radius * (u @ e1)
+        A[2 * k, 4] = radius * (u @ e2)
+        A[2 * k + 1, 5] = -1.0
+    jt = np.full((7, 3 * n), np.nan)
+    jr = np.full((2 * n, 3 * n), np.nan)
+    ata = A.T @ A
+    # a singular system (collinear points, fewer than 3): no circle, NaN Jacobians
+    if (
+        n < 3
+        or not np.all(np.isfinite(ata))
+        or abs(np.linalg.det(ata)) < 1e-12 * max(1.0, radius) ** 8
+    ):
+        return jt, jr
+    G = -np.linalg.solve(ata, A.T @ B)  # ∂ψ/∂p, 6×3N
+    jt[0:3] = G[0:3]
+    for i in range(3):
+        jt[3 + i] = e1[i] * G[3] + e2[i] * G[4]
+    jt[6] = G[5]
+    jr[:] = B + A @ G
     return jt, jr
 
 
@@ -356,24 +348,35 @@ def _center_normal(circle: Circle3D) -> tuple[FloatArray, FloatArray]:
     return np.asarray(circle.center, dtype=np.float64).reshape(3), nrm / np.linalg.norm(nrm)
 
 
-def _ring_jacobians(
-    points_mm: FloatArray, circle: Circle3D, step_mm: float
-) -> tuple[FloatArray, FloatArray]:
+@njit(cache=True, nogil=True)
+def _ring_terms(
+    pts: np.ndarray, c: np.ndarray, nrm: np.ndarray, radius: float
+) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled
     """(∂θ/∂p 7×3N, ∂ρ/∂p 2N×3N) of the circle fit (see :func:`_fit_jacobians`), linearised at
-    the points' closest points on ``circle``: the model's estimate of the true configuration.
+    the points' closest points on the circle: the model's estimate of the true configuration.
     There the residuals have exactly 2N − 6 dof; at the measured points the fit's response to
     a point sliding along the ring is not zero (∝ its residual), a noise-induced term that
     first-order theory does not have (it made the 8 m ring's centre covariance ~25 % high and
-    the consistency test's null space ill-defined)."""
-    pts = np.asarray(points_mm, dtype=np.float64).reshape(-1, 3)
+    the consistency test's null space ill-defined). NaN when there is no such circle."""
+    n = pts.shape[0]
+    on = np.empty((n, 3))
+    for k in range(n):
+        d = pts[k] - c
+        q = d - (d @ nrm) * nrm
+        on[k] = c + radius * q / np.sqrt(q @ q)
+    return _fit_jacobians(on, c, nrm, radius)
+
+
+def _ring_jacobians(points_mm: FloatArray, circle: Circle3D) -> tuple[FloatArray, FloatArray]:
+    """:func:`_ring_terms` of these points and ``circle`` (``FitError`` when degenerate)."""
+    pts = np.ascontiguousarray(np.asarray(points_mm, dtype=np.float64).reshape(-1, 3))
     if len(pts) < 3 or not np.all(np.isfinite(pts)):
         raise FitError("a circle needs at least 3 finite points")
     c, nrm = _center_normal(circle)
-    d = pts - c
-    q = d - np.outer(d @ nrm, nrm)
-    on_circle = c + float(circle.radius) * q / np.linalg.norm(q, axis=1)[:, None]
-    ref = np.asarray(circle.normal, dtype=np.float64).reshape(3)
-    return _cached_jacobians(on_circle.tobytes() + ref.tobytes(), len(pts), float(step_mm))
+    jt, jr = _ring_terms(pts, c, nrm, float(circle.radius))
+    if not (np.all(np.isfinite(jt)) and np.all(np.isfinite(jr))):
+        raise FitError("the circle fit is degenerate at these points")
+    return jt, jr
 
 
 def _propagate(jac: FloatArray, point_cov: FloatArray) -> FloatArray:
@@ -397,24 +400,126 @@ def ring_covariance(
     points_mm: FloatArray,
     point_cov: FloatArray,
     circle: Circle3D,
-    step_mm: float = FD_STEP_MM,
 ) -> RingCovariance:
     """Covariance of the centre, unit normal and radius of ``circle`` =
     :func:`~app.geometry.circle_fit.fit_circle_3d` (``points_mm``), optionally oriented.
 
-    J = ∂(centre, normal, radius)/∂(3N coordinates) of ``fit_circle_3d`` by central
-    differences (``step_mm``), the refitted normal signed like ``circle.normal``, taken at the
+    J = ∂(centre, normal, radius)/∂(3N coordinates) of ``fit_circle_3d`` in closed form
+    (:func:`_fit_jacobians`), the refitted normal signed like ``circle.normal``, taken at the
     points' closest points on ``circle`` (see :func:`_ring_jacobians`); Σ = Σ_k J_k Σ_k J_kᵀ
-    (points independent, ``point_cov`` N×3×3 mm² from :func:`point_covariances`). The 6N fits
-    are kept for :func:`fit_consistency` of the same lock (a small cache).
+    (points independent, ``point_cov`` N×3×3 mm² from :func:`point_covariances`). The
+    Jacobians are kept for :func:`fit_consistency` of the same lock (a small cache).
     """
-    jt, _ = _ring_jacobians(points_mm, circle, step_mm)
+    jt, _ = _ring_jacobians(points_mm, circle)
     cov = _propagate(jt, np.asarray(point_cov, dtype=np.float64).reshape(-1, 3, 3))
     return RingCovariance(
         center_cov_mm2=cov[0:3, 0:3].copy(),
         normal_cov=cov[3:6, 3:6].copy(),
         radius_var_mm2=float(cov[6, 6]),
     )
+
+
+# ---- a lock's terms in one call ------------------------------------------------------------
+@njit(cache=True, nogil=True)
+def _lock_kernel(
+    K_l: np.ndarray,
+    dist_l: np.ndarray,
+    P_l: np.ndarray,
+    K_r: np.ndarray,
+    dist_r: np.ndarray,
+    P_r: np.ndarray,
+    left_px: np.ndarray,
+    right_px: np.ndarray,
+    X: np.ndarray,
+    sigma_l: np.ndarray,
+    sigma_r: np.ndarray,
+    systematic_px: float,
+    c: np.ndarray,
+    nrm: np.ndarray,
+    radius: float,
+) -> tuple[np.ndarray, np.ndarray, float]:  # pragma: no cover - compiled
+    """(point covariances N×3×3 and centre covariance 3×3 with σ² + systematic² per image,
+    mm²; the χ² statistic with σ alone); NaN centre covariance when the fit is degenerate."""
+    _, gain, C, a, epi = _stereo_kernel(
+        K_l, dist_l, P_l, K_r, dist_r, P_r, left_px, right_px, X, sigma_l, sigma_r, False
+    )
+    s2 = systematic_px * systematic_px
+    cov = _stereo_kernel(
+        K_l,
+        dist_l,
+        P_l,
+        K_r,
+        dist_r,
+        P_r,
+        left_px,
+        right_px,
+        X,
+        np.sqrt(sigma_l * sigma_l + s2),
+        np.sqrt(sigma_r * sigma_r + s2),
+        False,
+    )[0]
+    jt, jr = _ring_terms(X, c, nrm, radius)
+    centre = np.zeros((3, 3))
+    for k in range(X.shape[0]):
+        jk = jt[0:3, 3 * k : 3 * k + 3].copy()
+        centre += _mm(_mm(jk, cov[k]), jk.T.copy())
+    if not np.all(np.isfinite(jr)):
+        return cov, centre, np.nan
+    return cov, centre, _chi2_kernel(a, gain, C, epi, X, c, nrm, radius, jr)
+
+
+@dataclass(frozen=True)
+class LockTerms:
+    """What :func:`lock_terms` returns for one lock on N LEDs."""
+
+    led_cov_mm2: FloatArray  # (N, 3, 3), σ² + systematic² per image
+    center_cov_mm2: FloatArray  # (3, 3), σ² + systematic² per image
+    chi2: float  # the χ² statistic of :func:`fit_consistency` (σ alone)
+    dof: int  # 3N − 6
+
+
+def lock_terms(
+    calib: StereoCalibration,
+    left_px: FloatArray,
+    right_px: FloatArray,
+    X_mm: FloatArray,
+    sigma_left_px: FloatArray | float,
+    sigma_right_px: FloatArray | float,
+    circle: Circle3D,
+    systematic_px: float = 0.0,
+) -> LockTerms:
+    """:func:`point_covariances`, :func:`ring_covariance`'s centre and
+    :func:`fit_consistency`'s statistic of one lock in one compiled call (unweighted
+    estimator). The covariances take a centroid error common to both views, ``systematic_px``
+    (1σ, px), in quadrature with each σ; the χ² statistic does not (it cannot see it). Equal
+    to the three functions to rounding (tested); ``FitError`` when the fit is degenerate."""
+    X = np.ascontiguousarray(np.asarray(X_mm, dtype=np.float64).reshape(-1, 3))
+    n = len(X)
+    if n < 3 or not np.all(np.isfinite(X)):
+        raise FitError("a circle needs at least 3 finite points")
+    if not (math.isfinite(systematic_px) and systematic_px >= 0.0):
+        raise ValueError("systematic_px must be finite and ≥ 0 (px)")
+    c, nrm = _center_normal(circle)
+    cov, centre, T = _lock_kernel(
+        np.ascontiguousarray(calib.left.K),
+        np.ascontiguousarray(calib.left.dist),
+        np.ascontiguousarray(calib.P_left),
+        np.ascontiguousarray(calib.right.K),
+        np.ascontiguousarray(calib.right.dist),
+        np.ascontiguousarray(calib.P_right),
+        np.ascontiguousarray(np.asarray(left_px, dtype=np.float64).reshape(n, 2)),
+        np.ascontiguousarray(np.asarray(right_px, dtype=np.float64).reshape(n, 2)),
+        X,
+        _sigmas(sigma_left_px, n, "sigma_left_px"),
+        _sigmas(sigma_right_px, n, "sigma_right_px"),
+        float(systematic_px),
+        c,
+        nrm,
+        float(circle.radius),
+    )
+    if not (np.all(np.isfinite(centre)) and math.isfinite(T)):
+        raise FitError("the circle fit is degenerate at these points")
+    return LockTerms(led_cov_mm2=cov, center_cov_mm2=centre, chi2=float(T), dof=3 * n - 6)
 
 
 # ---- protection level -------------------------------------------------------------------
@@ -572,6 +677,37 @@ def _residual_cov(
     return S
 
 
+@njit(cache=True, nogil=True)
+def _chi2_kernel(
+    a: np.ndarray,
+    gain: np.ndarray,
+    C: np.ndarray,
+    epi: np.ndarray,
+    X: np.ndarray,
+    c: np.ndarray,
+    nrm: np.ndarray,
+    radius: float,
+    jr: np.ndarray,
+) -> float:  # pragma: no cover - compiled
+    """T = yᵀ cov(y)⁺ y of :func:`fit_consistency` on the top 3N − 6 directions of cov(y)."""
+    n = X.shape[0]
+    S = _residual_cov(a, gain, C, jr)
+    y = np.concatenate((epi, _circle_residuals(X, c, nrm, radius)))
+    dof = 3 * n - 6
+    if n == 3:  # the circle passes through the 3 points: only the epipolar residuals remain
+        S, y = S[:n, :n].copy(), y[:n].copy()
+    scale = np.sqrt(np.diag(S))
+    lam, vec = np.linalg.eigh(S / np.outer(scale, scale))  # unit-free, then the top 3N − 6
+    m = len(y)
+    T = 0.0
+    for j in range(m - dof, m):
+        proj = 0.0
+        for i in range(m):
+            proj += vec[i, j] * y[i] / scale[i]
+        T += proj * proj / lam[j]
+    return T
+
+
 # ---- consistency ---------------------------------------------------------------------------
 @dataclass(frozen=True)
 class FitConsistency:
@@ -593,7 +729,6 @@ def fit_consistency(
     circle: Circle3D,
     alpha: float = 1e-3,
     weighted: bool = False,
-    step_mm: float = FD_STEP_MM,
 ) -> FitConsistency:
     """Are a lock's own residuals consistent with its covariance? (χ², false refusal ``alpha``)
 
@@ -611,7 +746,7 @@ def fit_consistency(
 
     To first order y = M·(pixel noise), so cov(y) = Σ_k M_k C_k M_kᵀ with the triangulation
     gains B_k (``weighted`` as in :func:`point_covariances`) and the fit's residual Jacobian
-    (central differences at the LEDs' closest points on the circle, see
+    (in closed form at the LEDs' closest points on the circle, see
     :func:`_ring_jacobians`); this takes the circle residuals' own covariance (the share the
     fit absorbs included) and their correlation with the epipolar ones (non-zero for the
     unweighted estimator with unequal σ). T = yᵀ cov(y)⁺ y on its 3N − 6 non-null
@@ -634,16 +769,10 @@ def fit_consistency(
         calib, left_px, right_px, X, sigma_left_px, sigma_right_px, weighted
     )
     c, nrm = _center_normal(circle)
-    rho = _circle_residuals(np.ascontiguousarray(X), c, nrm, float(circle.radius))
-    _, jr = _ring_jacobians(X, circle, step_mm)
-    S = _residual_cov(a, gain, C, np.ascontiguousarray(jr))
-    y = np.concatenate([epi, rho])
+    _, jr = _ring_jacobians(X, circle)
+    T = float(
+        _chi2_kernel(a, gain, C, epi, np.ascontiguousarray(X), c, nrm, float(circle.radius), jr)
+    )
     dof = 3 * n - 6
-    if n == 3:  # the circle passes through the 3 points: only the epipolar residuals remain
-        S, y = S[:n, :n], y[:n]
-    scale = np.sqrt(np.diag(S))
-    lam, vec = np.linalg.eigh(S / np.outer(scale, scale))  # unit-free, then the top 3N − 6
-    proj = vec[:, -dof:].T @ (y / scale)
-    T = float(np.sum(proj * proj / lam[-dof:]))
     p_value = float(chdtrc(dof, T))
     return FitConsistency(statistic=T, dof=dof, p_value=p_value, consistent=p_value >= alpha)

@@ -18,15 +18,11 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.special import chdtrc
 
 from app.geometry.calibration import StereoCalibration
 from app.geometry.circle_fit import Circle3D, FitError
-from app.geometry.uncertainty import (
-    fit_consistency,
-    led_protection_levels_mm,
-    point_covariances,
-    ring_covariance,
-)
+from app.geometry.uncertainty import led_protection_levels_mm, lock_terms
 from app.vision.result import DrogueResult, LedResult
 from app.vision.types import Blob
 
@@ -93,29 +89,27 @@ def lock_bound(
     sr = np.asarray(sigma_right_px, dtype=np.float64)
     if not cfg.enabled or not (np.all(np.isfinite(sl)) and np.all(np.isfinite(sr))):
         return None
-    X = np.asarray(xyz_mm, dtype=np.float64)
     try:
-        test = fit_consistency(calib, left_px, right_px, X, sl, sr, circle, alpha=cfg.alpha)
-        sys2 = cfg.systematic_px * cfg.systematic_px
-        sl_b, sr_b = np.sqrt(sl * sl + sys2), np.sqrt(sr * sr + sys2)
-        covs = point_covariances(calib, left_px, right_px, X, sl_b, sr_b)
-        ring = ring_covariance(X, covs, circle)
+        terms = lock_terms(
+            calib, left_px, right_px, xyz_mm, sl, sr, circle, systematic_px=cfg.systematic_px
+        )
     except (FitError, np.linalg.LinAlgError, ValueError):
         return None
     # the LEDs' and the centre's levels in one call: sqrt(λ_max·χ²₃(1 − p)), conservative by
     # construction (≤ 1.23× the exact quantile of :func:`protection_level_mm`, 4× cheaper)
     levels = led_protection_levels_mm(
-        np.concatenate([covs, ring.center_cov_mm2[None]]), cfg.p_exceed, method="eigen"
+        np.concatenate([terms.led_cov_mm2, terms.center_cov_mm2[None]]), cfg.p_exceed, "eigen"
     )
+    p_value = float(chdtrc(terms.dof, terms.chi2))
     return LockBound(
-        led_cov_mm2=covs,
+        led_cov_mm2=terms.led_cov_mm2,
         led_pl_mm=levels[:-1],
-        center_cov_mm2=ring.center_cov_mm2,
+        center_cov_mm2=terms.center_cov_mm2,
         center_pl_mm=float(levels[-1]),
-        chi2=float(test.statistic),
-        dof=int(test.dof),
-        p_value=float(test.p_value),
-        consistent=bool(test.consistent),
+        chi2=terms.chi2,
+        dof=terms.dof,
+        p_value=p_value,
+        consistent=p_value >= cfg.alpha,
     )
 
 
