@@ -28,7 +28,7 @@ no contrast keeps its eq. 11 centroid and gets σ = NaN: the caller treats it as
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
@@ -240,13 +240,23 @@ def with_local_centroids(blobs: list[Blob], table: NDArray[np.float64]) -> list[
     """The blobs with the local centroids, σ and local background of ``table``
     (:func:`measure_blobs`; eq. 11's centroid and σ = NaN where it is not measured)."""
     out = []
+    nan2 = (float("nan"), float("nan"))
     for b, row in zip(blobs, table.tolist(), strict=True):
-        u, v, su, sv = row[OUT_U], row[OUT_V], row[OUT_SIGMA_U], row[OUT_SIGMA_V]
-        bg = row[OUT_BACKGROUND]
-        if u == u:  # measured (not NaN)
-            out.append(replace(b, centroid_px=(u, v), centroid_sigma_px=(su, sv), local_bg=bg))
-        else:
-            out.append(replace(b, centroid_sigma_px=(float("nan"), float("nan")), local_bg=bg))
+        u, bg = row[OUT_U], row[OUT_BACKGROUND]
+        measured = u == u  # not NaN
+        # the constructor, not dataclasses.replace (≈ 4× cheaper per blob; same fields)
+        out.append(
+            Blob(
+                (u, row[OUT_V]) if measured else b.centroid_px,
+                b.area_px,
+                b.bbox,
+                b.peak,
+                b.mass,
+                b.color_bgr,
+                (row[OUT_SIGMA_U], row[OUT_SIGMA_V]) if measured else nan2,
+                bg,
+            )
+        )
     return out
 
 

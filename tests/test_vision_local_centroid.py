@@ -1,0 +1,44 @@
+"""app.vision.local_centroid on synthetic blobs with a known centre (independent of the
+pipeline): a Gaussian LED beside a dimmer reflection, and the blob records it returns."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from app.vision.local_centroid import LocalCentroidConfig, measure_blobs, with_local_centroids
+from app.vision.types import Blob
+
+
+def _scene(centre=(40.3, 30.7), reflection_dx=7.0, bg=20.0, peak=200.0, sigma=1.6):
+    y, x = np.mgrid[0:64, 0:80].astype(np.float64)
+    img = bg + peak * np.exp(-((x - centre[0]) ** 2 + (y - centre[1]) ** 2) / (2 * sigma**2))
+    # the LED's own reflection on a polished rim: dimmer, a dark gap away
+    rx = centre[0] + reflection_dx
+    img += 0.15 * peak * np.exp(-((x - rx) ** 2 + (y - centre[1]) ** 2) / (2 * 1.2**2))
+    return np.clip(np.round(img), 0, 255).astype(np.uint8)
+
+
+def test_local_centroid_finds_the_led_centre_beside_its_reflection():
+    gray = _scene()
+    blob = Blob((40.0, 31.0), 21, (37, 28, 7, 7), 220.0, 1000.0)
+    table = measure_blobs(gray, [blob], LocalCentroidConfig())
+    (out,) = with_local_centroids([blob], table)
+    assert np.hypot(out.centroid_px[0] - 40.3, out.centroid_px[1] - 30.7) < 0.03
+    su, sv = out.centroid_sigma_px
+    assert 0.02 < su < 0.2 and 0.02 < sv < 0.2  # σ: the 0.03 px floor plus pixel noise
+    assert abs(out.local_bg - 20.0) <= 1.0
+
+
+def test_with_local_centroids_keeps_every_other_field():
+    gray = _scene()
+    blob = Blob((40.0, 31.0), 21, (37, 28, 7, 7), 220.0, 1000.0, color_bgr=(10.0, 200.0, 12.0))
+    flat = np.zeros_like(gray)  # no contrast: not measured, eq. 11's centroid kept, σ NaN
+    for image in (gray, flat):
+        (out,) = with_local_centroids([blob], measure_blobs(image, [blob], LocalCentroidConfig()))
+        changed = {"centroid_px", "centroid_sigma_px", "local_bg"}
+        for f in dataclasses.fields(Blob):
+            if f.name not in changed:
+                assert getattr(out, f.name) == getattr(blob, f.name), f.name
+    assert out.centroid_px == blob.centroid_px and np.isnan(out.centroid_sigma_px[0])
