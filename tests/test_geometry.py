@@ -229,6 +229,31 @@ def test_ring_search_rejects_clutter_points():
     assert dict(zip(fit.indices, ids.tolist(), strict=True)) == {5: 1, 6: 2, 7: 3, 8: 4, 9: 5}
 
 
+def test_competing_rings_are_told_apart_only_by_a_unique_consistent_one():
+    """Two 4-point rings on the ring's slots (the LEDs, and glints on bolts beside them): the
+    search alone refuses ("ambiguous"); the caller's noise test picks the one that alone
+    passes it, and refuses when both or neither pass."""
+    ang = np.radians(36 + 72 * np.arange(4))
+    unit = np.column_stack([np.sin(ang), -np.cos(ang), np.zeros(4)])
+    leds = np.array([0.0, 0.0, 1500.0]) + 75 * unit
+    glints = np.array([260.0, 40.0, 1500.0]) + 75 * unit
+    pts = np.vstack([glints, leds])
+    params = RingParams()
+    assert "ambiguous" in find_ring(pts, params).reason
+
+    def only_leds(fit: RingFit) -> bool:
+        return min(fit.indices) >= 4
+
+    fit = find_ring(pts, params, consistent=only_leds)
+    assert isinstance(fit, RingFit) and sorted(fit.indices) == [4, 5, 6, 7]
+    fit = find_ring(pts, params, consistent=lambda f: not only_leds(f))
+    assert isinstance(fit, RingFit) and sorted(fit.indices) == [0, 1, 2, 3]
+    both = find_ring(pts, params, consistent=lambda f: True)
+    none = find_ring(pts, params, consistent=lambda f: False)
+    assert "2 consistent with the noise" in both.reason
+    assert "0 consistent with the noise" in none.reason
+
+
 def test_ring_of_wrong_radius_is_rejected():
     ang = np.radians(72 * np.arange(5))
     pts = np.array([0, 0, 1000.0]) + 120 * np.column_stack([np.sin(ang), -np.cos(ang), np.zeros(5)])

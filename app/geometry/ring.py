@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import math
 import statistics
+from collections.abc import Callable
 from dataclasses import dataclass
 from itertools import combinations
 from typing import Any
@@ -933,10 +934,20 @@ def radius_only_kernel(
 
 
 def find_ring(
-    points: FloatArray, params: RingParams, prior: RingPrior | None = None
+    points: FloatArray,
+    params: RingParams,
+    prior: RingPrior | None = None,
+    consistent: Callable[[RingFit], bool] | None = None,
 ) -> RingFit | RingRejection:
     """Locate the LED ring among ``points`` (N×3, mm, left camera frame) with the integrity
-    tests of the module docstring. ``prior``: a recent lock (for 3-LED hypotheses)."""
+    tests of the module docstring. ``prior``: a recent lock (for 3-LED hypotheses).
+
+    ``consistent``: whether a hypothesis' own residuals agree with the measurement noise (the
+    caller's χ² test, :mod:`app.vision.error_bound`). When hypotheses compete ("ambiguous"),
+    the one that alone passes it is taken: a ring of sun glints on polished bolts fits the
+    slots as well as the LEDs but its specular points triangulate off any circle by far more
+    than the centroid noise allows (χ² ≈ 270 for 6 dof against ≈ 1 for the LEDs on the
+    held-back optics set). With none or several passing, the frame stays ambiguous."""
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     index_map = np.flatnonzero(np.isfinite(pts).all(axis=1))
     p = pts[index_map]
@@ -1000,11 +1011,28 @@ def find_ring(
         )
     ]
     if rivals:
-        return RingRejection(
-            f"ambiguous: {len(rivals) + 1} ring hypotheses fit ({m} and "
-            f"{len(rivals[0].members)} LEDs, NFA 10^{best.log10_nfa:.1f} vs "
-            f"10^{rivals[0].log10_nfa:.1f})"
+        passing = (
+            []
+            if consistent is None
+            else [h for h in [best, *rivals] if consistent(_ring_fit(h, index_map, n, len(hyps)))]
         )
+        if len(passing) != 1:
+            noise = "" if consistent is None else f"; {len(passing)} consistent with the noise"
+            return RingRejection(
+                f"ambiguous: {len(rivals) + 1} ring hypotheses fit ({m} and "
+                f"{len(rivals[0].members)} LEDs, NFA 10^{best.log10_nfa:.1f} vs "
+                f"10^{rivals[0].log10_nfa:.1f}{noise})"
+            )
+        best = passing[0]
+        m = len(best.members)
+        limit = params.log10_nfa_max
+        if m == 3 and not (prior is not None and agrees_with_prior(best.circle, prior)):
+            limit -= params.three_led_log10_margin
+        if best.log10_nfa > limit:
+            return RingRejection(
+                f"ambiguous: the one ring hypothesis consistent with the noise ({m} LEDs) is "
+                f"not distinctive (NFA 10^{best.log10_nfa:.1f} > 10^{limit:.1f})"
+            )
     if best.extra_on_ring > params.max_extra_on_ring:
         return RingRejection(
             f"{best.extra_on_ring} points lie on the ring between its {N} LED slots: check "
@@ -1015,13 +1043,18 @@ def find_ring(
             f"only {m} point(s) fit an evenly spaced ring of radius {params.radius_mm:.0f} mm; "
             f"need at least {params.min_leds}"
         )
+    return _ring_fit(best, index_map, n, len(hyps))
+
+
+def _ring_fit(h: _Hypothesis, index_map: np.ndarray, candidates: int, hypotheses: int) -> RingFit:
+    """A hypothesis as a :class:`RingFit` (indices into the caller's points)."""
     return RingFit(
-        circle=best.circle,
-        indices=tuple(index_map[best.members].tolist()),
-        slots=tuple(best.slots.tolist()),
-        offset_deg=best.offset_deg,
-        residual_deg=tuple(best.resid_deg.tolist()),
-        log10_nfa=best.log10_nfa,
-        candidates=n,
-        hypotheses=len(hyps),
+        circle=h.circle,
+        indices=tuple(index_map[h.members].tolist()),
+        slots=tuple(h.slots.tolist()),
+        offset_deg=h.offset_deg,
+        residual_deg=tuple(h.resid_deg.tolist()),
+        log10_nfa=h.log10_nfa,
+        candidates=candidates,
+        hypotheses=hypotheses,
     )

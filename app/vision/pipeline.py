@@ -30,7 +30,7 @@ from app.vision.appearance import (
     blob_color_bgr,
     colour_reason,
 )
-from app.vision.error_bound import ErrorBoundConfig, bound_result, isotropic_sigma_px
+from app.vision.error_bound import ErrorBoundConfig, bound_result, isotropic_sigma_px, lock_bound
 from app.vision.features import (
     BAND_ROWS,
     MAX_REJECTED_REPORTED,
@@ -401,7 +401,25 @@ class NavigationPipeline:
         track = self._track
         params = self._ring_params()
         prior = None if track is None else RingPrior.at_range(track.center_mm, track.normal, params)
-        ring = find_ring(X[idx], params, prior)
+
+        def consistent(fit: RingFit) -> bool:
+            """Does this hypothesis pass the error bound's χ² test? (True when not measured)"""
+            rows = [int(idx[k]) for k in fit.indices]
+            bl = [feats_l.blobs[int(matches.left[j])] for j in rows]
+            br = [feats_r.blobs[int(matches.right[j])] for j in rows]
+            bound = lock_bound(
+                cal,
+                np.array([b.centroid_px for b in bl]),
+                np.array([b.centroid_px for b in br]),
+                np.array([isotropic_sigma_px(b) for b in bl]),
+                np.array([isotropic_sigma_px(b) for b in br]),
+                X[rows],
+                fit.circle,
+                cfg.error_bound,
+            )
+            return bound is None or bound.consistent
+
+        ring = find_ring(X[idx], params, prior, consistent)
         self._stage_ms["pose"] = (time.perf_counter() - t2) * 1e3
         if not isinstance(ring, RingFit):
             return PoseResult(lock=False, reason=ring.reason)
