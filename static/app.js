@@ -175,12 +175,22 @@ async function pollHealth() {
 
 // ---- simulation controls -------------------------------------------------------------------
 function fillSimForm(cfg) {
+  $("plant").value = cfg.plant;
   $("turbulence").value = cfg.turbulence;
   $("closure").value = cfg.closure_speed_mps;
   $("noise").value = cfg.noise_sigma;
   $("clutter").value = cfg.clutter;
   $("seed").value = cfg.seed;
   document.querySelectorAll(".drop").forEach((cb) => { cb.checked = cfg.led_dropout.includes(Number(cb.value)); });
+}
+
+// the simulated receiver: airframe and flight condition (trim) of the configured plant
+function showPlant(status) {
+  const p = status && status.plant;
+  if (!p) { $("airframe").textContent = "plant: unavailable"; return; }
+  const t = p.trim;
+  $("airframe").textContent = `${p.airframe} · ${fmt(t.altitude_ft, 0)} ft · ${fmt(t.kcas, 0)} KCAS ` +
+    `(${fmt(t.tas_mps, 1)} m/s TAS) · α ${fmt(t.alpha_deg, 2)}° · throttle ${fmt(t.throttle, 3)} · ${fmt(t.weight_lbs, 0)} lb`;
 }
 
 function simMsg(text, err) { const m = $("sim-msg"); m.textContent = text; m.className = "msg" + (err ? " err" : ""); }
@@ -199,6 +209,7 @@ function wireControls() {
   $("sim-form").addEventListener("submit", async (ev) => {
     ev.preventDefault();
     const body = {
+      plant: $("plant").value,
       turbulence: $("turbulence").value,
       closure_speed_mps: Number($("closure").value),
       noise_sigma: Number($("noise").value),
@@ -206,7 +217,7 @@ function wireControls() {
       seed: Number($("seed").value),
       led_dropout: [...document.querySelectorAll(".drop")].filter((c) => c.checked).map((c) => Number(c.value)),
     };
-    try { fillSimForm(await api("PUT", "/sim/config", body)); simMsg("applied (new run)"); }
+    try { fillSimForm(await api("PUT", "/sim/config", body)); simMsg("applied (new run)"); showPlant(await api("GET", "/sim")); }
     catch (e) { simMsg(e.message, true); }
   });
 }
@@ -365,6 +376,7 @@ async function init() {
       $("viser-missing").hidden = false;
     }
     fillSimForm(await api("GET", "/sim/config"));
+    showPlant(await api("GET", "/sim"));
   } catch (e) { simMsg(e.message, true); }
   connectTelemetry();
   setInterval(pullTelemetry, 1000 / RENDER_HZ);

@@ -42,6 +42,8 @@ def test_simulate_cli_json_shape(capsys):
     code = main(
         [
             "simulate",
+            "--plant",
+            "linear",
             "--turbulence",
             "none",
             "--truth-measurements",
@@ -62,7 +64,13 @@ def test_simulate_cli_json_shape(capsys):
         "sim_time_s",
         "wall_time_s",
         "real_time_factor",
+        "plant",
+        "airframe",
+        "trim",
     }
+    assert out["plant"] == "linear" and "Aerosonde" in out["airframe"]
+    for key in ("altitude_ft", "kcas", "tas_mps", "alpha_deg", "throttle", "weight_lbs"):
+        assert isinstance(out["trim"][key], float), key
     assert out["captured"] is True and isinstance(out["miss_distance_m"], float)
     assert isinstance(out["aborts"], int)
     # the run's simulated time covers the capture plus station keeping, in wall time > 0
@@ -100,3 +108,16 @@ def test_cli_bad_input_exit_code_2(capsys):
     with pytest.raises(SystemExit) as exc:
         main(["simulate", "--turbulence", "hurricane"])
     assert exc.value.code == 2
+
+
+def test_simulate_cli_reports_the_jsbsim_plant_and_its_trim(capsys):
+    code = main(
+        ["simulate", "--plant", "jsbsim", "--turbulence", "none", "--truth-measurements", "--json"]
+    )
+    assert code == 0
+    out = json.loads(capsys.readouterr().out)  # nothing but the JSON on stdout
+    assert out["plant"] == "jsbsim" and out["airframe"].startswith("A-4")
+    t = out["trim"]
+    assert t["altitude_ft"] == pytest.approx(15000.0, abs=1.0)
+    assert t["kcas"] == pytest.approx(230.0, abs=0.5)
+    assert 2.0 < t["alpha_deg"] < 5.0 and 0.2 < t["throttle"] < 0.8

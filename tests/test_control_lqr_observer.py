@@ -5,16 +5,17 @@ from __future__ import annotations
 import control
 import numpy as np
 
+from app.control.design import AEROSONDE_WEIGHTS, design_controller
 from app.control.lqr import IntegralLqr, augment_integral, continuous_lqr, discrete_lqr
 from app.control.observer import StateObserver, continuous_observer_gain
-from app.sim.docking import LQR_Q_INT, LQR_Q_STATE, LQR_R, _build_models
-from app.sim.receiver import LinearReceiver
+from app.sim.receiver import FlightCondition, LinearReceiver
 
 DT = 0.02
+RECEIVER = LinearReceiver(condition=FlightCondition(airspeed_mps=120.0, air_density=0.909))
 
 
 def _models():
-    return _build_models(120.0, 0.909, DT, (3.0, 0.0, -0.3))
+    return design_controller(RECEIVER.linear_model(), DT, (3.0, 0.0, -0.3), AEROSONDE_WEIGHTS)
 
 
 def test_receiver_trim_is_an_equilibrium_and_open_loop_has_unstable_or_neutral_modes():
@@ -45,8 +46,8 @@ def test_discrete_integral_lqr_closed_loop_inside_unit_circle():
 def test_discrete_lqr_matches_python_control_dlqr():
     m = _models()
     a_aug, b_aug = augment_integral(m.ad, m.bd, m.c_tip, DT)
-    q = np.diag(np.concatenate([LQR_Q_STATE, LQR_Q_INT]))
-    r = np.diag(LQR_R)
+    q = np.diag(np.concatenate([AEROSONDE_WEIGHTS.q_state, AEROSONDE_WEIGHTS.q_int]))
+    r = np.diag(AEROSONDE_WEIGHTS.r)
     k_ours = discrete_lqr(a_aug, b_aug, q, r)
     k_ctrl, _, _ = control.dlqr(a_aug, b_aug, q, r)
     assert np.allclose(k_ours, k_ctrl, rtol=1e-5, atol=1e-8)
@@ -61,8 +62,8 @@ def test_continuous_eq20_gain_places_poles_in_left_half_plane():
     a[:n, :n] = rec.A
     a[n:, :n] = c
     b = np.vstack([rec.B, np.zeros((3, 4))])
-    q = np.diag(np.concatenate([LQR_Q_STATE, LQR_Q_INT]))
-    r = np.diag(LQR_R)
+    q = np.diag(np.concatenate([AEROSONDE_WEIGHTS.q_state, AEROSONDE_WEIGHTS.q_int]))
+    r = np.diag(AEROSONDE_WEIGHTS.r)
     k = continuous_lqr(a, b, q, r)
     eig = np.linalg.eigvals(a - b @ k)
     assert np.max(eig.real) < 0.0

@@ -9,32 +9,35 @@ unmeasured side velocity). These tests check the mechanism and the fix on the sm
 from __future__ import annotations
 
 from dataclasses import replace
+from functools import cache
 
 import control
 import numpy as np
 import pytest
 
+from app.control.design import AEROSONDE_WEIGHTS, design_controller
 from app.control.lqr import IntegralLqr, augment_integral, augment_lag, discrete_lqr, lag_alpha
 from app.control.margins import closed_loop_matrix, delay_margin_ticks, spectral_radius
 from app.control.observer import StateObserver
-from app.sim.docking import DockingConfig, DockingSimulation, _build_models
+from app.sim.docking import DockingConfig, DockingSimulation
 from app.sim.imperfections import NONE, STANDARD, draw
-from app.sim.receiver import LinearReceiver, perturbed_params
+from app.sim.receiver import FlightCondition, LinearReceiver, perturbed_params
 
 DT = 0.02
+RECEIVER = LinearReceiver(condition=FlightCondition(airspeed_mps=120.0, air_density=0.909))
 DESIGN_SEEDS = range(100_000, 100_030)  # sampled plants of the design check (not campaign seeds)
 
 
+@cache
 def _models():  # type: ignore[no-untyped-def]
-    return _build_models(120.0, 0.909, DT, (3.0, 0.0, -0.3))
+    return design_controller(RECEIVER.linear_model(), DT, (3.0, 0.0, -0.3), AEROSONDE_WEIGHTS)
 
 
 def _plant(seed: int) -> tuple[np.ndarray, np.ndarray]:
-    m = _models()
     d = draw(STANDARD, seed)
     rec = LinearReceiver(
-        params=perturbed_params(m.receiver.params, d.aero_scale, d.mass_scale, d.inertia_scale),
-        condition=m.receiver.condition,
+        params=perturbed_params(RECEIVER.params, d.aero_scale, d.mass_scale, d.inertia_scale),
+        condition=RECEIVER.condition,
     )
     ad, bd, _ = rec.discretise(DT)
     return ad, bd

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from app.cli.main import main as cli_main
+from app.control.design import AEROSONDE_WEIGHTS, design_controller
 from app.control.drogue_filter import DrogueFilter
 from app.control.margins import (
     closed_loop_matrix,
@@ -20,7 +21,7 @@ from app.control.margins import (
 )
 from app.geometry.calibration import paper_calibration
 from app.sim.campaign import summarise
-from app.sim.docking import DockingConfig, DockingSimulation, _build_models
+from app.sim.docking import DockingConfig, DockingSimulation
 from app.sim.imperfections import (
     HARSH,
     NONE,
@@ -33,13 +34,15 @@ from app.sim.imperfections import (
     resolve,
     wake_downwash,
 )
-from app.sim.receiver import ActuatorLimits, Actuators
+from app.sim.plant import LinearPlant
+from app.sim.receiver import ActuatorLimits, Actuators, FlightCondition, LinearReceiver
 
 DT = 0.02
+RECEIVER = LinearReceiver(condition=FlightCondition(airspeed_mps=120.0, air_density=0.909))
 
 
 def _models():  # type: ignore[no-untyped-def]
-    return _build_models(120.0, 0.909, DT, (3.0, 0.0, -0.3))
+    return design_controller(RECEIVER.linear_model(), DT, (3.0, 0.0, -0.3), AEROSONDE_WEIGHTS)
 
 
 def _loop(**extra):  # type: ignore[no-untyped-def]
@@ -171,7 +174,9 @@ def test_perturbed_plant_differs_from_the_design_model_and_is_stabilised() -> No
     imp = replace(NONE, name="p", aero_frac=0.2, mass_frac=0.1, actuator_lag_s=0.03)
     for seed in range(4):
         sim = DockingSimulation(DockingConfig(vision=False, seed=seed, imperfections=imp))
-        ad, bd, _ed, c_off = sim._plant
+        plant = sim.plant
+        assert isinstance(plant, LinearPlant)
+        ad, bd, c_off = plant.ad, plant.bd, plant.offset
         assert np.max(np.abs(ad - m.ad)) > 1e-3 and np.max(np.abs(bd - m.bd)) > 1e-5
         assert np.max(np.abs(c_off)) > 0  # its own trim differs from the design trim
         # the design observer + LQR keeps the perturbed plant (with the lag) stable

@@ -38,6 +38,7 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         cfg = DockingConfig(
+            plant=args.plant,
             turbulence=args.turbulence,
             vision=not args.truth_measurements,
             camera_hz=args.camera_hz,

@@ -12,6 +12,16 @@ from typing import Any
 
 def add_docking_options(p: argparse.ArgumentParser) -> None:
     """Options shared by ``simulate`` and ``campaign``."""
+    from app.sim.docking import DockingConfig
+    from app.sim.plant import PLANTS
+
+    p.add_argument(
+        "--plant",
+        default=DockingConfig.plant,
+        choices=list(PLANTS),
+        help="receiver plant: jsbsim (the A-4 on JSBSim's nonlinear FDM) or linear (the "
+        "controller's own design model, an Aerosonde); default %(default)s",
+    )
     p.add_argument("--turbulence", default="light", choices=["none", "light", "moderate", "severe"])
     p.add_argument(
         "--truth-measurements", action="store_true", help="no vision: true drogue centre"
@@ -115,6 +125,7 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         cfg = DockingConfig(
+            plant=args.plant,
             turbulence=args.turbulence,
             seed=args.seed,
             vision=not args.truth_measurements,
@@ -154,13 +165,19 @@ def run(args: argparse.Namespace) -> int:
             for p in paths:
                 print(f"wrote {p}", file=sys.stderr)
     d = rounded(out.to_dict())
+    plant = {"plant": cfg.plant, "airframe": sim.airframe, "trim": rounded(sim.trim.to_dict())}
     if args.json:
-        print(json.dumps({**d, **speed}))
+        print(json.dumps({**d, **speed, **plant}))
         return 0
 
     def show(v: float | None, unit: str, scale: float = 1.0, digits: int = 2) -> str:
         return "n/a" if v is None else f"{scale * v:.{digits}f} {unit}"
 
+    t = sim.trim
+    print(
+        f"plant={cfg.plant} ({sim.airframe}, {t.altitude_ft:.0f} ft, {t.kcas:.0f} KCAS, "
+        f"α {t.alpha_deg:.2f}°, throttle {t.throttle:.3f}, {t.weight_lbs:.0f} lb)"
+    )
     print(
         f"captured={d['captured']} miss={show(d['miss_distance_m'], 'cm', 100.0, 1)} "
         f"closure={show(d['closure_speed_mps'], 'm/s')} "

@@ -30,21 +30,36 @@ def discrete_lqr(ad: FloatArray, bd: FloatArray, q: FloatArray, r: FloatArray) -
     return np.asarray(np.linalg.solve(r + bd.T @ p @ bd, bd.T @ p @ ad))
 
 
-def augment_lag(ad: FloatArray, bd: FloatArray, alpha: float) -> tuple[FloatArray, FloatArray]:
-    """Plant driven through a first-order servo lag ``e_k = e_{k−1} + α (u_k − e_{k−1})``,
-    ``x_{k+1} = A x_k + B e_k``: state ``[x_k, e_{k−1}]``, input ``u_k``."""
+def augment_lag(
+    ad: FloatArray, bd: FloatArray, alpha: float | FloatArray
+) -> tuple[FloatArray, FloatArray]:
+    """Plant driven through first-order lags ``e_k = e_{k−1} + α (u_k − e_{k−1})`` (one α for
+    all inputs, or one per input), ``x_{k+1} = A x_k + B e_k``: state ``[x_k, e_{k−1}]``,
+    input ``u_k``."""
     n, m = bd.shape
+    a_vec = np.broadcast_to(np.asarray(alpha, dtype=np.float64), (m,))
     a_aug = np.zeros((n + m, n + m))
     a_aug[:n, :n] = ad
-    a_aug[:n, n:] = (1.0 - alpha) * bd
-    a_aug[n:, n:] = (1.0 - alpha) * np.eye(m)
-    b_aug = np.vstack([alpha * bd, alpha * np.eye(m)])
+    a_aug[:n, n:] = bd * (1.0 - a_vec)
+    a_aug[n:, n:] = np.diag(1.0 - a_vec)
+    b_aug = np.vstack([bd * a_vec, np.diag(a_vec)])
     return a_aug, b_aug
 
 
-def lag_alpha(dt: float, lag_s: float) -> float:
-    """Per-tick gain α = 1 − exp(−Δt/τ) of a first-order lag (1: no lag)."""
+def lag_alpha(dt: float, lag_s: float | tuple[float, ...]) -> float | FloatArray:
+    """Per-tick gain α = 1 − exp(−Δt/τ) of a first-order lag (1: no lag); one per input when
+    ``lag_s`` is a tuple (e.g. an engine's spool-up lag on the throttle, servo lags on the
+    surfaces)."""
+    if isinstance(lag_s, tuple):
+        tau = np.asarray(lag_s, dtype=np.float64)
+        safe = np.where(tau > 0, tau, 1.0)
+        return np.where(tau > 0, 1.0 - np.exp(-dt / safe), 1.0)
     return 1.0 - float(np.exp(-dt / lag_s)) if lag_s > 0 else 1.0
+
+
+def has_lag(lag_s: float | tuple[float, ...]) -> bool:
+    """Whether any input has a modelled lag."""
+    return bool(np.any(np.asarray(lag_s, dtype=np.float64) > 0))
 
 
 def augment_integral(
@@ -80,7 +95,7 @@ class IntegralLqr:
     error_clip: FloatArray | None = None
     output_error_clip: float = float("inf")
     ke: FloatArray | None = None
-    design_lag_s: float = 0.0
+    design_lag_s: float | tuple[float, ...] = 0.0  # s; one for all inputs or one per input
 
     @classmethod
     def design(
@@ -92,14 +107,14 @@ class IntegralLqr:
         q_state: FloatArray,
         q_int: FloatArray,
         r: FloatArray,
-        design_lag_s: float = 0.0,
+        design_lag_s: float | tuple[float, ...] = 0.0,
         q_lag: float = 0.0,
     ) -> IntegralLqr:
         """Eq. 20 gains on the plant augmented with the integral of ``C x``; with
         ``design_lag_s`` > 0 the plant is first augmented with a servo lag of that time
         constant (:func:`augment_lag`; its states weighted by ``q_lag``)."""
         n, m = bd.shape
-        if design_lag_s > 0:
+        if has_lag(design_lag_s):
             a_l, b_l = augment_lag(ad, bd, lag_alpha(dt, design_lag_s))
             c_l = np.hstack([c, np.zeros((c.shape[0], m))])
             a_aug, b_aug = augment_integral(a_l, b_l, c_l, dt)
@@ -130,7 +145,7 @@ class IntegralLqr:
         """Advance the modelled deflection ``ê`` towards the servo position (deviation from
         trim) by one tick of the design lag; return it (the servo position without a lag)."""
         alpha = lag_alpha(self.dt, self.design_lag_s)
-        self.e_hat = self.e_hat + alpha * (np.asarray(servo_dev, float) - self.e_hat)
+        self.e_hat = np.asarray(self.e_hat + alpha * (np.asarray(servo_dev, float) - self.e_hat))
         return self.e_hat
 
     def closed_loop_matrix(self, ad: FloatArray, bd: FloatArray) -> FloatArray:

@@ -20,6 +20,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
+from app.control.lqr import has_lag, lag_alpha
+
 FloatArray = NDArray[np.float64]
 
 
@@ -37,7 +39,7 @@ def closed_loop_matrix(
     plant: tuple[FloatArray, FloatArray] | None = None,
     gain_scale: float = 1.0,
     ke: FloatArray | None = None,
-    design_lag_s: float = 0.0,
+    design_lag_s: float | tuple[float, ...] = 0.0,
 ) -> FloatArray:
     """Transition matrix of [x, x̂_{k−1}, u_{k−1..k−1−delay}, ζ, e, ê] (module docstring).
 
@@ -56,9 +58,9 @@ def closed_loop_matrix(
     iu = [slice(2 * n + j * m, 2 * n + (j + 1) * m) for j in range(d + 1)]  # u_{k-1-j}
     iz = slice(2 * n + (d + 1) * m, 2 * n + (d + 1) * m + p)
     ie = slice(iz.stop, iz.stop + m)
-    lag_model = design_lag_s > 0
+    lag_model = has_lag(design_lag_s)
     ieh = slice(ie.stop, ie.stop + (m if lag_model else 0))
-    alpha_d = 1.0 - float(np.exp(-dt / design_lag_s)) if lag_model else 1.0
+    alpha_d = lag_alpha(dt, design_lag_s)
     size = ieh.stop
     eye_lc = np.eye(n) - obs_gain @ c_meas
     out = np.zeros((size, size))

@@ -135,7 +135,7 @@ def create_app(
 
             upload_pool = UploadPool(settings.max_concurrent_uploads)
         loop = TickLoop(
-            SimConfig(tick_hz=settings.tick_hz),
+            SimConfig(tick_hz=settings.tick_hz, plant=settings.sim_plant),
             calib,
             source_factory=factory,
             clock=clock,

@@ -101,11 +101,25 @@ class SimConfigUpdate(BaseModel):
     vision: bool | None = None
 
 
+class PlantInfo(BaseModel):
+    """The simulated receiver: plant, airframe and its trim at the flight condition."""
+
+    plant: str
+    airframe: str
+    trim: dict[str, float] = Field(
+        description="altitude_ft, kcas, tas_mps, alpha_deg, theta_deg, throttle, weight_lbs, "
+        "air_density_kgm3, mach"
+    )
+
+
 class SimStatus(BaseModel):
     running: bool
     run: int
     done: bool
     config: SimConfig
+    plant: PlantInfo | None = Field(
+        None, description="the configured plant (None when it cannot be built here)"
+    )
 
 
 class Health(BaseModel):

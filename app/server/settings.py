@@ -26,6 +26,8 @@ from pydantic import Field, field_validator
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
 from app.sim import paths
+from app.sim.plant import DEFAULT_PLANT
+from app.sim.sim_config import Plant
 
 LOCAL_HOSTS = ("localhost", "127.0.0.1", "::1")
 WILDCARD_BIND = ("0.0.0.0", "::", "")
@@ -68,6 +70,11 @@ class Settings(BaseSettings):
     history_s: float = Field(60.0, gt=0.0, le=3600.0, description="ring buffer length (s)")
     telemetry_queue: int = Field(64, ge=1, le=10000, description="per-client WebSocket queue")
     sim_autostart: bool = Field(True, description="start the simulated stream at start-up")
+    sim_plant: Plant = Field(
+        DEFAULT_PLANT,
+        description="receiver plant of the simulated stream: jsbsim (the A-4 on JSBSim) or "
+        "linear (the controller's design model)",
+    )
     sim_auto_restart_s: float | None = Field(
         3.0, description="restart a finished run (next seed) after this many seconds; None = no"
     )

@@ -108,6 +108,7 @@ def docking_config(config: SimConfig) -> Any:
     from app.sim.docking import DockingConfig
 
     return DockingConfig(
+        plant=config.plant,
         turbulence=config.turbulence,
         seed=config.seed,
         closure_speed_mps=config.closure_speed_mps,

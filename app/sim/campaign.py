@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from app.sim.docking import DockingConfig, DockingSimulation
+from app.sim.docking import DockingConfig, DockingSimulation, describe_plant
 from app.sim.imperfections import resolve
 
 CSV_FIELDS = (
@@ -85,7 +85,9 @@ def summarise(rows: list[dict[str, Any]], config: DockingConfig | None = None) -
         else None,
     }
     if config is not None:
+        summary.update(describe_plant(config))
         summary["config"] = {
+            "plant": config.plant,
             "turbulence": config.turbulence,
             "vision": config.vision,
             "matcher": config.matcher,

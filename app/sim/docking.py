@@ -44,6 +44,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from app.control.abort import AlphaBetaTracker, predicted_miss_m, should_abort
+from app.control.design import (
+    A4_WEIGHTS,
+    AEROSONDE_WEIGHTS,
+    ControllerDesign,
+    design_controller,
+)
 from app.control.drogue_filter import DrogueFilter
 from app.control.lqr import IntegralLqr
 from app.control.observer import StateObserver
@@ -62,8 +68,10 @@ from app.sim.imperfections import (
     resolve,
     wake_downwash,
 )
+from app.sim.jsbsim_plant import JsbsimCondition, JsbsimPlant
 from app.sim.led_ring import LedRing
 from app.sim.paths import load_default_calibration
+from app.sim.plant import DEFAULT_PLANT, PLANTS, LinearPlant, ReceiverPlant, TrimPoint
 from app.sim.receiver import (
     INPUT_NAMES,
     STATE_NAMES,
@@ -79,7 +87,32 @@ from app.vision.result import PoseResult
 
 FloatArray = NDArray[np.float64]
 PHASES = ("approach", "final", "contact", "station_keeping", "backoff")
-MEASURED_STATES = (3, 4, 5, 6, 7, 8, 9, 10, 11)  # p q r φ θ ψ x y z
+LINEAR_AIRFRAME = "Aerosonde (the controller's linear design model)"
+JSBSIM_FUEL_CAPACITY_LBS = 3000.0  # the A-4's one tank (JSBSim A4.xml), full in the design
+SEARCH_GAP_M = 5.0  # closest gap flown on the a-priori drogue position before acquisition
+DISPARITY_PER_EXTRA_PX = 0.02  # ring-fit tolerance (disparity σ) per px of calibration doubt
+GUST_HISTORY_TICKS = 64  # gusts kept for the receiver's delay (gap / V: ≤ 0.6 s at 50 Hz)
+
+
+@dataclass(frozen=True)
+class AirframeGeometry:
+    """Where the probe tip, the nose (bow wave) and the stereo rig's left camera sit (body
+    frame, m from the CG)."""
+
+    probe_tip_body_m: tuple[float, float, float]
+    nose_body_m: tuple[float, float, float]
+    camera_body_m: tuple[float, float, float]
+
+
+AIRFRAME_GEOMETRY = {
+    # the Aerosonde design model: a probe 3 m ahead of the CG on a 2.9 m span airframe
+    "linear": AirframeGeometry((3.0, 0.0, -0.3), (1.0, 0.0, 0.0), (0.0, -0.35, -0.35)),
+    # the A-4 (JSBSim's A4: CG 300.3 in aft of the nose, 41.7 ft long): estimates — the probe on
+    # the right of the nose, its tip ≈ 0.6 m ahead of it; the nose 7.6 m ahead of the CG; the
+    # camera on top of the nose 3 m behind the tip (as on the Aerosonde: the ring stays in view
+    # down to contact)
+    "jsbsim": AirframeGeometry((8.2, 0.5, -0.3), (7.6, 0.0, 0.0), (5.2, 0.2, -0.6)),
+}
 
 
 @dataclass(frozen=True)
@@ -99,6 +132,12 @@ class DockingConfig:
     capture_radius_m: float = 0.305
     camera_hz: float | None = None  # None: a frame every tick
     # --- beyond the brief's list
+    # the receiver plant (app.sim.plant): "jsbsim" — the A-4 on JSBSim's nonlinear FDM at
+    # jsbsim_altitude_ft / jsbsim_kcas; "linear" — the Aerosonde design model at airspeed_mps,
+    # altitude_m, air_density (the controller's own linear model: fast tests, secondary rows)
+    plant: str = DEFAULT_PLANT
+    jsbsim_altitude_ft: float = 15000.0
+    jsbsim_kcas: float = 230.0
     airspeed_mps: float = 120.0
     altitude_m: float = 3000.0
     air_density: float = 0.909
@@ -114,9 +153,11 @@ class DockingConfig:
     ins_noise: bool = True
     min_closure_mps: float = 0.5
     max_closure_mps: float = 2.0
-    probe_tip_body_m: tuple[float, float, float] = (3.0, 0.0, -0.3)
-    nose_body_m: tuple[float, float, float] = (1.0, 0.0, 0.0)
-    camera_body_m: tuple[float, float, float] = (0.0, -0.35, -0.35)
+    # mounting on the airframe (body frame, m from the CG); None: the plant's airframe's
+    # (AIRFRAME_GEOMETRY)
+    probe_tip_body_m: tuple[float, float, float] | None = None
+    nose_body_m: tuple[float, float, float] | None = None
+    camera_body_m: tuple[float, float, float] | None = None
     camera_aim_ahead_m: float = 0.0
     # break away in the last metre when the predicted miss exceeds abort_margin × capture
     # radius: 1.5 (was 1.0) — the prediction extrapolates noisy velocities, and under the
@@ -137,7 +178,18 @@ class DockingConfig:
     hold_gap_on_lost_lock: bool = True
     roi_margin_px: int = 48  # unused (the tracker sizes its windows)
 
+    def geometry(self) -> AirframeGeometry:
+        """The probe tip, nose and camera mounting (the airframe's unless overridden)."""
+        base = AIRFRAME_GEOMETRY[self.plant]
+        return AirframeGeometry(
+            probe_tip_body_m=self.probe_tip_body_m or base.probe_tip_body_m,
+            nose_body_m=self.nose_body_m or base.nose_body_m,
+            camera_body_m=self.camera_body_m or base.camera_body_m,
+        )
+
     def validate(self) -> None:
+        if self.plant not in PLANTS:
+            raise ValueError(f"plant must be one of {PLANTS}, got {self.plant!r}")
         if self.turbulence not in LEVELS:
             raise ValueError(f"turbulence must be one of {LEVELS}, got {self.turbulence!r}")
         resolve(self.imperfections)
@@ -224,120 +276,48 @@ class DockingOutcome:
         }
 
 
-@dataclass
-class _Models:
-    receiver: LinearReceiver
-    ad: FloatArray
-    bd: FloatArray
-    ed: FloatArray
-    c_tip: FloatArray
-    tip0_b: FloatArray  # R(trim) r_probe: tip offset from CG at trim attitude
-    lqr_kp: FloatArray
-    lqr_ki: FloatArray
-    lqr_ke: FloatArray | None  # gain on the modelled servo deflection (lag-aware design)
-    lqr_design_lag_s: float
-    obs_gain: FloatArray
-    c_meas: FloatArray
-    meas_sigma: FloatArray
+@dataclass(frozen=True)
+class PlantDesign:
+    """A plant's trim and the controller designed on its linearisation."""
 
-    def margin_loop(self, dt: float, **extra: Any) -> dict[str, Any]:
-        """Keyword arguments of :func:`app.control.margins.closed_loop_matrix` for this design
-        (observer, LQR, modelled servo lag); ``extra`` adds or overrides (``lag_s``, ``plant``…)."""
-        loop: dict[str, Any] = dict(
-            a=self.ad,
-            b=self.bd,
-            c_meas=self.c_meas,
-            obs_gain=self.obs_gain,
-            kp=self.lqr_kp,
-            ki=self.lqr_ki,
-            ke=self.lqr_ke,
-            design_lag_s=self.lqr_design_lag_s,
-            c_tip=self.c_tip,
-            dt=dt,
-        )
-        return {**loop, **extra}
-
-
-def _tip_jacobian(theta0: float, r_probe: FloatArray) -> FloatArray:
-    def tip(angles: FloatArray) -> FloatArray:
-        return euler_to_matrix(angles[0], theta0 + angles[1], angles[2]) @ r_probe
-
-    cols = []
-    for i in range(3):
-        e = np.zeros(3)
-        e[i] = 1e-6
-        cols.append((tip(e) - tip(-e)) / 2e-6)
-    return np.column_stack(cols)
-
-
-# Gains (issue 13 follow-up): chosen for robustness over the plant spread, not per run — every
-# plant in 100 draws of the `standard` distribution (design seeds 100000–100099, never the
-# campaign's) keeps ≥ 2 ticks (40 ms) of extra input-delay margin with the 30 ms actuator lag,
-# the nominal loop ≥ 3 ticks with up to 100 ms of lag (app.control.margins, tests); among those,
-# the tightest tracking in truth-measurement runs (a random search over the weights). Side
-# velocity v and yaw rate r weighted (sideslip, Dutch roll damping), lateral position and its
-# integral ×4, vertical ×2.6 (the bow wave lifts the drogue in the last metre), rudder R ×4.
-LQR_Q_STATE = np.array(
-    [2.0, 20.0, 2.0, 0.1, 0.1, 8.0, 2.0, 9.0, 9.0, 5.0, 2600.0, 1550.0]
-)  # u v w p q r φ θ ψ x y z
-LQR_Q_INT = np.array([3.0, 1300.0, 775.0])
-# |x̂ − x*| bounds: only the position error is bounded (a reference jump then closes at a bounded
-# rate); velocities, rates and angles keep their full feedback, which supplies the damping
-LQR_ERROR_CLIP = np.array([np.inf] * 9 + [0.6, 0.6, 0.6])
-SEARCH_GAP_M = 5.0  # closest gap flown on the a-priori drogue position before acquisition
-DISPARITY_PER_EXTRA_PX = 0.02  # ring-fit tolerance (disparity σ) per px of calibration doubt
-# per tick: (m/s)², (rad/s)² on u v w p q r — model uncertainty, so that the observer leans on
-# the INS rather than on the design model's prediction. ×1000 over the first tuning (1e-2): the
-# side velocity v is not measured, and an observer that trusted the design model's v̂ fed a
-# wrong sideslip to the LQR when the flown aircraft was ±20 % off — with the 30 ms actuator lag
-# the Dutch roll (2.4–2.8 Hz) of 2/200 `standard` plants went unstable and 3 more had no delay
-# margin left (the four `standard`-light failures; app.control.margins, tests)
-OBSERVER_MODEL_Q = np.array([10.0] * 6 + [0.0] * 6)
-LQR_R = np.array([300.0, 1.2e5, 4.6e5, 1.5e6])  # throttle, aileron, elevator, rudder
-# the LQR is designed on the plant behind a first-order servo lag of this time constant (s): its
-# modelled deflection ê drives the observer's prediction and the feedback (lag-aware design;
-# the flown servos have none (`none`), 30 ms (`standard`) or 60 ms (`harsh`) plus rate limits)
-LQR_DESIGN_LAG_S = 0.03
+    design: ControllerDesign
+    trim: TrimPoint
+    airframe: str
+    receiver: LinearReceiver | None  # the linear plant's nonlinear Aerosonde (perturbed copies)
 
 
 @lru_cache(maxsize=8)
-def _build_models(
-    airspeed: float, density: float, dt: float, probe: tuple[float, float, float]
-) -> _Models:
-    rec = LinearReceiver(condition=FlightCondition(airspeed_mps=airspeed, air_density=density))
-    ad, bd, ed = rec.discretise(dt)
-    r_probe = np.asarray(probe, float)
-    c_tip = np.zeros((3, 12))
-    c_tip[:, 6:9] = _tip_jacobian(rec.theta0, r_probe)
-    c_tip[:, 9:12] = np.eye(3)
-    tip0 = euler_to_matrix(0.0, rec.theta0, 0.0) @ r_probe
-    ctrl = IntegralLqr.design(
-        ad, bd, c_tip, dt, LQR_Q_STATE, LQR_Q_INT, LQR_R, design_lag_s=LQR_DESIGN_LAG_S
+def plant_design(
+    plant: str,
+    tick_hz: float,
+    probe: tuple[float, float, float],
+    linear_condition: tuple[float, float, float],
+    jsbsim_condition: JsbsimCondition,
+) -> PlantDesign:
+    """Trim, linearise and design (cached): ``linear_condition`` = (airspeed m/s, density
+    kg/m³, altitude m) of the Aerosonde; ``jsbsim_condition`` the A-4's."""
+    dt = 1.0 / tick_hz
+    if plant == "linear":
+        airspeed, density, altitude = linear_condition
+        rec = LinearReceiver(condition=FlightCondition(airspeed_mps=airspeed, air_density=density))
+        design = design_controller(rec.linear_model(), dt, probe, AEROSONDE_WEIGHTS)
+        return PlantDesign(design, rec.trim_point(altitude), LINEAR_AIRFRAME, rec)
+    fdm = JsbsimPlant(jsbsim_condition, tick_hz)
+    design = design_controller(fdm.model, dt, probe, A4_WEIGHTS)
+    return PlantDesign(design, fdm.trim, fdm.airframe, None)
+
+
+def describe_plant(config: DockingConfig) -> dict[str, Any]:
+    """``plant``, ``airframe`` and ``trim`` (TrimPoint fields) of a configuration, as
+    ``simulate --json`` and ``summary.json`` report them."""
+    pd = plant_design(
+        config.plant,
+        float(config.tick_hz),
+        config.geometry().probe_tip_body_m,
+        (config.airspeed_mps, config.air_density, config.altitude_m),
+        JsbsimCondition(altitude_ft=config.jsbsim_altitude_ft, kcas=config.jsbsim_kcas),
     )
-    c_meas = np.zeros((len(MEASURED_STATES), 12))
-    for row, idx in enumerate(MEASURED_STATES):
-        c_meas[row, idx] = 1.0
-    meas_sigma = np.array([0.002, 0.002, 0.002, 0.002, 0.002, 0.002, 0.01, 0.01, 0.01])
-    # process noise: the gusts (E_d E_dᵀ·4) plus model uncertainty on the velocities and rates
-    # (the flown aircraft is not the design model: app.sim.imperfections), so the observer
-    # leans on the INS rather than on the model's prediction
-    q0 = ed @ ed.T * 4.0 + np.diag(OBSERVER_MODEL_Q) + np.eye(12) * 1e-6
-    obs = StateObserver(ad, bd, c_meas, q0, np.diag(meas_sigma**2))
-    return _Models(
-        rec,
-        ad,
-        bd,
-        ed,
-        c_tip,
-        tip0,
-        ctrl.kp,
-        ctrl.ki,
-        ctrl.ke,
-        ctrl.design_lag_s,
-        obs.gain,
-        c_meas,
-        meas_sigma,
-    )
+    return {"plant": config.plant, "airframe": pd.airframe, "trim": pd.trim.to_dict()}
 
 
 class DockingSimulation:
@@ -347,21 +327,41 @@ class DockingSimulation:
         config.validate()
         self.config = config
         self.dt = 1.0 / config.tick_hz
-        self.models = _build_models(
-            config.airspeed_mps, config.air_density, self.dt, tuple(config.probe_tip_body_m)
+        geo = config.geometry()
+        self.plant_design = plant_design(
+            config.plant,
+            float(config.tick_hz),
+            geo.probe_tip_body_m,
+            (config.airspeed_mps, config.air_density, config.altitude_m),
+            self.jsbsim_condition(),
         )
+        self.models = self.plant_design.design
+        self.trim = self.plant_design.trim
+        self.airframe = self.plant_design.airframe
+        self.airspeed = float(self.models.model.airspeed_mps)  # the tanker's speed (m/s)
         self._calibration = calibration
         self._camera: StereoCameraSensor | None = None
         if config.vision:
             self._init_vision()
-        self.r_probe_b = np.asarray(config.probe_tip_body_m, float)
-        self.r_nose_b = np.asarray(config.nose_body_m, float)
-        self.r_cam_b = np.asarray(config.camera_body_m, float)
+        self.r_probe_b = np.asarray(geo.probe_tip_body_m, float)
+        self.r_nose_b = np.asarray(geo.nose_body_m, float)
+        self.r_cam_b = np.asarray(geo.camera_body_m, float)
         aim = self.r_probe_b + np.array([config.camera_aim_ahead_m, 0.0, 0.0])
         self.R_bc = look_at_camera(self.r_cam_b, aim)
         self.reset()
 
     # ------------------------------------------------------------------ set-up
+    def jsbsim_condition(self, fuel_lbs: float | None = None) -> JsbsimCondition:
+        cfg = self.config
+        return JsbsimCondition(
+            altitude_ft=cfg.jsbsim_altitude_ft, kcas=cfg.jsbsim_kcas, fuel_lbs=fuel_lbs
+        )
+
+    @property
+    def plant(self) -> ReceiverPlant:
+        """The plant flown this run (:mod:`app.sim.plant`)."""
+        return self._plant
+
     @property
     def effective_render_mode(self) -> str:
         """``render_mode``, or "windows" with the deprecated ``roi_tracking``."""
@@ -423,18 +423,20 @@ class DockingSimulation:
         self._pending: list[tuple[int, int, FloatArray, FloatArray]] = []
         # the last real frame (camera-frame drogue centre m, pose, images, LED truth)
         self._last_cam: tuple[FloatArray | None, Any, Any, Any, FloatArray | None] | None = None
-        self._plant = self._plant_model(imp)
+        self._plant = self._make_plant(imp)
         if self._camera is not None:
             self._camera.set_nav_calibration(
                 perturbed_calibration(self._camera.render_calibration, imp, self.imp_draw)
             )
+        # one flight condition for everything: the plant's trim (altitude, TAS, density)
+        trim = self.trim
         self.turb = DrydenTurbulence(
-            cfg.turbulence, cfg.airspeed_mps, self.dt, cfg.altitude_m, seed=cfg.seed
+            cfg.turbulence, trim.tas_mps, self.dt, trim.altitude_ft * 0.3048, seed=cfg.seed
         )
         self.drogue = HoseDrogue(
             HoseDrogueParams(
-                air_density=cfg.air_density,
-                airspeed_mps=cfg.airspeed_mps,
+                air_density=trim.air_density_kgm3,
+                airspeed_mps=trim.tas_mps,
                 drogue_radius_m=cfg.ring_radius_m,
                 bow_force_n=cfg.bow_wave_force_n * self.imp_draw.bow_scale,
             )
@@ -442,9 +444,10 @@ class DockingSimulation:
         # receiver at trim, probe tip start_gap behind the drogue's rest position (+ random offset)
         offset = np.concatenate([[0.0], rng.normal(0.0, cfg.start_offset_sigma_m, 2)])
         tip_start = self.drogue.eq_m - np.array([cfg.start_gap_m, 0.0, 0.0]) + offset
-        self.x = m.receiver.x_trim.copy() * 0.0
-        self.x[9:12] = tip_start - m.tip0_b
-        self.x_trim = m.receiver.x_trim.copy()
+        x0 = np.zeros(12)
+        x0[9:12] = tip_start - m.tip0_b
+        self.x = self._plant.reset(x0)
+        self.x_trim = m.model.x_trim.copy()
         self.obs = StateObserver.__new__(StateObserver)
         self.obs.ad, self.obs.bd, self.obs.c, self.obs.gain = m.ad, m.bd, m.c_meas, m.obs_gain
         self.obs.reset(self.x)
@@ -453,14 +456,14 @@ class DockingSimulation:
             ki=m.lqr_ki,
             c=m.c_tip,
             dt=self.dt,
-            error_clip=LQR_ERROR_CLIP,
+            error_clip=m.error_clip,
             output_error_clip=0.3,
             ke=m.lqr_ke,
             design_lag_s=m.lqr_design_lag_s,
         )
         self.act = Actuators(
-            m.receiver.u_trim,
-            m.receiver.limits,
+            m.model.u_trim,
+            m.model.limits,
             self.dt,
             lag_s=imp.actuator_lag_s,
             rate_scale=imp.actuator_rate_scale,
@@ -473,8 +476,8 @@ class DockingSimulation:
         )
         if self._imperfect:
             self._settle_on_plant_trim()
-        delay_s = max(cfg.start_gap_m, 1.0) / cfg.airspeed_mps
-        self._gust_delay = [np.zeros(3)] * max(int(round(delay_s / self.dt)), 1)
+        # the gusts the drogue met, newest last: the receiver meets them gap / V later
+        self._gust_history: list[FloatArray] = [np.zeros(3)] * GUST_HISTORY_TICKS
         self.t = 0.0
         self.k = 0
         self._camera_period = 1.0 / (cfg.camera_hz or cfg.tick_hz)
@@ -493,38 +496,46 @@ class DockingSimulation:
         self._prev_drogue = self.drogue.position_m.copy()
         self._prev_normal = self.drogue.normal()
 
-    def _plant_model(
-        self, imp: Imperfections
-    ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
-        """(A_d, B_d, E_d, c) of the simulated receiver in the design model's coordinates:
-        ``x⁺ = A_d x + B_d δ + E_d g + c``. The design model itself unless the plant is
-        perturbed; then the perturbed aircraft, trimmed and linearised on its own (its trim
-        differs: ``c`` carries the offset between the trims)."""
-        m = self.models
-        if imp.aero_frac == 0 and imp.mass_frac == 0:
-            return m.ad, m.bd, m.ed, np.zeros(12)
-        d = self.imp_draw
+    def _make_plant(self, imp: Imperfections) -> ReceiverPlant:
+        """The plant flown this run. Linear: the design model itself unless perturbed; then the
+        perturbed aircraft, trimmed and linearised on its own (``offset`` carries the
+        difference between the trims). JSBSim: the FDM at the design's condition — with the
+        imperfections lighter than the design (fuel burned; the design is at full fuel) by
+        up to twice the preset's mass fraction of its weight (the A-4's tank sits at its CG,
+        so the CG does not move)."""
+        m, d, pd = self.models, self.imp_draw, self.plant_design
+        if self.config.plant == "jsbsim":
+            fuel = None
+            if imp.mass_frac > 0:
+                full = JSBSIM_FUEL_CAPACITY_LBS
+                burned = (1.0 + imp.mass_frac - d.mass_scale) * pd.trim.weight_lbs
+                fuel = float(np.clip(full - burned, 0.0, full))
+            return JsbsimPlant(self.jsbsim_condition(fuel), self.config.tick_hz, m.model)
+        if imp.aero_frac == 0 and imp.mass_frac == 0 or pd.receiver is None:
+            return LinearPlant(m.model, self.dt, pd.airframe, pd.trim, (m.ad, m.bd, m.ed))
         rec = LinearReceiver(
-            params=perturbed_params(m.receiver.params, d.aero_scale, d.mass_scale, d.inertia_scale),
-            condition=m.receiver.condition,
+            params=perturbed_params(
+                pd.receiver.params, d.aero_scale, d.mass_scale, d.inertia_scale
+            ),
+            condition=pd.receiver.condition,
         )
         ad, bd, ed = rec.discretise(self.dt)
-        dx = m.receiver.x_trim - rec.x_trim  # design − plant trim (positions: 0)
-        du = m.receiver.u_trim - rec.u_trim
-        return ad, bd, ed, np.asarray(ad @ dx + bd @ du - dx)
+        dx = m.model.x_trim - rec.x_trim  # design − plant trim (positions: 0)
+        du = m.model.u_trim - rec.u_trim
+        offset = np.asarray(ad @ dx + bd @ du - dx)
+        return LinearPlant(rec.linear_model(), self.dt, pd.airframe, pd.trim, (ad, bd, ed), offset)
 
     def _settle_on_plant_trim(self, seconds: float = 10.0) -> None:
         """A perturbed aircraft does not fly level at the design trim: before the approach it
         holds its start point under the design controller in the steady wake, without gusts
         (true state fed back), until it sits at its own trim — integrators charged — as a
         receiver would on the pre-contact position. Then the observer starts from there."""
-        ad, bd, ed, c_off = self._plant
         x_ref = np.zeros(12)
         x_ref[9:12] = self.x[9:12]
         for _ in range(int(round(seconds / self.dt))):
             self.lqr.lag_step(self.act.apply(self.lqr.control(self.x, x_ref, x_ref[9:12])))
             air = wake_downwash(self.imp_draw, self.x[9:12])
-            self.x = ad @ self.x + bd @ self.act.effective_dev() + ed @ air + c_off
+            self.x = self._plant.step(self.act.effective_dev(), air)
         self.u_applied = self.act.position - self.act.trim
         self.obs.reset(self.x)
 
@@ -679,22 +690,25 @@ class DockingSimulation:
         x_ref[9:12] = ref - m.tip0_b
         # flight-path feed-forward: ẏ ≈ V ψ + v, ż ≈ −V θ + w at trim
         x_ref[0] = ref_vel[0]
-        x_ref[8] = ref_vel[1] / cfg.airspeed_mps
-        x_ref[7] = -ref_vel[2] / cfg.airspeed_mps
+        x_ref[8] = ref_vel[1] / self.airspeed
+        x_ref[7] = -ref_vel[2] / self.airspeed
         u_cmd = self.lqr.control(x_hat, x_ref, ref - m.tip0_b)
         self.u_applied = self.act.apply(u_cmd)  # servo positions (what the observer is told)
         self.lqr.lag_step(self.u_applied)
         self.max_sat = max(self.max_sat, self.act.saturation())
         # 5. propagate plant (the design model, or the perturbed aircraft), gusts, drogue
+        # one frozen gust field: the drogue meets it now, the receiver's CG gap / V later
         gust = self.turb.step()
-        self._gust_delay.append(gust)
-        gust_rec = self._gust_delay.pop(0)
-        ad, bd, ed, c_off = self._plant
-        if self._imperfect:  # wake, lagged actuators, perturbed plant and its trim offset
+        self._gust_history.append(gust)
+        self._gust_history.pop(0)
+        gap_m = float(self.drogue.position_m[0] - self.x[9])
+        delay = int(round(max(gap_m, 1.0) / self.airspeed / dt))
+        gust_rec = self._gust_history[-1 - min(max(delay, 1), GUST_HISTORY_TICKS - 1)]
+        if self._imperfect:  # wake, lagged actuators, the perturbed plant
             air = gust_rec + wake_downwash(self.imp_draw, self.x[9:12])
-            self.x = ad @ self.x + bd @ self.act.effective_dev() + ed @ air + c_off
+            self.x = self._plant.step(self.act.effective_dev(), air)
         else:
-            self.x = ad @ self.x + bd @ self.u_applied + ed @ gust_rec
+            self.x = self._plant.step(self.u_applied, gust_rec)
         self.t += dt
         self.k += 1
         tip = self.probe_tip()

@@ -30,13 +30,16 @@ from numpy.typing import NDArray
 from scipy.linalg import expm
 from scipy.optimize import fsolve
 
+from app.control.linear_model import ActuatorLimits, LinearModel
 from app.sim.frames import euler_to_matrix
+from app.sim.plant import TrimPoint
 
 FloatArray = NDArray[np.float64]
 GRAVITY = 9.80665
 
 STATE_NAMES: tuple[str, ...] = ("u", "v", "w", "p", "q", "r", "phi", "theta", "psi", "x", "y", "z")
 INPUT_NAMES: tuple[str, ...] = ("throttle", "aileron", "elevator", "rudder")
+SERVO_LAG_S = 0.03  # the lag-aware design's servo lag (s), app.control.design
 
 
 @dataclass(frozen=True)
@@ -85,20 +88,6 @@ class FlightCondition:
     airspeed_mps: float = 120.0
     air_density: float = 0.909  # ISA 3000 m
     thrust_max_factor: float = 2.0  # T_max = factor × trim drag
-
-
-@dataclass(frozen=True)
-class ActuatorLimits:
-    """Position (lower, upper) relative to nothing (absolute) and rate limits per input."""
-
-    lower: tuple[float, float, float, float] = (
-        0.0,
-        -np.deg2rad(25),
-        -np.deg2rad(25),
-        -np.deg2rad(25),
-    )
-    upper: tuple[float, float, float, float] = (1.0, np.deg2rad(25), np.deg2rad(25), np.deg2rad(25))
-    rate: tuple[float, float, float, float] = (1.0, np.deg2rad(60), np.deg2rad(60), np.deg2rad(60))
 
 
 def _forces_moments(
@@ -251,6 +240,40 @@ class LinearReceiver:
         b = jac(lambda u: f(x0, u, g0), u0, 1e-6)
         e = jac(lambda g: f(x0, u0, g), g0, 1e-6)
         return a, b, e
+
+    def linear_model(self, servo_lag_s: float = SERVO_LAG_S) -> LinearModel:
+        """The design model (:class:`~app.control.linear_model.LinearModel`): these matrices,
+        the trim, the limits, and ``servo_lag_s`` on every input (the lag-aware design's
+        assumption; this airframe's thrust has no lag of its own)."""
+        return LinearModel(
+            a=self.A,
+            b=self.B,
+            e=self.E,
+            x_trim=self.x_trim.copy(),
+            u_trim=self.u_trim.copy(),
+            input_names=("throttle", "aileron", "elevator", "rudder"),
+            limits=self.limits,
+            input_lag_s=(servo_lag_s,) * 4,
+            airspeed_mps=self.condition.airspeed_mps,
+        )
+
+    def trim_point(self, altitude_m: float) -> TrimPoint:
+        """The trim as reported (KCAS ≈ the equivalent airspeed; ISA speed of sound)."""
+        fc = self.condition
+        t_isa = 288.15 - 0.0065 * altitude_m
+        sound = float(np.sqrt(1.4 * 287.053 * t_isa))
+        eas = fc.airspeed_mps * float(np.sqrt(fc.air_density / 1.225))
+        return TrimPoint(
+            altitude_ft=altitude_m / 0.3048,
+            kcas=eas / 0.514444,
+            tas_mps=fc.airspeed_mps,
+            alpha_deg=float(np.degrees(self.alpha0)),
+            theta_deg=float(np.degrees(self.theta0)),
+            throttle=float(self.u_trim[0]),
+            weight_lbs=self.params.mass * 2.20462,
+            air_density_kgm3=fc.air_density,
+            mach=fc.airspeed_mps / sound,
+        )
 
     def discretise(self, dt: float) -> tuple[FloatArray, FloatArray, FloatArray]:
         """Zero-order-hold ``(A_d, B_d, E_d)`` at step ``dt`` (s)."""

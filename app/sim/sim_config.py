@@ -11,7 +11,10 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
+from app.sim.plant import DEFAULT_PLANT
+
 Turbulence = Literal["none", "light", "moderate", "severe"]
+Plant = Literal["jsbsim", "linear"]
 TURBULENCE_LEVELS: tuple[Turbulence, ...] = ("none", "light", "moderate", "severe")
 LED_COUNT = 5
 
@@ -25,6 +28,11 @@ class SimConfig(BaseModel):
 
     model_config = STRICT
 
+    plant: Plant = Field(
+        DEFAULT_PLANT,
+        description="receiver plant: jsbsim (the A-4 on JSBSim's nonlinear FDM) or linear "
+        "(the controller's own design model)",
+    )
     turbulence: Turbulence = "light"
     seed: int = Field(0, ge=0, le=2**31 - 1)
     closure_speed_mps: float = Field(1.2, ge=0.1, le=5.0)

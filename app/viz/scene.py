@@ -142,10 +142,11 @@ class ReceiverGeometry:
         from app.sim.frames import look_at_camera
 
         c = DockingConfig()
-        cam = np.asarray(c.camera_body_m, float)
-        tip = np.asarray(c.probe_tip_body_m, float)
+        g = c.geometry()
+        cam = np.asarray(g.camera_body_m, float)
+        tip = np.asarray(g.probe_tip_body_m, float)
         aim = tip + np.array([c.camera_aim_ahead_m, 0.0, 0.0])
-        return cls(look_at_camera(cam, aim), cam, np.asarray(c.nose_body_m, float), tip)
+        return cls(look_at_camera(cam, aim), cam, np.asarray(g.nose_body_m, float), tip)
 
 
 def camera_pose_from_tick(

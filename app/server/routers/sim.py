@@ -9,14 +9,31 @@ from fastapi.exceptions import RequestValidationError
 from pydantic import ValidationError
 
 from app.server.dependencies import AppState, StateDep, require_token
-from app.server.schemas import SimConfig, SimConfigUpdate, SimStatus
+from app.server.schemas import PlantInfo, SimConfig, SimConfigUpdate, SimStatus
 
 router = APIRouter(prefix="/sim", tags=["simulation"])
 
 
+def plant_info(config: SimConfig) -> PlantInfo | None:
+    """The configured plant's airframe and trim (its design is built once and cached)."""
+    from app.server.tick_loop import docking_config
+    from app.sim.docking import describe_plant
+
+    try:
+        return PlantInfo.model_validate(describe_plant(docking_config(config)))
+    except (RuntimeError, ValueError, ImportError):  # e.g. JSBSim unavailable on this machine
+        return None
+
+
 def _status(state: AppState) -> SimStatus:
     loop = state.loop
-    return SimStatus(running=loop.running, run=loop.run, done=loop.done, config=loop.config)
+    return SimStatus(
+        running=loop.running,
+        run=loop.run,
+        done=loop.done,
+        config=loop.config,
+        plant=plant_info(loop.config),
+    )
 
 
 @router.get("", response_model=SimStatus)
