@@ -67,11 +67,19 @@ AEROSONDE_WEIGHTS = DesignWeights(
 )
 
 # The A-4 at 15 000 ft / 230 KCAS on normalised commands (aileron 1 = 0.35 rad; rudder command
-# clipped at ±0.35 by the shipped FCS); see docs/models.md for how they were chosen.
+# clipped at ±0.35 by the shipped FCS). Bryson-style tolerances (Q = 1/x_max², R = 1/u_max²)
+# chosen by a Nelder–Mead search on the design model itself: the probe tip holding a fixed
+# point in light Dryden turbulence with the INS noise and the engine's spool-up lag, minimising
+# its lateral and vertical variance plus its fore-aft variance, with every command's standard
+# deviation held to a quarter of its travel from trim (tip σ 0.17 / 0.13 / 0.11 m x / y / z,
+# commands 0.25–0.27 of their travel); docs/models.md. Tolerances (m/s, rad/s, rad, m; commands
+# normalised): u v w 2.22, p q r 0.243, φ 0.567, θ 0.407, ψ 0.227, x 0.325, y z 0.119;
+# integrals x 0.596, y z 0.209 m·s; throttle 0.0079, aileron 0.0348, elevator 0.0468, rudder
+# 0.0188.
 A4_WEIGHTS = DesignWeights(
-    q_state=(2.0, 20.0, 2.0, 0.1, 0.1, 8.0, 2.0, 9.0, 9.0, 5.0, 2600.0, 1550.0),
-    q_int=(3.0, 1300.0, 775.0),
-    r=(300.0, 1.2e5, 4.6e5, 1.5e6),
+    q_state=(0.2029, 0.2029, 0.2029, 16.89, 16.89, 16.89, 3.106, 6.034, 19.42, 9.479, 71.09, 71.09),
+    q_int=(2.816, 22.96, 22.96),
+    r=(16020.0, 825.7, 456.6, 2829.0),
     error_clip=(np.inf,) * 9 + (0.6, 0.6, 0.6),
     observer_model_q=(10.0,) * 6 + (0.0,) * 6,
 )

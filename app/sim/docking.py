@@ -51,6 +51,7 @@ from app.control.design import (
     design_controller,
 )
 from app.control.drogue_filter import DrogueFilter
+from app.control.drogue_swing import predict_swing_offset
 from app.control.lqr import IntegralLqr
 from app.control.observer import StateObserver
 from app.control.reference import GuidanceConfig, ReferenceGenerator
@@ -91,7 +92,15 @@ LINEAR_AIRFRAME = "Aerosonde (the controller's linear design model)"
 JSBSIM_FUEL_CAPACITY_LBS = 3000.0  # the A-4's one tank (JSBSim A4.xml), full in the design
 SEARCH_GAP_M = 5.0  # closest gap flown on the a-priori drogue position before acquisition
 DISPARITY_PER_EXTRA_PX = 0.02  # ring-fit tolerance (disparity σ) per px of calibration doubt
-GUST_HISTORY_TICKS = 64  # gusts kept for the receiver's delay (gap / V: ≤ 0.6 s at 50 Hz)
+GUST_HISTORY_TICKS = 64
+# guidance per plant: (reference smoothing s, swing-model break-away). The Aerosonde design
+# model follows the drogue's swing (its modes are 10–30× faster); the A-4 cannot (lateral
+# position bandwidth ≈ 0.5 rad/s against a 1.6 rad/s swing at ζ ≈ 0.08): it holds the swing's
+# mean and judges each approach by where the swing will be (truth-measurement runs with the
+# A4_WEIGHTS gains, captures: chasing the swing light 1 / 8; smoothing 8 s light 10 / 12,
+# moderate 3 / 12; with the swing-model break-away light 15 / 16, moderate 10 / 16)
+PLANT_GUIDANCE = {"linear": (0.0, False), "jsbsim": (8.0, True)}
+REARM_GAP_M = 1.5  # gap (m) the probe must open after a break-away before another counts  # gusts kept for the receiver's delay (gap / V: ≤ 0.6 s at 50 Hz)
 
 
 @dataclass(frozen=True)
@@ -177,6 +186,14 @@ class DockingConfig:
     # metre a lost lock always breaks away. `harsh` light 76 → 91 %, moderate 64 → 88 %
     hold_gap_on_lost_lock: bool = True
     roi_margin_px: int = 48  # unused (the tracker sizes its windows)
+    # lateral/vertical drogue estimate seen by the guidance through a first-order low-pass of
+    # this time constant (s; 0: none; None: the plant's, PLANT_GUIDANCE): a receiver slower
+    # than the drogue's swing follows its mean instead of chasing the swing with a lag
+    reference_smoothing_s: float | None = None
+    # the break-away's predicted miss from the drogue's swing about its smoothed mean
+    # (app.control.drogue_swing; needs reference_smoothing_s > 0) instead of a straight-line
+    # extrapolation of the relative velocity, which a swinging drogue makes large
+    swing_model_abort: bool | None = None  # None: the plant's (PLANT_GUIDANCE)
 
     def geometry(self) -> AirframeGeometry:
         """The probe tip, nose and camera mounting (the airframe's unless overridden)."""
@@ -339,6 +356,11 @@ class DockingSimulation:
         self.trim = self.plant_design.trim
         self.airframe = self.plant_design.airframe
         self.airspeed = float(self.models.model.airspeed_mps)  # the tanker's speed (m/s)
+        smooth, swing = PLANT_GUIDANCE[config.plant]
+        self.smoothing_s = (
+            smooth if config.reference_smoothing_s is None else float(config.reference_smoothing_s)
+        )
+        self.swing_abort = swing if config.swing_model_abort is None else config.swing_model_abort
         self._calibration = calibration
         self._camera: StereoCameraSensor | None = None
         if config.vision:
@@ -478,6 +500,8 @@ class DockingSimulation:
             self._settle_on_plant_trim()
         # the gusts the drogue met, newest last: the receiver meets them gap / V later
         self._gust_history: list[FloatArray] = [np.zeros(3)] * GUST_HISTORY_TICKS
+        self._ref_smooth: tuple[FloatArray, FloatArray] | None = None
+        self._armed = True  # a break-away now counts as an abort (see _abort)
         self.t = 0.0
         self.k = 0
         self._camera_period = 1.0 / (cfg.camera_hz or cfg.tick_hz)
@@ -663,9 +687,17 @@ class DockingSimulation:
         tip_vel_hat = self.tip_tracker.update(tip_hat)
         d_hat = self.filter.position if self.filter.initialised else self.drogue.eq_m
         d_vel = self.filter.velocity if self.filter.initialised else np.zeros(3)
+        if not self._armed and float((d_hat - tip_hat)[0]) > REARM_GAP_M:
+            self._armed = True
         if g.phase in ("approach", "final"):
             rel = d_hat - tip_hat
-            miss_pred = predicted_miss_m(rel, d_vel - tip_vel_hat)
+            if self.swing_abort and self._ref_smooth is not None:
+                # the swing model that gave the go also judges the break-away
+                miss_pred = self._swing_miss(
+                    d_hat, d_vel, self._ref_smooth[0], tip_hat, tip_vel_hat, float(rel[0])
+                )
+            else:
+                miss_pred = predicted_miss_m(rel, d_vel - tip_vel_hat)
             reason = should_abort(
                 float(rel[0]), miss_pred, cfg.capture_radius_m, not lock, margin=cfg.abort_margin
             )
@@ -679,11 +711,23 @@ class DockingSimulation:
             if not self.filter.ever_initialised:
                 reason = None  # never acquired: hold the gap (guidance) instead of aborting
             if reason is not None:
-                self._abort()
+                self.break_away()
         # never acquired (e.g. a calibration error too large for the ring fit at 13 m): close
         # on the drogue's a-priori rest position to the search gap, where the ring is larger
         # and its depth error ∝ Z² smaller, then hold there until it is acquired
         searching = not self.filter.ever_initialised and g.gap_cmd > SEARCH_GAP_M
+        if self.smoothing_s > 0:
+            a = 1.0 - math.exp(-dt / self.smoothing_s)
+            if self._ref_smooth is None:
+                self._ref_smooth = (
+                    np.asarray(d_hat, float).copy(),
+                    np.asarray(d_vel, float).copy(),
+                )
+            sp, sv = self._ref_smooth
+            sp[1:] += a * (np.asarray(d_hat)[1:] - sp[1:])
+            sv[1:] += a * (np.asarray(d_vel)[1:] - sv[1:])
+            sp[0], sv[0] = d_hat[0], d_vel[0]
+            d_hat, d_vel = sp.copy(), sv.copy()
         ref, ref_vel = g.update(dt, d_hat, d_vel, lock or searching)
         # 4. control (eq. 20)
         x_ref = np.zeros(12)
@@ -744,7 +788,7 @@ class DockingSimulation:
                     self.capture_time = self.t
                     g.mark_contact(tip)
                 else:
-                    self._abort()
+                    self.break_away()
         self._prev_tip, self._prev_drogue, self._prev_normal = tip, d_pos, n
         phase = "contact" if captured_now else g.phase
         state_abs = self.x.copy()
@@ -774,7 +818,35 @@ class DockingSimulation:
             measurement_exposure_t_s=exposure_t,
         )
 
-    def _abort(self) -> None:
+    def _swing_miss(
+        self,
+        drogue: FloatArray,
+        drogue_vel: FloatArray,
+        mean: FloatArray,
+        tip: FloatArray,
+        tip_vel: FloatArray,
+        gap_m: float,
+    ) -> float:
+        """Radial miss (m) predicted at the arrival (``gap_m`` over the closure speed): the
+        drogue's swing about its mean (:func:`~app.control.drogue_swing.predict_swing_offset`)
+        against the probe tip carried by its own velocity."""
+        cfg = self.config
+        p = self.drogue.params
+        horizon = max(gap_m, 0.0) / cfg.closure_speed_mps
+        swing = predict_swing_offset(
+            (drogue - mean)[1:], drogue_vel[1:], p.omega_rad_s, p.damping_ratio, horizon
+        )
+        tip_at = tip[1:] + tip_vel[1:] * horizon
+        return float(np.linalg.norm(mean[1:] + swing - tip_at))
+
+    def break_away(self) -> None:
+        """Break away: one abort per break-away — none is counted again until the probe has
+        actually opened the gap past ``REARM_GAP_M`` (a receiver slower than its backoff
+        reference is still close for a while; that is the same break-away)."""
+        if not self._armed:
+            self.guidance.start_backoff()
+            return
+        self._armed = False
         self.aborts += 1
         self.guidance.start_backoff()
         if self.aborts > self.config.max_aborts:
