@@ -1,6 +1,7 @@
 """Closed-loop docking speed: simulated seconds per wall second, and Dask campaign throughput.
 
     .venv/bin/python benchmarks/bench_closed_loop.py [--sim-seconds 6] [--seeds 3] [--campaign]
+        [--plants jsbsim,linear]
 
 Part 1 (one core: BLAS/OpenCV threads pinned to 1): the same scenarios (light turbulence, a few
 seeds, the first ``--sim-seconds`` of the approach plus the same length of station keeping at
@@ -8,7 +9,8 @@ seeds, the first ``--sim-seconds`` of the approach plus the same length of stati
 vision at 50 Hz rendering only the tracker's windows (``render_mode="windows"``); medians over
 the seeds of the real-time factor (per wall second and per CPU second of the process; "vs
 truth" is the CPU-time ratio), with the per-frame render and tracker times and the share of
-frames the tracker tracked. Part 2 (``--campaign``): campaign throughput (runs/min) with 1 vs 2
+frames the tracker tracked — for each plant (the A-4 on JSBSim, the linear design model), with
+the JSBSim ÷ linear ratio of the real-time factors in the same run. Part 2 (``--campaign``): campaign throughput (runs/min) with 1 vs 2
 Dask worker processes. Prints plain tables; asserts nothing.
 """
 
@@ -90,6 +92,7 @@ def main() -> None:
     ap.add_argument("--campaign", action="store_true", help="also measure Dask throughput")
     ap.add_argument("--runs", type=int, default=8, help="campaign runs per throughput measurement")
     ap.add_argument("--vision-runs", type=int, default=4)
+    ap.add_argument("--plants", default="jsbsim,linear", help="comma-separated plants")
     args = ap.parse_args()
     print(f"(compiled loops ready in {compile_kernels():.1f} s; not timed)")
 
@@ -105,23 +108,33 @@ def main() -> None:
         f"median of {args.seeds} seeds)"
     )
     print(
-        f"{'case':28s} {'real-time ×':>12s} {'per CPU s':>10s} {'vs truth':>9s} "
+        f"{'plant':7s} {'case':28s} {'real-time ×':>12s} {'per CPU s':>10s} {'vs truth':>9s} "
         f"{'render ms':>10s} {'tracker ms':>11s} {'tracked':>8s}"
     )
-    baseline = None
-    for name, cfg in cases:
-        res = [realtime_factor(replace(cfg, seed=s), args.sim_seconds) for s in range(args.seeds)]
-        rtf = statistics.median(r[0] for r in res)
-        cpu_f = statistics.median(r[1] for r in res)
-        if baseline is None:
-            baseline = cpu_f
-        rms = statistics.median(r[2] for r in res)
-        tms = statistics.median(r[3] for r in res)
-        share = statistics.median(r[4] for r in res)
-        print(
-            f"{name:28s} {rtf:12.2f} {cpu_f:10.2f} {cpu_f / baseline:9.3f} {rms:10.2f} "
-            f"{tms:11.2f} {100 * share:7.0f}%"
-        )
+    factors: dict[tuple[str, str], float] = {}
+    for plant in args.plants.split(","):
+        baseline = None
+        for name, cfg in cases:
+            res = [
+                realtime_factor(replace(cfg, plant=plant, seed=s), args.sim_seconds)
+                for s in range(args.seeds)
+            ]
+            rtf = statistics.median(r[0] for r in res)
+            cpu_f = statistics.median(r[1] for r in res)
+            factors[(plant, name)] = cpu_f
+            if baseline is None:
+                baseline = cpu_f
+            rms = statistics.median(r[2] for r in res)
+            tms = statistics.median(r[3] for r in res)
+            share = statistics.median(r[4] for r in res)
+            print(
+                f"{plant:7s} {name:28s} {rtf:12.2f} {cpu_f:10.2f} {cpu_f / baseline:9.3f} "
+                f"{rms:10.2f} {tms:11.2f} {100 * share:7.0f}%"
+            )
+    if ("jsbsim", cases[0][0]) in factors and ("linear", cases[0][0]) in factors:
+        print("\nJSBSim ÷ linear plant (real-time factor per CPU s, same run):")
+        for name, _ in cases:
+            print(f"  {name:28s} {factors[('jsbsim', name)] / factors[('linear', name)]:6.3f}")
     if not args.campaign:
         return
     print("\n## Campaign throughput, Dask LocalCluster (1 thread per worker process)")

@@ -137,6 +137,24 @@ def test_overlay_circles_each_led_in_its_colour() -> None:
     assert out[128, 160].sum() < 60  # centre left untouched (dark background)
 
 
+@pytest.mark.parametrize("plant", ["linear", "jsbsim"])
+def test_the_ticks_own_camera_pose_puts_leds_on_the_drogue_rim(plant: str) -> None:
+    """Whatever the airframe's mounting: the pose each tick carries (its frame's) maps the
+    simulator's LED truth onto the rim of the drogue the frame saw."""
+    from app.sim.docking import DockingConfig, DockingSimulation
+    from app.viz.scene import camera_pose_from_tick
+
+    cfg = DockingConfig(plant=plant, tick_hz=30.0, turbulence="light", seed=1)
+    sim = DockingSimulation(cfg)
+    prev = sim.step()
+    tick = sim.step()
+    cam = camera_pose_from_tick(SimpleNamespace(uav_state=None), tick, None)
+    assert cam is not None and tick.led_truth_cam_mm is not None
+    world = cam.to_tanker(np.asarray(tick.led_truth_cam_mm))
+    dist = np.linalg.norm(world - np.asarray(prev.drogue_truth_m), axis=1)
+    np.testing.assert_allclose(dist, cfg.ring_radius_m, atol=0.002)
+
+
 def test_camera_pose_from_real_sim_tick_puts_leds_on_the_drogue_rim() -> None:
     """Independent check of the camera mounting: the simulator's LED truth (camera frame, mm)
     mapped to the tanker frame must lie on the drogue rim around ``drogue_truth_m``."""

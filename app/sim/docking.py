@@ -268,6 +268,10 @@ class DockingTick:
     frame_status: str | None = None
     # exposure time (s) of the drogue measurement fused this tick (latency: earlier than t_s)
     measurement_exposure_t_s: float | None = None
+    # the left camera's true pose in the tanker frame (R_TC, origin m) when this tick's frame
+    # was taken (before the dynamics step): the 3-D view draws the cameras from it, whatever
+    # the airframe's mounting
+    camera_pose_T: tuple[FloatArray, FloatArray] | None = None
 
 
 @dataclass
@@ -637,6 +641,7 @@ class DockingSimulation:
     def step(self) -> DockingTick:
         cfg, m = self.config, self.models
         dt = self.dt
+        frame_pose = self._camera_pose(self.x)  # the pose this tick's frame is taken from
         # 1. observer on own-state sensors (eq. 19), predicting with the deflection the design
         # model believes acted (the servo position, or its modelled lag: lag-aware design)
         x_hat = self.obs.update(self.lqr.e_hat, self._own_measurement()).copy()
@@ -816,6 +821,7 @@ class DockingSimulation:
             image_windows_px=self._image_windows,
             frame_status=status,
             measurement_exposure_t_s=exposure_t,
+            camera_pose_T=frame_pose,
         )
 
     def _swing_miss(

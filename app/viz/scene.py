@@ -136,12 +136,13 @@ class ReceiverGeometry:
     probe_tip_b: np.ndarray
 
     @classmethod
-    def from_docking_defaults(cls) -> ReceiverGeometry:
-        """The mounting of :class:`app.sim.docking.DockingConfig` (its defaults)."""
+    def from_docking_defaults(cls, plant: str | None = None) -> ReceiverGeometry:
+        """The mounting of :class:`app.sim.docking.DockingConfig` (its defaults; the airframe
+        of ``plant`` when given)."""
         from app.sim.docking import DockingConfig
         from app.sim.frames import look_at_camera
 
-        c = DockingConfig()
+        c = DockingConfig() if plant is None else DockingConfig(plant=plant)
         g = c.geometry()
         cam = np.asarray(g.camera_body_m, float)
         tip = np.asarray(g.probe_tip_body_m, float)

@@ -115,7 +115,8 @@ class VizService:
         cam.fov = INITIAL_FOV_RAD
         self.server.on_client_connect(self._on_client_connect)
         try:
-            geometry: ReceiverGeometry | None = ReceiverGeometry.from_docking_defaults()
+            plant = getattr(settings, "sim_plant", None)
+            geometry: ReceiverGeometry | None = ReceiverGeometry.from_docking_defaults(plant)
         except ImportError:  # pragma: no cover - the simulation is part of the package
             geometry = None
         self.scene = DockingScene(self.server, self.calibration, geometry)
