@@ -98,9 +98,12 @@ GUST_HISTORY_TICKS = 64
 # position bandwidth ≈ 0.5 rad/s against a 1.6 rad/s swing at ζ ≈ 0.08): it holds the swing's
 # mean and judges each approach by where the swing will be (truth-measurement runs with the
 # A4_WEIGHTS gains, captures: chasing the swing light 1 / 8; smoothing 8 s light 10 / 12,
-# moderate 3 / 12; with the swing-model break-away light 15 / 16, moderate 10 / 16)
+# moderate 3 / 12; with the swing-model break-away light 15 / 16, moderate 10 / 16; the
+# smoothing scaled by the swing's size: calm 12 / 12, light 16 / 16, moderate 10 / 16)
 PLANT_GUIDANCE = {"linear": (0.0, False), "jsbsim": (8.0, True)}
-REARM_GAP_M = 1.5  # gap (m) the probe must open after a break-away before another counts  # gusts kept for the receiver's delay (gap / V: ≤ 0.6 s at 50 Hz)
+REARM_GAP_M = 1.5
+SWING_VAR_S = 4.0  # s, averaging of the drogue swing's mean square (≈ one swing period)
+SWING_FULL_SMOOTHING_M = 0.1  # m RMS of the swing from which the full smoothing applies  # gap (m) the probe must open after a break-away before another counts  # gusts kept for the receiver's delay (gap / V: ≤ 0.6 s at 50 Hz)
 
 
 @dataclass(frozen=True)
@@ -505,6 +508,8 @@ class DockingSimulation:
         # the gusts the drogue met, newest last: the receiver meets them gap / V later
         self._gust_history: list[FloatArray] = [np.zeros(3)] * GUST_HISTORY_TICKS
         self._ref_smooth: tuple[FloatArray, FloatArray] | None = None
+        self._swing_mean: FloatArray | None = None  # the drogue's mean (smoothing_s)
+        self._swing_var = 0.0  # its swing's mean square about that mean (m²)
         self._armed = True  # a break-away now counts as an abort (see _abort)
         self.t = 0.0
         self.k = 0
@@ -696,10 +701,10 @@ class DockingSimulation:
             self._armed = True
         if g.phase in ("approach", "final"):
             rel = d_hat - tip_hat
-            if self.swing_abort and self._ref_smooth is not None:
-                # the swing model that gave the go also judges the break-away
+            if self.swing_abort and self._swing_mean is not None:
+                # where the drogue's swing about its mean will be at the plane
                 miss_pred = self._swing_miss(
-                    d_hat, d_vel, self._ref_smooth[0], tip_hat, tip_vel_hat, float(rel[0])
+                    d_hat, d_vel, self._swing_mean, tip_hat, tip_vel_hat, float(rel[0])
                 )
             else:
                 miss_pred = predicted_miss_m(rel, d_vel - tip_vel_hat)
@@ -722,17 +727,9 @@ class DockingSimulation:
         # and its depth error ∝ Z² smaller, then hold there until it is acquired
         searching = not self.filter.ever_initialised and g.gap_cmd > SEARCH_GAP_M
         if self.smoothing_s > 0:
-            a = 1.0 - math.exp(-dt / self.smoothing_s)
-            if self._ref_smooth is None:
-                self._ref_smooth = (
-                    np.asarray(d_hat, float).copy(),
-                    np.asarray(d_vel, float).copy(),
-                )
-            sp, sv = self._ref_smooth
-            sp[1:] += a * (np.asarray(d_hat)[1:] - sp[1:])
-            sv[1:] += a * (np.asarray(d_vel)[1:] - sv[1:])
-            sp[0], sv[0] = d_hat[0], d_vel[0]
-            d_hat, d_vel = sp.copy(), sv.copy()
+            d_hat, d_vel = self._smoothed_reference(
+                np.asarray(d_hat, float), np.asarray(d_vel, float)
+            )
         ref, ref_vel = g.update(dt, d_hat, d_vel, lock or searching)
         # 4. control (eq. 20)
         x_ref = np.zeros(12)
@@ -823,6 +820,30 @@ class DockingSimulation:
             measurement_exposure_t_s=exposure_t,
             camera_pose_T=frame_pose,
         )
+
+    def _smoothed_reference(
+        self, drogue: FloatArray, drogue_vel: FloatArray
+    ) -> tuple[FloatArray, FloatArray]:
+        """The drogue position and velocity the guidance follows: laterally and vertically
+        low-passed with a time constant that grows with the drogue's swing — ``smoothing_s``
+        once its RMS about the mean reaches ``SWING_FULL_SMOOTHING_M``, none for a drogue at
+        rest (whose slow moves, e.g. the bow wave's push, are then followed)."""
+        dt = self.dt
+        if self._swing_mean is None or self._ref_smooth is None:
+            self._swing_mean = drogue.copy()
+            self._ref_smooth = (drogue.copy(), drogue_vel.copy())
+        mean = self._swing_mean
+        mean[1:] += (1.0 - math.exp(-dt / self.smoothing_s)) * (drogue[1:] - mean[1:])
+        mean[0] = drogue[0]
+        dev2 = float(np.sum((drogue[1:] - mean[1:]) ** 2))
+        self._swing_var += (1.0 - math.exp(-dt / SWING_VAR_S)) * (dev2 - self._swing_var)
+        tau = self.smoothing_s * min(1.0, math.sqrt(self._swing_var) / SWING_FULL_SMOOTHING_M)
+        a = 1.0 - math.exp(-dt / tau) if tau > 1e-6 else 1.0
+        sp, sv = self._ref_smooth
+        sp[1:] += a * (drogue[1:] - sp[1:])
+        sv[1:] += a * (drogue_vel[1:] - sv[1:])
+        sp[0], sv[0] = drogue[0], drogue_vel[0]
+        return sp.copy(), sv.copy()
 
     def _swing_miss(
         self,
