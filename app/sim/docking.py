@@ -83,6 +83,7 @@ from app.sim.receiver import (
 )
 from app.sim.stereo_render import Rect, RenderSettings
 from app.sim.turbulence import LEVELS, DrydenTurbulence
+from app.vision.error_bound import ErrorBoundConfig
 from app.vision.pipeline import PipelineConfig
 from app.vision.result import PoseResult
 
@@ -427,6 +428,8 @@ class DockingSimulation:
                 epipolar_tol_px=2.0 + extra_px,
                 max_reprojection_px=1.5 + 0.5 * extra_px,
                 disparity_sigma_px=0.05 + DISPARITY_PER_EXTRA_PX * extra_px,
+                # the error bound knows the calibration's doubt too (1σ: a third of the gate's)
+                error_bound=ErrorBoundConfig(calibration_px=extra_px / 3.0),
             ),
             mode=self.effective_render_mode,
         )

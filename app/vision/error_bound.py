@@ -42,6 +42,11 @@ class ErrorBoundConfig:
     # the covariances and protection levels only (measured on the physically based dev set,
     # docs/integrity.md)
     systematic_px: float = 0.1
+    # calibration doubt (px, 1σ per image, in quadrature with each centroid's σ in the residual
+    # test and the covariances): a navigation calibration known only to 0.1° and 0.5 px
+    # (app.sim.imperfections) moves the epipolar residuals by ≈ 4 px, which a test at the
+    # centroids' 0.03 px would refuse on every frame (χ² ≈ 2·10⁴ for 9 dof)
+    calibration_px: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -89,6 +94,9 @@ def lock_bound(
     sr = np.asarray(sigma_right_px, dtype=np.float64)
     if not cfg.enabled or not (np.all(np.isfinite(sl)) and np.all(np.isfinite(sr))):
         return None
+    if cfg.calibration_px > 0:
+        c2 = cfg.calibration_px * cfg.calibration_px
+        sl, sr = np.sqrt(sl * sl + c2), np.sqrt(sr * sr + c2)
     try:
         terms = lock_terms(
             calib, left_px, right_px, xyz_mm, sl, sr, circle, systematic_px=cfg.systematic_px
