@@ -13,6 +13,7 @@ from app.sim.jsbsim_plant import (
     SETTLE_STEPS,
     JsbsimCondition,
     JsbsimPlant,
+    JsbsimUnavailable,
     substeps_for,
 )
 from app.sim.plant import LinearPlant
@@ -154,3 +155,8 @@ def test_unknown_airframe_or_condition_is_refused():
         JsbsimPlant(JsbsimCondition(aircraft="c172x"), TICK_HZ)
     with pytest.raises(ValueError):
         JsbsimPlant(JsbsimCondition(kcas=20.0), TICK_HZ)
+
+
+def test_an_untrimmable_condition_is_a_clear_error():
+    with pytest.raises(JsbsimUnavailable, match="cannot trim"):
+        JsbsimPlant(JsbsimCondition(fuel_lbs=0.0), TICK_HZ)  # an empty tank: the J52 is out

@@ -91,6 +91,9 @@ FloatArray = NDArray[np.float64]
 PHASES = ("approach", "final", "contact", "station_keeping", "backoff")
 LINEAR_AIRFRAME = "Aerosonde (the controller's linear design model)"
 JSBSIM_FUEL_CAPACITY_LBS = 3000.0  # the A-4's one tank (JSBSim A4.xml), full in the design
+# the least fuel a receiver comes to the tanker with (lb; ours): with an empty tank the J52
+# flames out and the A-4 has no trim (FGTrim fails)
+JSBSIM_RESERVE_FUEL_LBS = 300.0
 SEARCH_GAP_M = 5.0  # closest gap flown on the a-priori drogue position before acquisition
 DISPARITY_PER_EXTRA_PX = 0.02  # ring-fit tolerance (disparity σ) per px of calibration doubt
 GUST_HISTORY_TICKS = 64
@@ -537,15 +540,15 @@ class DockingSimulation:
         perturbed aircraft, trimmed and linearised on its own (``offset`` carries the
         difference between the trims). JSBSim: the FDM at the design's condition — with the
         imperfections lighter than the design (fuel burned; the design is at full fuel) by
-        up to twice the preset's mass fraction of its weight (the A-4's tank sits at its CG,
-        so the CG does not move)."""
+        up to twice the preset's mass fraction of its weight, never below a reserve (the
+        A-4's tank sits at its CG, so the CG does not move)."""
         m, d, pd = self.models, self.imp_draw, self.plant_design
         if self.config.plant == "jsbsim":
             fuel = None
             if imp.mass_frac > 0:
                 full = JSBSIM_FUEL_CAPACITY_LBS
                 burned = (1.0 + imp.mass_frac - d.mass_scale) * pd.trim.weight_lbs
-                fuel = float(np.clip(full - burned, 0.0, full))
+                fuel = float(np.clip(full - burned, JSBSIM_RESERVE_FUEL_LBS, full))
             return JsbsimPlant(self.jsbsim_condition(fuel), self.config.tick_hz, m.model)
         if imp.aero_frac == 0 and imp.mass_frac == 0 or pd.receiver is None:
             return LinearPlant(m.model, self.dt, pd.airframe, pd.trim, (m.ad, m.bd, m.ed))

@@ -117,7 +117,13 @@ def _load(cond: JsbsimCondition, dt_fdm: float, settle: bool = True):  # type: i
         fdm["propulsion/tank/contents-lbs"] = float(cond.fuel_lbs)
     fdm.run_ic()
     fdm["propulsion/set-running"] = -1
-    fdm["simulation/do_simple_trim"] = 1  # FGTrim, full (longitudinal and lateral)
+    try:
+        fdm["simulation/do_simple_trim"] = 1  # FGTrim, full (longitudinal and lateral)
+    except Exception as exc:  # JSBSim's TrimFailureError (not importable by name)
+        raise JsbsimUnavailable(
+            f"JSBSim cannot trim the {cond.aircraft} at {cond.altitude_ft:.0f} ft, "
+            f"{cond.kcas:.0f} KCAS (fuel {cond.fuel_lbs} lb): {exc}"
+        ) from None
     if settle:
         for _ in range(SETTLE_STEPS):
             fdm.run()
