@@ -991,9 +991,7 @@ def find_ring(
     hyps.sort(key=lambda h: (-len(h.members), h.cost))
     best = hyps[0]
     m = len(best.members)
-    limit = params.log10_nfa_max
-    if m == 3 and not (prior is not None and agrees_with_prior(best.circle, prior)):
-        limit -= params.three_led_log10_margin
+    limit = _nfa_limit(best, params, prior)
     if best.log10_nfa > limit:
         return RingRejection(
             f"not distinctive: a {m}-LED ring fit is expected by chance "
@@ -1025,9 +1023,7 @@ def find_ring(
             )
         best = passing[0]
         m = len(best.members)
-        limit = params.log10_nfa_max
-        if m == 3 and not (prior is not None and agrees_with_prior(best.circle, prior)):
-            limit -= params.three_led_log10_margin
+        limit = _nfa_limit(best, params, prior)
         if best.log10_nfa > limit:
             return RingRejection(
                 f"ambiguous: the one ring hypothesis consistent with the noise ({m} LEDs) is "
@@ -1044,6 +1040,15 @@ def find_ring(
             f"need at least {params.min_leds}"
         )
     return _ring_fit(best, index_map, n, len(hyps))
+
+
+def _nfa_limit(h: _Hypothesis, params: RingParams, prior: RingPrior | None) -> float:
+    """The largest log10 NFA a hypothesis may have to be locked: stricter with 3 LEDs unless a
+    recent lock predicts it."""
+    limit = params.log10_nfa_max
+    if len(h.members) == 3 and not (prior is not None and agrees_with_prior(h.circle, prior)):
+        limit -= params.three_led_log10_margin
+    return limit
 
 
 def _ring_fit(h: _Hypothesis, index_map: np.ndarray, candidates: int, hypotheses: int) -> RingFit:

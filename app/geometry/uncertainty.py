@@ -216,6 +216,49 @@ def _sigmas(sigma: FloatArray | float, n: int, name: str) -> FloatArray:
     return s
 
 
+# K, dist, P of the left then the right camera; left px, right px, points mm; σ left, σ right
+StereoArgs = tuple[
+    FloatArray,
+    FloatArray,
+    FloatArray,
+    FloatArray,
+    FloatArray,
+    FloatArray,
+    FloatArray,
+    FloatArray,
+    FloatArray,
+    FloatArray,
+    FloatArray,
+]
+
+
+def _stereo_inputs(
+    calib: StereoCalibration,
+    left_px: FloatArray,
+    right_px: FloatArray,
+    X_mm: FloatArray,
+    sigma_left_px: FloatArray | float,
+    sigma_right_px: FloatArray | float,
+) -> StereoArgs:
+    """The compiled stereo loops' arguments: both cameras' K, distortion and P, the centroids
+    (N×2 px), the points (N×3 mm) and each image's σ (N, px; validated)."""
+    X = np.ascontiguousarray(np.asarray(X_mm, dtype=np.float64).reshape(-1, 3))
+    n = len(X)
+    return (
+        np.ascontiguousarray(calib.left.K),
+        np.ascontiguousarray(calib.left.dist),
+        np.ascontiguousarray(calib.P_left),
+        np.ascontiguousarray(calib.right.K),
+        np.ascontiguousarray(calib.right.dist),
+        np.ascontiguousarray(calib.P_right),
+        np.ascontiguousarray(np.asarray(left_px, dtype=np.float64).reshape(n, 2)),
+        np.ascontiguousarray(np.asarray(right_px, dtype=np.float64).reshape(n, 2)),
+        X,
+        _sigmas(sigma_left_px, n, "sigma_left_px"),
+        _sigmas(sigma_right_px, n, "sigma_right_px"),
+    )
+
+
 def _stereo_terms(
     calib: StereoCalibration,
     left_px: FloatArray,
@@ -225,22 +268,8 @@ def _stereo_terms(
     sigma_right_px: FloatArray | float,
     weighted: bool,
 ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
-    X = np.ascontiguousarray(np.asarray(X_mm, dtype=np.float64).reshape(-1, 3))
-    n = len(X)
-    xl = np.ascontiguousarray(np.asarray(left_px, dtype=np.float64).reshape(n, 2))
-    xr = np.ascontiguousarray(np.asarray(right_px, dtype=np.float64).reshape(n, 2))
     out = _stereo_kernel(
-        np.ascontiguousarray(calib.left.K),
-        np.ascontiguousarray(calib.left.dist),
-        np.ascontiguousarray(calib.P_left),
-        np.ascontiguousarray(calib.right.K),
-        np.ascontiguousarray(calib.right.dist),
-        np.ascontiguousarray(calib.P_right),
-        xl,
-        xr,
-        X,
-        _sigmas(sigma_left_px, n, "sigma_left_px"),
-        _sigmas(sigma_right_px, n, "sigma_right_px"),
+        *_stereo_inputs(calib, left_px, right_px, X_mm, sigma_left_px, sigma_right_px),
         bool(weighted),
     )
     return out  # type: ignore[no-any-return]
@@ -443,21 +472,17 @@ def _lock_kernel(
     _, gain, C, a, epi = _stereo_kernel(
         K_l, dist_l, P_l, K_r, dist_r, P_r, left_px, right_px, X, sigma_l, sigma_r, False
     )
+    # C_k = σ² A Aᵀ per image: with σ² + systematic² it scales by (σ² + s²)/σ² per block
     s2 = systematic_px * systematic_px
-    cov = _stereo_kernel(
-        K_l,
-        dist_l,
-        P_l,
-        K_r,
-        dist_r,
-        P_r,
-        left_px,
-        right_px,
-        X,
-        np.sqrt(sigma_l * sigma_l + s2),
-        np.sqrt(sigma_r * sigma_r + s2),
-        False,
-    )[0]
+    n = X.shape[0]
+    cov = np.empty((n, 3, 3))
+    Cb = np.zeros((4, 4))
+    for k in range(n):
+        fl = (sigma_l[k] * sigma_l[k] + s2) / (sigma_l[k] * sigma_l[k])
+        fr = (sigma_r[k] * sigma_r[k] + s2) / (sigma_r[k] * sigma_r[k])
+        Cb[0:2, 0:2] = C[k, 0:2, 0:2] * fl
+        Cb[2:4, 2:4] = C[k, 2:4, 2:4] * fr
+        cov[k] = _mm(_mm(gain[k], Cb), gain[k].T.copy())
     jt, jr = _ring_terms(X, c, nrm, radius)
     centre = np.zeros((3, 3))
     for k in range(X.shape[0]):
@@ -493,30 +518,15 @@ def lock_terms(
     estimator). The covariances take a centroid error common to both views, ``systematic_px``
     (1σ, px), in quadrature with each σ; the χ² statistic does not (it cannot see it). Equal
     to the three functions to rounding (tested); ``FitError`` when the fit is degenerate."""
-    X = np.ascontiguousarray(np.asarray(X_mm, dtype=np.float64).reshape(-1, 3))
+    args = _stereo_inputs(calib, left_px, right_px, X_mm, sigma_left_px, sigma_right_px)
+    X = args[8]
     n = len(X)
     if n < 3 or not np.all(np.isfinite(X)):
         raise FitError("a circle needs at least 3 finite points")
     if not (math.isfinite(systematic_px) and systematic_px >= 0.0):
         raise ValueError("systematic_px must be finite and ≥ 0 (px)")
     c, nrm = _center_normal(circle)
-    cov, centre, T = _lock_kernel(
-        np.ascontiguousarray(calib.left.K),
-        np.ascontiguousarray(calib.left.dist),
-        np.ascontiguousarray(calib.P_left),
-        np.ascontiguousarray(calib.right.K),
-        np.ascontiguousarray(calib.right.dist),
-        np.ascontiguousarray(calib.P_right),
-        np.ascontiguousarray(np.asarray(left_px, dtype=np.float64).reshape(n, 2)),
-        np.ascontiguousarray(np.asarray(right_px, dtype=np.float64).reshape(n, 2)),
-        X,
-        _sigmas(sigma_left_px, n, "sigma_left_px"),
-        _sigmas(sigma_right_px, n, "sigma_right_px"),
-        float(systematic_px),
-        c,
-        nrm,
-        float(circle.radius),
-    )
+    cov, centre, T = _lock_kernel(*args, float(systematic_px), c, nrm, float(circle.radius))
     if not (np.all(np.isfinite(centre)) and math.isfinite(T)):
         raise FitError("the circle fit is degenerate at these points")
     return LockTerms(led_cov_mm2=cov, center_cov_mm2=centre, chi2=float(T), dof=3 * n - 6)
