@@ -202,6 +202,12 @@ class DockingConfig:
     # extrapolation of the relative velocity, which a swinging drogue makes large
     swing_model_abort: bool | None = None  # None: the plant's (PLANT_GUIDANCE)
 
+    def jsbsim_condition(self, fuel_lbs: float | None = None) -> JsbsimCondition:
+        """The A-4's condition (``fuel_lbs`` None: the aircraft file's load)."""
+        return JsbsimCondition(
+            altitude_ft=self.jsbsim_altitude_ft, kcas=self.jsbsim_kcas, fuel_lbs=fuel_lbs
+        )
+
     def geometry(self) -> AirframeGeometry:
         """The probe tip, nose and camera mounting (the airframe's unless overridden)."""
         base = AIRFRAME_GEOMETRY[self.plant]
@@ -335,16 +341,21 @@ def plant_design(
     return PlantDesign(design, fdm.trim, fdm.airframe, None)
 
 
-def describe_plant(config: DockingConfig) -> dict[str, Any]:
-    """``plant``, ``airframe`` and ``trim`` (TrimPoint fields) of a configuration, as
-    ``simulate --json`` and ``summary.json`` report them."""
-    pd = plant_design(
+def design_for(config: DockingConfig) -> PlantDesign:
+    """:func:`plant_design` of a configuration (its plant, tick, probe and condition)."""
+    return plant_design(
         config.plant,
         float(config.tick_hz),
         config.geometry().probe_tip_body_m,
         (config.airspeed_mps, config.air_density, config.altitude_m),
-        JsbsimCondition(altitude_ft=config.jsbsim_altitude_ft, kcas=config.jsbsim_kcas),
+        config.jsbsim_condition(),
     )
+
+
+def describe_plant(config: DockingConfig) -> dict[str, Any]:
+    """``plant``, ``airframe`` and ``trim`` (TrimPoint fields) of a configuration, as
+    ``simulate --json`` and ``summary.json`` report them."""
+    pd = design_for(config)
     return {"plant": config.plant, "airframe": pd.airframe, "trim": pd.trim.to_dict()}
 
 
@@ -356,13 +367,7 @@ class DockingSimulation:
         self.config = config
         self.dt = 1.0 / config.tick_hz
         geo = config.geometry()
-        self.plant_design = plant_design(
-            config.plant,
-            float(config.tick_hz),
-            geo.probe_tip_body_m,
-            (config.airspeed_mps, config.air_density, config.altitude_m),
-            self.jsbsim_condition(),
-        )
+        self.plant_design = design_for(config)
         self.models = self.plant_design.design
         self.trim = self.plant_design.trim
         self.airframe = self.plant_design.airframe
@@ -384,12 +389,6 @@ class DockingSimulation:
         self.reset()
 
     # ------------------------------------------------------------------ set-up
-    def jsbsim_condition(self, fuel_lbs: float | None = None) -> JsbsimCondition:
-        cfg = self.config
-        return JsbsimCondition(
-            altitude_ft=cfg.jsbsim_altitude_ft, kcas=cfg.jsbsim_kcas, fuel_lbs=fuel_lbs
-        )
-
     @property
     def plant(self) -> ReceiverPlant:
         """The plant flown this run (:mod:`app.sim.plant`)."""
@@ -549,7 +548,7 @@ class DockingSimulation:
                 full = JSBSIM_FUEL_CAPACITY_LBS
                 burned = (1.0 + imp.mass_frac - d.mass_scale) * pd.trim.weight_lbs
                 fuel = float(np.clip(full - burned, JSBSIM_RESERVE_FUEL_LBS, full))
-            return JsbsimPlant(self.jsbsim_condition(fuel), self.config.tick_hz, m.model)
+            return JsbsimPlant(self.config.jsbsim_condition(fuel), self.config.tick_hz, m.model)
         if imp.aero_frac == 0 and imp.mass_frac == 0 or pd.receiver is None:
             return LinearPlant(m.model, self.dt, pd.airframe, pd.trim, (m.ad, m.bd, m.ed))
         rec = LinearReceiver(
