@@ -198,7 +198,12 @@ def test_time_limit_without_ticks(tmp_path: Path) -> None:
     elapsed = time.monotonic() - t0
     # the watchdog wakes at the bound; 1 s of slack for a loaded CI machine (2 shared cores)
     assert rec.active is None and 0.9 <= elapsed <= 2.0, elapsed
+    # the recording leaves ``active`` before its metadata is rewritten (the stop finishes the
+    # files outside the lock): wait for that write, bounded
     meta = _meta(tmp_path, info.id)
+    while meta["status"] != "complete" and time.monotonic() - t0 < 5:
+        time.sleep(0.02)
+        meta = _meta(tmp_path, info.id)
     assert meta["status"] == "complete" and meta["stop_reason"] == "reached 1 s"
     assert meta["stopped_wall"] - meta["started_wall"] == pytest.approx(1.0, abs=0.5)
 
