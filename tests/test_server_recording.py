@@ -125,15 +125,17 @@ class InjectedDisk:
     def __init__(self, root: Path, size_bytes: int, monkeypatch: pytest.MonkeyPatch) -> None:
         self.root = root.resolve()
         self.size = size_bytes
+        self.deny = False  # True: opening a file for writing is refused (EACCES)
         real_open = builtins.open
         real_usage = shutil.disk_usage
 
         def fake_open(file: Any, mode: str = "r", *args: Any, **kw: Any) -> Any:
-            f = real_open(file, mode, *args, **kw)
-            if isinstance(file, str | Path) and any(m in mode for m in "wax+"):
-                if self._inside(Path(file)):
-                    return QuotaFile(f, self)
-            return f
+            writing = isinstance(file, str | Path) and any(m in mode for m in "wax+")
+            if writing and self._inside(Path(file)):
+                if self.deny:
+                    raise PermissionError(errno.EACCES, os.strerror(errno.EACCES), str(file))
+                return QuotaFile(real_open(file, mode, *args, **kw), self)
+            return real_open(file, mode, *args, **kw)
 
         def fake_usage(path: Any) -> Any:
             if self._inside(Path(path)):
@@ -317,4 +319,35 @@ def test_recordings_directory_removed_while_recording(tmp_path: Path) -> None:
         r = c.post("/api/v1/recording/start")
         assert r.status_code == 200, r.text
         rec.on_tick(_tick(0))
+        assert c.post("/api/v1/recording/stop").json()["status"] == "complete"
+
+
+def test_unwritable_directory_fails_the_recording_and_keeps_its_metadata(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """EACCES (the directory made unwritable while recording; injected: the tests run as
+    root): the frame writer's next file fails, the recording stops as failed, its final
+    metadata (refused too) is served from memory and written once the directory is writable."""
+    disk = InjectedDisk(tmp_path, 10**9, monkeypatch)
+    rec = Recorder(tmp_path / "rec", max_s=120)
+    with _recorder_client(rec) as c:
+        rec_id = c.post("/api/v1/recording/start?frames=true").json()["id"]
+        rng = np.random.default_rng(3)
+        for i in range(3):
+            rec.on_tick(_tick(i), _Raw(rng))
+            time.sleep(0.2)
+        disk.deny = True
+        info = _record_until_stopped(c, rec, rec_id)
+        assert info["status"] == "failed" and "Permission denied" in info["stop_reason"], info
+        assert info["frame_pairs"] >= 3 and info["ticks"] >= 4
+        on_disk = json.loads((tmp_path / "rec" / f"{rec_id}.json").read_text())
+        assert on_disk["status"] == "recording"  # the disk refused the final metadata
+        r = c.get(f"/api/v1/recordings/{rec_id}/telemetry.jsonl")
+        assert r.status_code == 200 and len(r.text.splitlines()) == info["ticks"]
+        r = c.post("/api/v1/recording/start")
+        assert r.status_code == 503 and "Permission denied" in r.json()["detail"], r.text
+        disk.deny = False
+        assert c.post("/api/v1/recording/start").status_code == 200
+        on_disk = json.loads((tmp_path / "rec" / f"{rec_id}.json").read_text())
+        assert on_disk["status"] == "failed" and on_disk["stop_reason"] == info["stop_reason"]
         assert c.post("/api/v1/recording/stop").json()["status"] == "complete"
