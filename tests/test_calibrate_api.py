@@ -77,6 +77,24 @@ def test_undecodable_image_is_400(client):
     )
 
 
+def test_image_whose_header_lies_about_its_size_is_422_before_decoding(client, monkeypatch):
+    import sys
+
+    from app.server.routers import checkerboard
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from test_server_image_guard import hostile_tiff
+
+    def no_decode(*a, **k):
+        raise AssertionError("decoder reached")
+
+    monkeypatch.setattr(checkerboard, "_decode", no_decode)
+    files = _files([0, 1], right_override={1: hostile_tiff()})
+    r = client.post(URL, files=files, data={"board": "9x6", "square_mm": "25"})
+    assert r.status_code == 422, r.text
+    assert "ImageWidth written twice" in r.json()["detail"]
+
+
 def test_three_views_is_422(client):
     r = client.post(URL, files=_files([0, 1, 2]), data={"board": "9x6", "square_mm": "25"})
     assert r.status_code == 422

@@ -5,6 +5,14 @@ declares 20000 × 20000 px is answered in microseconds instead of allocating gig
 the decoder. Only the formats the service documents are accepted (PNG, JPEG, BMP, classic
 TIFF); anything else is refused without reaching OpenCV's other decoders.
 
+The size read here must be the size the decoder allocates: each reader follows its decoder
+(libpng: the first chunk is IHDR; libjpeg: the first SOF before SOS; OpenCV's own BMP reader;
+libtiff: the first directory) and refuses what a decoder could read otherwise — a header field
+written twice or contradicting another (:class:`AmbiguousHeaderError`: a TIFF tag twice or out
+of order, a second IHDR, a TIFF strip or tile larger than the image) and animated PNG (its
+frames are decoded into more buffers). ``tests/test_server_image_guard.py`` fuzzes the readers
+against OpenCV: an accepted header never under-states the decoded size.
+
 Second line of defence: ``OPENCV_IO_MAX_IMAGE_PIXELS`` is set here (unless the operator set
 it) before ``cv2`` is first imported by the service, so OpenCV itself refuses larger images.
 It only takes effect when this module is imported before ``cv2`` (``app.server.main`` does).
@@ -42,6 +50,11 @@ class ImageHeaderError(ValueError):
     """The bytes are not a (supported, well-formed) image header; ``str(exc)`` says why."""
 
 
+class AmbiguousHeaderError(ImageHeaderError):
+    """A header field written twice or contradicting another: a decoder could read another
+    size than the one checked here (answered 422)."""
+
+
 @dataclass(frozen=True)
 class ImageHeader:
     format: str  # "png" | "jpeg" | "bmp" | "tiff"
@@ -75,6 +88,9 @@ _PNG_COLOUR = {
 }
 
 
+_MAX_PNG_CHUNKS = 4096
+
+
 def _png(data: bytes) -> ImageHeader:
     if len(data) < 33:
         raise ImageHeaderError("truncated PNG header")
@@ -88,7 +104,25 @@ def _png(data: bytes) -> ImageHeader:
         raise ImageHeaderError("PNG with invalid compression/filter/interlace method")
     if not (0 < width < 2**31 and 0 < height < 2**31):
         raise ImageHeaderError(f"PNG with invalid size {width}x{height}")
+    _png_chunks_before_data(data)
     return ImageHeader("png", width, height, _PNG_COLOUR[colour][0], 16 if depth == 16 else 8)
+
+
+def _png_chunks_before_data(data: bytes) -> None:
+    """The chunks up to the first IDAT (as far as the bytes go): no second IHDR, no APNG."""
+    pos = 33  # after the signature and IHDR (length, type, 13 bytes, CRC)
+    for _ in range(_MAX_PNG_CHUNKS):
+        if pos + 8 > len(data):
+            return  # truncated: the decoder fails on it
+        length, ctype = struct.unpack(">I4s", data[pos : pos + 8])
+        if ctype == b"IDAT":
+            return
+        if ctype == b"IHDR":
+            raise AmbiguousHeaderError("PNG with a second IHDR chunk (image size written twice)")
+        if ctype in (b"acTL", b"fcTL"):
+            raise ImageHeaderError("animated PNG (APNG) is not supported")
+        pos += 12 + length
+    raise ImageHeaderError(f"PNG with more than {_MAX_PNG_CHUNKS} chunks before its data")
 
 
 # ---- JPEG --------------------------------------------------------------------------------
@@ -153,15 +187,29 @@ def _bmp(data: bytes) -> ImageHeader:
 
 
 # ---- TIFF (classic, first IFD) -------------------------------------------------------------
-_TIFF_TYPE_SIZE = {3: 2, 4: 4}  # SHORT, LONG
+# The first directory is what OpenCV decodes (libtiff). Its tags must be in ascending order
+# and each written once (libtiff would take the *first* of two ImageWidth entries); the size
+# tags must be single BYTE/SHORT/LONG values; a strip or a tile (OpenCV allocates a 32-bit RGBA
+# buffer of one strip/tile) may not be larger than the image.
+_TIFF_TYPE_SIZE = {1: 1, 3: 2, 4: 4}  # BYTE, SHORT, LONG
+_TIFF_FORMAT = {1: "B", 3: "H", 4: "I"}
+_TIFF_NAMES = {
+    256: "ImageWidth",
+    257: "ImageLength",
+    258: "BitsPerSample",
+    274: "Orientation",
+    277: "SamplesPerPixel",
+    278: "RowsPerStrip",
+    322: "TileWidth",
+    323: "TileLength",
+}
+_TIFF_SINGLE = {256, 257, 274, 277, 278, 322, 323}  # one value each
 _MAX_TIFF_ENTRIES = 1024
+_NO_STRIPS = 0xFFFFFFFF  # RowsPerStrip "all the image in one strip"
 
 
-def _tiff(data: bytes) -> ImageHeader:
-    e = "<" if data[:2] == b"II" else ">"
+def _tiff_entries(data: bytes, e: str) -> dict[int, list[int]]:
     n = len(data)
-    if n < 8:
-        raise ImageHeaderError("truncated TIFF header")
     (ifd,) = struct.unpack(e + "I", data[4:8])
     if ifd < 8 or ifd + 2 > n:
         raise ImageHeaderError("TIFF with an invalid IFD offset")
@@ -169,13 +217,25 @@ def _tiff(data: bytes) -> ImageHeader:
     if count == 0 or count > _MAX_TIFF_ENTRIES or ifd + 2 + 12 * count > n:
         raise ImageHeaderError("TIFF with an invalid IFD")
     tags: dict[int, list[int]] = {}
+    previous = -1
     for k in range(count):
         off = ifd + 2 + 12 * k
         tag, typ, cnt = struct.unpack(e + "HHI", data[off : off + 8])
-        if tag not in (256, 257, 258, 277) or typ not in _TIFF_TYPE_SIZE or cnt == 0:
+        name = _TIFF_NAMES.get(tag, f"tag {tag}")
+        if tag == previous:
+            raise AmbiguousHeaderError(f"TIFF with {name} written twice in its directory")
+        if tag < previous:
+            raise AmbiguousHeaderError(
+                f"TIFF directory with its tags out of order ({name} after tag {previous})"
+            )
+        previous = tag
+        if tag not in _TIFF_NAMES:
             continue
+        if typ not in _TIFF_TYPE_SIZE:
+            raise ImageHeaderError(f"TIFF with {name} of type {typ} (BYTE, SHORT or LONG only)")
+        if cnt == 0 or (tag in _TIFF_SINGLE and cnt != 1) or cnt > 16:
+            raise ImageHeaderError(f"TIFF with {cnt} values of {name}")
         size = _TIFF_TYPE_SIZE[typ]
-        cnt = min(cnt, 16)
         if size * cnt <= 4:
             raw = data[off + 8 : off + 8 + size * cnt]
         else:
@@ -183,7 +243,15 @@ def _tiff(data: bytes) -> ImageHeader:
             if voff + size * cnt > n:
                 raise ImageHeaderError("TIFF with a tag value outside the file")
             raw = data[voff : voff + size * cnt]
-        tags[tag] = list(struct.unpack(e + ("H" if size == 2 else "I") * cnt, raw))
+        tags[tag] = list(struct.unpack(e + _TIFF_FORMAT[typ] * cnt, raw))
+    return tags
+
+
+def _tiff(data: bytes) -> ImageHeader:
+    e = "<" if data[:2] == b"II" else ">"
+    if len(data) < 8:
+        raise ImageHeaderError("truncated TIFF header")
+    tags = _tiff_entries(data, e)
     if 256 not in tags or 257 not in tags:
         raise ImageHeaderError("TIFF without ImageWidth/ImageLength")
     width, height = tags[256][0], tags[257][0]
@@ -193,6 +261,19 @@ def _tiff(data: bytes) -> ImageHeader:
         raise ImageHeaderError(f"TIFF with invalid size {width}x{height}")
     if not 1 <= spp <= 8 or bps > 64:
         raise ImageHeaderError(f"TIFF with {spp} samples of {bps} bit")
+    rows = tags.get(278, [_NO_STRIPS])[0]
+    if rows != _NO_STRIPS and rows > height:
+        raise AmbiguousHeaderError(
+            f"TIFF with RowsPerStrip {rows} larger than its ImageLength {height}"
+        )
+    for tag, limit in ((322, width), (323, height)):
+        if tag in tags and not 0 < tags[tag][0] <= -(-limit // 16) * 16:
+            raise AmbiguousHeaderError(
+                f"TIFF with {_TIFF_NAMES[tag]} {tags[tag][0]} larger than the image "
+                f"({width}x{height})"
+            )
+    if tags.get(274, [1])[0] in (5, 6, 7, 8):  # decoded transposed (libtiff orientation)
+        width, height = height, width
     return ImageHeader("tiff", width, height, max(spp, 1), 16 if bps > 8 else 8)
 
 
@@ -211,21 +292,43 @@ def peek_header(data: bytes) -> ImageHeader:
     raise ImageHeaderError(f"not a {SUPPORTED} image")
 
 
-def screen(data: bytes, name: str, *, max_pixels: int) -> ImageHeader:
-    """The header of an upload, or ``HTTPException``: 400 (empty, not a supported image),
-    413 (more than ``max_pixels``). Nothing is decoded."""
-    from fastapi import HTTPException
+class ImageRefused(ValueError):
+    """An image refused on its header: the HTTP status (400, 413, 422) and the reason."""
 
+    def __init__(self, status: int, detail: str) -> None:
+        super().__init__(detail)
+        self.status = status
+        self.detail = detail
+
+
+def check(data: bytes, name: str, *, max_pixels: int) -> ImageHeader:
+    """The header of an uploaded or pushed image, or :class:`ImageRefused`: 400 (empty, not a
+    supported image), 422 (a size field written twice or contradicting another), 413 (more
+    than ``max_pixels``). Nothing is decoded."""
     if not data:
-        raise HTTPException(400, f"{name}: empty file")
+        raise ImageRefused(400, f"{name}: empty file")
     try:
         header = peek_header(data)
+    except AmbiguousHeaderError as exc:
+        raise ImageRefused(
+            422, f"{name}: ambiguous image header ({exc}); refused before decoding"
+        ) from None
     except ImageHeaderError as exc:
-        raise HTTPException(400, f"{name}: could not decode the image ({exc})") from None
+        raise ImageRefused(400, f"{name}: could not decode the image ({exc})") from None
     if header.pixels > max_pixels:
-        raise HTTPException(
+        raise ImageRefused(
             413,
             f"{name}: {header.describe()} ({header.pixels / 1e6:.4g} Mpx) exceeds the limit of "
             f"{max_pixels / 1e6:.4g} Mpx (AAR_MAX_IMAGE_PIXELS); refused before decoding",
         )
     return header
+
+
+def screen(data: bytes, name: str, *, max_pixels: int) -> ImageHeader:
+    """:func:`check` for a route: ``HTTPException`` with the status and the reason."""
+    from fastapi import HTTPException
+
+    try:
+        return check(data, name, max_pixels=max_pixels)
+    except ImageRefused as exc:
+        raise HTTPException(exc.status, exc.detail) from None

@@ -150,6 +150,7 @@ def create_app(
             max_s=settings.recording_max_s,
             max_mb=settings.recording_max_mb,
             max_frames_mb=settings.recording_frames_max_mb,
+            min_free_mb=settings.recording_min_free_mb,
         )
         st = AppState(
             settings=settings,

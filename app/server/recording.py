@@ -27,6 +27,13 @@ Layout of one recording ``<id>`` (``rec-YYYYmmdd-HHMMSS-xxxxxx``) in the recordi
     thread); every pair is on disk before its index line, so a crash keeps all complete pairs.
     ``aar-dock track --left <id>.frames`` and ``serve --source video:<id>.frames`` replay it.
 
+A failing disk (``ENOSPC``, ``EACCES``, the directory removed): the first write error stops
+the recording, ``status="failed"`` with the error as ``stop_reason``; the telemetry is cut back
+to its last complete record and stays downloadable. Metadata that cannot be written is kept in
+memory (listed, served) and written by the next start or stop. A start that cannot write
+raises :class:`RecordingError` (507 for a full disk, 503 otherwise); a frame recording starts
+only with ``min_free_mb`` free (507 otherwise).
+
 Recovery: a :class:`Recorder` created over a directory recovers the recordings a crash left
 behind (metadata still ``recording`` and no live owner, or a JSONL without metadata): it drops a
 torn last line, counts the records, and writes ``status="interrupted"`` metadata, so they are
@@ -36,10 +43,12 @@ not) or once it holds ``max_mb`` MB.
 
 from __future__ import annotations
 
+import errno
 import json
 import logging
 import os
 import re
+import shutil
 import threading
 import time
 import uuid
@@ -61,7 +70,31 @@ FSYNC_PERIOD_S = 0.5
 SCENE_LOST_NOTE = "lost in a crash; telemetry complete"
 INTERRUPTED_REASON = "interrupted: the server ended without stopping the recording (crash/kill)"
 
-RecordingStatus = Literal["recording", "complete", "interrupted"]
+RecordingStatus = Literal["recording", "complete", "interrupted", "failed"]
+NO_SPACE = frozenset({errno.ENOSPC, errno.EDQUOT})
+
+
+class RecordingError(RuntimeError):
+    """A recording that cannot start: HTTP status (409, 503, 507) and the reason."""
+
+    def __init__(self, status: int, detail: str) -> None:
+        super().__init__(detail)
+        self.status = status
+        self.detail = detail
+
+
+def storage_error(what: str, exc: OSError) -> RecordingError:
+    """507 for a full disk (or quota), 503 for any other write error, with the reason."""
+    code = 507 if exc.errno in NO_SPACE else 503
+    return RecordingError(code, f"{what}: {exc.strerror or exc} (AAR_RECORDINGS_DIR)")
+
+
+def free_mb(directory: Path) -> float | None:
+    """Free space (MB) of the file system holding ``directory``; None if it cannot be read."""
+    try:
+        return shutil.disk_usage(directory).free / 1e6
+    except OSError:
+        return None
 
 
 class RecordingMeta(RecordingInfo):
@@ -112,12 +145,26 @@ def _fsync_dir(directory: Path) -> None:
 
 def _write_atomic(path: Path, data: bytes) -> None:
     tmp = path.with_name(f".{path.name}.tmp")
-    with open(tmp, "wb") as f:
-        f.write(data)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+    try:
+        with open(tmp, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)  # a torn temp file must not hold the space it took
+        raise
     _fsync_dir(path.parent)
+
+
+def _write_all(fh: IO[bytes], data: bytes) -> None:
+    """Unbuffered file: all of ``data`` or ``OSError`` (a short write is retried)."""
+    view = memoryview(data)
+    while view:
+        n = fh.write(view)
+        if not n:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        view = view[n:]
 
 
 def _wall_time(line: bytes | None) -> float | None:
@@ -154,6 +201,7 @@ class Recorder:
         max_s: float = 300.0,
         max_mb: float = 200.0,
         max_frames_mb: float = 4000.0,
+        min_free_mb: float = 0.0,
         scene_serializer_factory: Any = None,
         recover: bool = True,
     ) -> None:
@@ -162,6 +210,7 @@ class Recorder:
         self.max_mb = max_mb
         self.max_bytes = int(max_mb * 1e6)
         self.max_frames_bytes = int(max_frames_mb * 1e6)  # raw frames: a bound of their own
+        self.min_free_mb = min_free_mb  # a frame recording needs this much free space to start
         self.scene_serializer_factory = scene_serializer_factory
         self._lock = threading.Lock()
         self._info: RecordingMeta | None = None
@@ -171,6 +220,8 @@ class Recorder:
         self._t0 = 0.0
         self._scene_bytes_est = 0
         self._limit_reason: str | None = None
+        self._failure: str | None = None  # the write error that stopped the recording
+        self._unsaved: dict[str, RecordingMeta] = {}  # final metadata the disk refused
         self._wake: threading.Event | None = None
         self._last_sync = 0.0
         self._dirty = False
@@ -180,7 +231,9 @@ class Recorder:
 
     @property
     def active(self) -> RecordingMeta | None:
-        return self._info
+        """The recording in progress, until its files are finished (``None`` once its final
+        metadata is written)."""
+        return self._info or self._finishing
 
     def _meta_path(self, rec_id: str) -> Path:
         return self.directory / f"{rec_id}.json"
@@ -202,11 +255,20 @@ class Recorder:
         filters the raw ticks whose pairs are written (a stream's fresh-track epoch)."""
         with self._lock:
             if self._info is not None:
-                raise RuntimeError(f"recording {self._info.id} is already active")
-            self.directory.mkdir(parents=True, exist_ok=True)
+                raise RecordingError(409, f"recording {self._info.id} is already active")
+            try:
+                self.directory.mkdir(parents=True, exist_ok=True)
+            except OSError as exc:
+                raise storage_error("cannot create the recordings directory", exc) from None
+            self._save_unsaved()
+            if frames:
+                self._check_free_space()
             rec_id = time.strftime("rec-%Y%m%d-%H%M%S-") + uuid.uuid4().hex[:6]
             tele = self.directory / f"{rec_id}.jsonl"
-            fh = tele.open("xb")
+            try:
+                fh = tele.open("xb", buffering=0)  # one write per record, short writes seen
+            except OSError as exc:
+                raise storage_error("cannot write to the recordings directory", exc) from None
             _try_lock(fh)
             serializer = None
             scene_file = None
@@ -228,9 +290,12 @@ class Recorder:
                         max_bytes=self.max_frames_bytes,
                         source=source,
                     )
-                except Exception:
+                except Exception as exc:
                     fh.close()
                     tele.unlink(missing_ok=True)
+                    shutil.rmtree(self.directory / f"{rec_id}.frames", ignore_errors=True)
+                    if isinstance(exc, OSError):
+                        raise storage_error("cannot start the frame recording", exc) from None
                     raise
             info = RecordingMeta(
                 id=rec_id,
@@ -245,11 +310,14 @@ class Recorder:
             )
             try:
                 self._write_meta(info)
-            except Exception:
+            except Exception as exc:
                 fh.close()
                 tele.unlink(missing_ok=True)
                 if writer is not None:
                     writer.close("metadata write failed")
+                    shutil.rmtree(writer.directory, ignore_errors=True)
+                if isinstance(exc, OSError):
+                    raise storage_error("cannot write the recording's metadata", exc) from None
                 raise
             self._frames = writer
             self._accept_frame = accept_frame
@@ -259,6 +327,7 @@ class Recorder:
             self._t0 = self._last_sync = time.monotonic()
             self._scene_bytes_est = 0
             self._limit_reason = None
+            self._failure = None
             self._dirty = False
             self._wake = wake = threading.Event()
             out = info.model_copy()
@@ -281,11 +350,9 @@ class Recorder:
                 return
             line = record.model_dump_json().encode() + b"\n"
             try:
-                fh.write(line)
-                fh.flush()  # in the OS's hands: survives the process being killed
+                _write_all(fh, line)  # unbuffered: in the OS's hands, survives a kill
             except (OSError, ValueError) as exc:
-                log.error("recording %s: write failed: %s", info.id, exc)
-                self._request_stop(f"write failed: {exc}")
+                self._fail(info, f"write failed: {exc}")
                 return
             self._dirty = True
             info.ticks += 1
@@ -297,7 +364,7 @@ class Recorder:
             if self._total_bytes(info) > self.max_bytes:
                 self._request_stop(f"reached {self.max_bytes / 1e6:g} MB")
             elif writer is not None and writer.stop_reason is not None:
-                self._request_stop(f"frames: {writer.stop_reason}")
+                self._frames_stopped(info, writer.stop_reason)
 
     def _total_bytes(self, info: RecordingMeta) -> int:
         """Telemetry + scene (``max_mb``); the frames have their own bound (the writer's)."""
@@ -317,6 +384,30 @@ class Recorder:
 
             frame = StereoFrame(left=left, right=right, t_s=record.t_s, seq=record.seq)
         writer.submit(frame, record.seq)
+
+    def _fail(self, info: RecordingMeta, reason: str) -> None:
+        """(lock held) A write error: the recording stops as ``failed`` with ``reason``."""
+        if self._failure is None:
+            log.error("recording %s: %s", info.id, reason)
+            self._failure = reason
+        self._request_stop(reason)
+
+    def _frames_stopped(self, info: RecordingMeta, why: str) -> None:
+        """(lock held) The frame writer stopped: at its bound, or failed (a write error)."""
+        if why.startswith("write failed"):
+            self._fail(info, f"frames: {why}")
+        else:
+            self._request_stop(f"frames: {why}")
+
+    def _check_free_space(self) -> None:
+        """(lock held) 507 when a frame recording would start under the free-space floor."""
+        free = free_mb(self.directory)
+        if self.min_free_mb > 0 and free is not None and free < self.min_free_mb:
+            raise RecordingError(
+                507,
+                f"only {free:.4g} MB free for recordings, under the floor of "
+                f"{self.min_free_mb:g} MB for a frame recording (AAR_RECORDING_MIN_FREE_MB)",
+            )
 
     def _request_stop(self, reason: str) -> None:
         """(lock held) The watchdog thread stops it: serializing must not block the tick thread."""
@@ -338,7 +429,8 @@ class Recorder:
             if reason is None and self._total_bytes(info) > self.max_bytes:
                 reason = f"reached {self.max_bytes / 1e6:g} MB"
             if reason is None and self._frames is not None and self._frames.stop_reason:
-                reason = f"frames: {self._frames.stop_reason}"
+                self._frames_stopped(info, self._frames.stop_reason)
+                reason = self._limit_reason
             fh = self._fh
             sync = fh if self._dirty and now - self._last_sync >= FSYNC_PERIOD_S else None
             if sync is not None:
@@ -350,8 +442,14 @@ class Recorder:
         if sync is not None:
             try:
                 os.fsync(sync.fileno())
-            except (OSError, ValueError):  # closed by a concurrent stop: it fsyncs itself
+            except ValueError:  # closed by a concurrent stop: it fsyncs itself
                 pass
+            except OSError as exc:  # a delayed write error (full disk)
+                with self._lock:
+                    if self._info is info:
+                        self._fail(info, f"write failed: {exc}")
+                self._stop(rec_id, f"write failed: {exc}")
+                return None
         return max(0.0, min(FSYNC_PERIOD_S, remaining))
 
     def on_scene_update(self, dt_s: float) -> None:
@@ -366,9 +464,14 @@ class Recorder:
                 self._scene_bytes_est = sum(b.nbytes for b in buffers)
 
     def stop(self, reason: str = "stopped") -> RecordingMeta | None:
+        with self._lock:
+            self._save_unsaved()
         return self._stop(None, reason)
 
     def _stop(self, rec_id: str | None, reason: str) -> RecordingMeta | None:
+        """Stop and finish the files. Never raises for a failing disk: the recording is then
+        ``failed`` (the first write error as its ``stop_reason``), its telemetry cut back to
+        the last complete record, its metadata kept in memory if the disk refuses it."""
         with self._lock:
             info = self._info
             if info is None or (rec_id is not None and info.id != rec_id):
@@ -379,44 +482,74 @@ class Recorder:
             ser, self._serializer = self._serializer, None
             writer, self._frames = self._frames, None
             wake, self._wake = self._wake, None
+            failure, self._failure = self._failure, None
             self._limit_reason = None
         if wake is not None:
             wake.set()
+        errors: list[str] = [] if failure is None else [failure]
+        update: dict[str, Any] = {"active": False, "stopped_wall": time.time()}
         try:
             if fh is not None:
                 try:
-                    fh.flush()
+                    if failure is not None:  # a torn last record: back to the last complete one
+                        os.ftruncate(fh.fileno(), info.telemetry_bytes)
                     os.fsync(fh.fileno())
-                except (OSError, ValueError):
-                    log.exception("recording %s: final flush failed", info.id)
-            update: dict[str, Any] = {
-                "active": False,
-                "stopped_wall": time.time(),
-                "stop_reason": reason,
-                "status": "complete",
-            }
+                except (OSError, ValueError) as exc:
+                    log.error("recording %s: final flush failed: %s", info.id, exc)
+                    errors.append(f"write failed: {exc}")
             if writer is not None:
                 fmeta = writer.close(reason)
                 update["frame_pairs"] = int(fmeta["pairs"])
                 update["frames_bytes"] = int(fmeta["bytes"])
                 update["frames_dropped"] = int(fmeta["dropped"])
+                why = str(fmeta.get("stop_reason") or "")
+                if why.startswith("write failed") and f"frames: {why}" not in errors:
+                    errors.append(f"frames: {why}")
             if ser is not None and info.scene_file is not None:
-                try:
-                    data = ser.serialize()
-                    _write_atomic(self.directory / info.scene_file, data)
-                    update["scene_bytes"] = len(data)
-                except Exception as exc:
-                    log.exception("scene serialization failed")
+                if errors:  # the disk already failed: the scene (in memory) is not written
                     update["scene_file"] = None
-                    update["scene_note"] = f"scene serialization failed: {exc}"
+                    update["scene_note"] = f"not written: {errors[0]}"
+                else:
+                    try:
+                        data = ser.serialize()
+                        _write_atomic(self.directory / info.scene_file, data)
+                        update["scene_bytes"] = len(data)
+                    except Exception as exc:
+                        log.exception("scene serialization failed")
+                        update["scene_file"] = None
+                        update["scene_note"] = f"scene serialization failed: {exc}"
+            if errors:
+                update["status"] = "failed"
+                update["stop_reason"] = errors[0]
+            else:
+                update["status"] = "complete"
+                update["stop_reason"] = reason
             done = info.model_copy(update=update)
-            self._write_meta(done)
+            try:
+                self._write_meta(done)
+            except OSError as exc:
+                log.error("recording %s: metadata not written (%s): kept in memory", done.id, exc)
+                if not errors:
+                    done = done.model_copy(
+                        update={"status": "failed", "stop_reason": f"write failed: {exc}"}
+                    )
+                with self._lock:
+                    self._unsaved[done.id] = done
         finally:
             if fh is not None:
-                fh.close()  # releases the lock only once the metadata says "complete"
+                fh.close()  # releases the lock only once the metadata says how it ended
             with self._lock:
                 self._finishing = None
         return done
+
+    def _save_unsaved(self) -> None:
+        """(lock held) Write the final metadata a failing disk refused, now that it may not."""
+        for rec_id, meta in list(self._unsaved.items()):
+            try:
+                self._write_meta(meta)
+            except OSError:
+                continue
+            del self._unsaved[rec_id]
 
     def close(self) -> None:
         self.stop(reason="server shutdown")
@@ -518,7 +651,7 @@ class Recorder:
     # ---- reading ---------------------------------------------------------------------
     def list(self) -> list[RecordingMeta]:
         out: list[RecordingMeta] = []
-        for live in (self._info, self._finishing):
+        for live in (self._info, self._finishing, *self._unsaved.values()):
             if live is not None:
                 out.append(live.model_copy())
         ids = {r.id for r in out}
@@ -535,7 +668,7 @@ class Recorder:
     def get(self, rec_id: str) -> RecordingMeta | None:
         if not ID_RE.match(rec_id):
             return None
-        for live in (self._info, self._finishing):
+        for live in (self._info, self._finishing, self._unsaved.get(rec_id)):
             if live is not None and live.id == rec_id:
                 return live.model_copy()
         meta = self._meta_path(rec_id)

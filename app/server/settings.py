@@ -124,6 +124,11 @@ class Settings(BaseSettings):
     recording_frames_max_mb: float = Field(
         4000.0, gt=0.0, description="size bound of the raw frames of one recording (MB)"
     )
+    recording_min_free_mb: float = Field(
+        512.0,
+        ge=0.0,
+        description="free space (MB) a frame recording needs to start (else 507); 0: no floor",
+    )
     push_max_mb: float | None = Field(
         None,
         gt=0.0,

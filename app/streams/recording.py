@@ -2,7 +2,7 @@
 
 Layout of a frame recording directory (``<recording id>.frames`` next to the telemetry)::
 
-    meta.json        {"format": "aar-dock-frames/1", "status": "recording"|"complete", ...}
+    meta.json        {"format": "aar-dock-frames/1", "status": "recording"|"complete"|"failed", ...}
     calibration.json the StereoCalibration the live pipeline used
     frames.jsonl     one line per pair: {"i", "seq", "t_s", "t_left_s", "t_right_s",
                      "exposure_ms", "left", "right", "record_seq"}
@@ -59,9 +59,13 @@ def is_frame_recording(path: str | Path) -> bool:
 
 def _atomic_write(path: Path, data: bytes) -> None:
     tmp = path.with_name(f".{path.name}.tmp")
-    with open(tmp, "wb") as f:
-        f.write(data)
-    os.replace(tmp, path)
+    try:
+        with open(tmp, "wb") as f:
+            f.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)  # a torn temp file (disk full) must not keep its space
+        raise
 
 
 class FrameRecordingWriter:
@@ -105,8 +109,8 @@ class FrameRecordingWriter:
     def accepting(self) -> bool:
         return not self._closed and self.stop_reason is None
 
-    def _write_meta(self, status: str) -> None:
-        meta = {
+    def _meta(self, status: str) -> dict[str, Any]:
+        return {
             "format": FORMAT,
             "status": status,
             "pairs": self.pairs,
@@ -117,7 +121,11 @@ class FrameRecordingWriter:
             "stop_reason": self.stop_reason,
             "source": self.source,
         }
-        _atomic_write(self.directory / "meta.json", json.dumps(meta, indent=2).encode())
+
+    def _write_meta(self, status: str) -> None:
+        _atomic_write(
+            self.directory / "meta.json", json.dumps(self._meta(status), indent=2).encode()
+        )
 
     def submit(self, frame: StereoFrame, record_seq: int | None = None) -> bool:
         """Queue a pair (never blocks); ``False`` if dropped (queue full, bound reached)."""
@@ -176,19 +184,33 @@ class FrameRecordingWriter:
             self._last_sync = now
 
     def close(self, reason: str = "stopped") -> dict[str, Any]:
-        """Write what is queued, then the final metadata; returns it."""
+        """Write what is queued, then the final metadata; returns it. A write error here
+        (disk full, directory removed) does not raise: ``stop_reason`` says it and the
+        returned metadata is the one that could not be written."""
         if not self._closed:
             self._closed = True
             self._queue.put(None)
             self._thread.join(timeout=60.0)
             self._pool.shutdown(wait=True)
-            self._lines.flush()
-            os.fsync(self._lines.fileno())
-            self._lines.close()
+            try:
+                try:
+                    self._lines.flush()
+                    os.fsync(self._lines.fileno())
+                finally:
+                    self._lines.close()
+            except OSError as exc:
+                self.stop_reason = self.stop_reason or f"write failed: {exc}"
             if self.stop_reason is None:
                 self.stop_reason = reason
-            self._write_meta("complete")
-        return json.loads((self.directory / "meta.json").read_text())
+            try:
+                self._write_meta(self._final_status())
+            except OSError as exc:
+                if self._final_status() != "failed":
+                    self.stop_reason = f"write failed: {exc}"
+        return self._meta(self._final_status())
+
+    def _final_status(self) -> str:
+        return "failed" if (self.stop_reason or "").startswith("write failed") else "complete"
 
 
 def read_index(directory: str | Path) -> list[dict[str, Any]]:

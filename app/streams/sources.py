@@ -268,7 +268,10 @@ class CameraSource:
 
 
 def decode_image_bytes(data: bytes) -> np.ndarray:
-    img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    try:
+        img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    except cv2.error:  # e.g. over OPENCV_IO_MAX_IMAGE_PIXELS
+        img = None
     if img is None:
         raise SourceError("undecodable image")
     return ensure_gray_or_bgr(img)

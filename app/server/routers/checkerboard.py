@@ -36,7 +36,12 @@ from app.geometry.calibration import CalibrationError
 from app.geometry.calibration_report import report_png_bytes
 from app.geometry.stereo_calibrate import calibrate_checkerboard
 from app.server.dependencies import request_settings, require_token
-from app.server.image_guard import ImageHeader, ImageHeaderError, peek_header
+from app.server.image_guard import (
+    AmbiguousHeaderError,
+    ImageHeader,
+    ImageHeaderError,
+    peek_header,
+)
 
 router = APIRouter(tags=["calibration"])
 
@@ -57,6 +62,11 @@ def _screen(data: bytes, label: str, max_pixels: int) -> ImageHeader:
         raise HTTPException(status_code=400, detail=f"{label} is empty")
     try:
         header = peek_header(data)
+    except AmbiguousHeaderError as exc:
+        raise HTTPException(
+            status_code=422,
+            detail=f"{label}: ambiguous image header ({exc}); refused before decoding",
+        ) from None
     except ImageHeaderError:
         raise _not_an_image(label) from None
     if header.pixels > max_pixels:

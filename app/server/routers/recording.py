@@ -4,6 +4,11 @@ listing and download.
 Recordings a crash interrupted are recovered when the service starts (``status:
 "interrupted"``): listed, telemetry downloadable; their scene file is lost (``scene_file: null``,
 ``scene_note`` says why) and its download answers 404 with that reason.
+
+A failing disk never answers a plain-text 500: a start that cannot write answers 507 (full
+disk, or a frame recording under ``AAR_RECORDING_MIN_FREE_MB``) or 503 (not writable) with the
+reason; a recording whose writes fail stops as ``status: "failed"`` (``stop_reason`` says why)
+and its telemetry stays downloadable.
 """
 
 from __future__ import annotations
@@ -14,7 +19,7 @@ from fastapi import APIRouter, Depends, HTTPException, Query, status
 from fastapi.responses import FileResponse
 
 from app.server.dependencies import StateDep, require_token
-from app.server.recording import RecordingMeta
+from app.server.recording import RecordingError, RecordingMeta
 from app.server.schemas import Message
 
 router = APIRouter(tags=["recording"])
@@ -24,7 +29,11 @@ router = APIRouter(tags=["recording"])
     "/recording/start",
     response_model=RecordingMeta,
     dependencies=[Depends(require_token)],
-    responses={409: {"model": Message}},
+    responses={
+        409: {"model": Message},
+        503: {"model": Message, "description": "the recordings directory is not writable"},
+        507: {"model": Message, "description": "no space (or under the free-space floor)"},
+    },
 )
 def recording_start(
     state: StateDep,
@@ -56,8 +65,8 @@ def recording_start(
             accept_frame=accept,
             source=None if streams is None else streams.spec,
         )
-    except RuntimeError as exc:
-        raise HTTPException(status.HTTP_409_CONFLICT, str(exc)) from None
+    except RecordingError as exc:
+        raise HTTPException(exc.status, exc.detail) from None
     if processor is not None and frames:
         processor.request_reset()
     return info

@@ -20,7 +20,7 @@ from fastapi import APIRouter, Body, Depends, HTTPException, WebSocket, WebSocke
 from pydantic import BaseModel, Field
 
 from app.server.dependencies import AppState, StateDep, require_token
-from app.server.image_guard import ImageHeaderError, peek_header
+from app.server.image_guard import ImageRefused, check
 from app.server.schemas import STRICT
 from app.server.security import token_ok
 from app.streams.frames import SourceError
@@ -136,14 +136,12 @@ async def push(ws: WebSocket) -> None:
                 msg = decode_message(data, limit)
                 w, h = state.calibrations.current.image_size
                 for name, blob in (("left", msg.left), ("right", msg.right)):
-                    hdr = peek_header(blob)
-                    if hdr.pixels > max_pixels:
-                        raise ProtocolError(f"{name}: {hdr.describe()} over AAR_MAX_IMAGE_PIXELS")
+                    hdr = check(blob, name, max_pixels=max_pixels)  # the uploads' guard
                     if (hdr.width, hdr.height) != (w, h):
                         raise ProtocolError(
                             f"{name}: {hdr.describe()} but the calibration is for {w}x{h} px"
                         )
-            except (ProtocolError, ImageHeaderError) as exc:
+            except (ProtocolError, ImageRefused) as exc:
                 await problem(str(exc))
                 continue
             if not streams.push(msg):
