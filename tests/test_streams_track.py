@@ -71,3 +71,39 @@ def test_track_refuses_bad_inputs(tmp_path: Path, capsys: pytest.CaptureFixture[
     assert "no such video file" in capsys.readouterr().err
     assert cli_main(["track", "--left", str(tmp_path)]) == 2
     assert "frame recording" in capsys.readouterr().err
+
+
+def test_track_sends_each_result_over_mavlink(tmp_path: Path) -> None:
+    import socket
+
+    from pymavlink import mavutil
+
+    from app.streams.mavlink_link import MavlinkLink  # noqa: F401  (MAVLink 2 dialect)
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        port = int(s.getsockname()[1])
+    rx = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", dialect="common")
+    left, right = write_png_folders(cached_sequence(N), tmp_path)
+    out = tmp_path / "track.jsonl"
+    try:
+        code = cli_main(
+            ["track", "--left", str(left), "--right", str(right), "--jsonl", str(out)]
+            + ["--no-progress", "--mavlink", f"udpout:127.0.0.1:{port}", "--mount", "camera"]
+        )
+        assert code == 0
+        msgs = []
+        while (m := rx.recv_match(type="LANDING_TARGET", blocking=True, timeout=1)) is not None:
+            msgs.append(m)
+    finally:
+        rx.close()
+    rows = read_jsonl(out)
+    assert len(msgs) == len(rows) == N
+    for m, r in zip(msgs, rows, strict=True):
+        assert m.time_usec == round(r["t_s"] * 1e6) and m.position_valid == int(r["lock"])
+        if r["lock"]:
+            c = np.asarray(r["drogue"]["center_mm"]) / 1000
+            assert m.distance == pytest.approx(float(np.linalg.norm(c)), abs=1e-3)
+            # --mount camera: body FRD = (z, x, y) of the left camera's frame
+            assert (m.x, m.y, m.z) == pytest.approx((c[2], c[0], c[1]), abs=1e-5)
+    assert cli_main(["track", "--left", str(left), "--right", str(right), "--mavlink", "x"]) == 2

@@ -39,6 +39,12 @@ def register(subparsers: Any) -> None:
     )
     p.add_argument("--loop", action="store_true", help="restart a video source at its end")
     p.add_argument("--fps", type=float, help="frame rate of image folders without timestamps")
+    p.add_argument(
+        "--mavlink",
+        metavar="udpout:HOST:PORT",
+        help="send the navigation result as MAVLink 2 LANDING_TARGET (AAR_MAVLINK; "
+        "docs/ecosystem.md)",
+    )
     p.set_defaults(func=run)
 
 
@@ -71,6 +77,7 @@ def settings_from_args(args: argparse.Namespace) -> Any:
         ("source", "source"),
         ("max_skew_ms", "stream_max_skew_ms"),
         ("fps", "stream_fps"),
+        ("mavlink", "mavlink"),
     ):
         value = getattr(args, flag, None)
         if value is not None:

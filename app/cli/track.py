@@ -47,6 +47,18 @@ def register(subparsers: Any) -> None:
     )
     p.add_argument("--matcher", choices=("epipolar", "paper"), default="epipolar")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument(
+        "--mavlink",
+        metavar="udpout:HOST:PORT",
+        help="send each result as MAVLink 2 LANDING_TARGET (docs/ecosystem.md)",
+    )
+    p.add_argument(
+        "--mount",
+        choices=("jsbsim", "linear", "camera"),
+        default=None,
+        help="the rig's mount for MAVLink's body-frame position: an airframe's (default: the "
+        "simulation's default plant) or 'camera' (relative to the left camera, looking forward)",
+    )
     p.set_defaults(func=run)
 
 
@@ -62,6 +74,22 @@ def _calibration(args: argparse.Namespace) -> Any:
         if calib is not None:
             return calib
     return load_default_calibration()
+
+
+def _mavlink(url: str, mount_name: str | None) -> tuple[Any, Any]:
+    """The MAVLink link and the rig mount its positions are given in."""
+    from app.sim.plant import DEFAULT_PLANT
+    from app.streams.landing_target import RigMount
+    from app.streams.mavlink_link import MavlinkLink, check_url
+
+    check_url(url)
+    if mount_name == "camera":
+        mount = RigMount.forward_looking()
+    else:
+        from app.server.mavlink_output import default_mount
+
+        mount = default_mount(mount_name or DEFAULT_PLANT)
+    return MavlinkLink(url), mount
 
 
 def track_rows(source: Any, processor: Any, progress: bool = True) -> Any:
@@ -155,6 +183,14 @@ def run(args: argparse.Namespace) -> int:
         print(f"aar-dock track: {exc}", file=sys.stderr)
         return 2
     processor = StreamProcessor(calib, PipelineConfig(matcher=args.matcher))
+    mavlink = None
+    if args.mavlink:
+        try:
+            mavlink = _mavlink(args.mavlink, args.mount)
+        except ValueError as exc:
+            source.close()
+            print(f"aar-dock track: {exc}", file=sys.stderr)
+            return 2
     out: TextIO | None = None
     if args.jsonl == "-":
         out = sys.stdout
@@ -170,11 +206,18 @@ def run(args: argparse.Namespace) -> int:
                 out.write(json.dumps(row) + "\n")
             rows.append(row)
             est.append(tick.guidance.drogue_estimate_m)
+            if mavlink is not None:
+                from app.streams.landing_target import landing_target
+
+                link, mount = mavlink
+                link.send(landing_target(tick.pose, max(0.0, float(row["t_s"])), mount))
     except SourceError as exc:
         print(f"aar-dock track: {exc}", file=sys.stderr)
         return 2
     finally:
         source.close()
+        if mavlink is not None:
+            mavlink[0].close()
         if out is not None and out is not sys.stdout:
             out.close()
     wall = time.perf_counter() - t0

@@ -12,6 +12,7 @@ from fastapi import Depends, HTTPException, Request, status
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
 from app.geometry.calibration import StereoCalibration
+from app.server.mavlink_output import MavlinkOutput
 from app.server.recording import Recorder
 from app.server.schemas import SimConfig
 from app.server.settings import Settings
@@ -94,6 +95,7 @@ class AppState:
     upload_pool: Any = None  # app.server.upload_pool.UploadPool; None: uploads in threads
     sim_worker: Any = None  # app.server.sim_process.SimWorker; None: simulation in a thread
     streams: Any = None  # app.server.stream_service.StreamService (the active frame source)
+    mavlink: MavlinkOutput | None = None  # the MAVLink 2 output (settings.mavlink)
     extras: dict[str, Any] = field(default_factory=dict)
 
     def apply_sim_config(self, config: SimConfig) -> None:

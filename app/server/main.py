@@ -200,6 +200,8 @@ def create_app(
             st.streams.close()
             recorder.close()
             loop.stop()
+            if st.mavlink is not None:
+                st.mavlink.close()
             if st.viz is not None:
                 st.viz.stop()
             release_workers()
@@ -224,6 +226,12 @@ def create_app(
             viz.add_scene_listener(recorder.on_scene_update)
         loop.subscribe(hub.publish)
         loop.subscribe(recorder.on_tick)
+        if settings.mavlink is not None:
+            from app.server.mavlink_output import MavlinkOutput, default_mount
+
+            st.mavlink = MavlinkOutput(settings.mavlink, default_mount(settings.sim_plant))
+            loop.subscribe(st.mavlink.on_tick)
+            log.info("MAVLink 2 output to %s", settings.mavlink)
         if settings.sim_autostart:
             loop.start_sim()  # with a worker process: spawned and the simulation built here
         loop.start()

@@ -182,6 +182,20 @@ class Settings(BaseSettings):
         1, ge=1, le=16, description="checkerboard calibrations run at once (else 429)"
     )
     retry_after_s: int = Field(2, ge=1, le=3600, description="Retry-After of a 429 (s)")
+    mavlink: str | None = Field(
+        None,
+        description="MAVLink 2 output of the navigation result (udpout:HOST:PORT): HEARTBEAT at "
+        "1 Hz and LANDING_TARGET per navigation record (docs/ecosystem.md); None: off",
+    )
+
+    @field_validator("mavlink")
+    @classmethod
+    def _check_mavlink(cls, v: str | None) -> str | None:
+        if v is None or not v.strip():
+            return None
+        from app.streams.mavlink_link import check_url
+
+        return check_url(v.strip())
 
     @field_validator("trusted_hosts", "allowed_origins", "stream_roots", mode="before")
     @classmethod

@@ -140,14 +140,10 @@ class ReceiverGeometry:
         """The mounting of :class:`app.sim.docking.DockingConfig` (its defaults; the airframe
         of ``plant`` when given)."""
         from app.sim.docking import DockingConfig
-        from app.sim.frames import look_at_camera
+        from app.sim.rig_mount import camera_mount
 
-        c = DockingConfig() if plant is None else DockingConfig(plant=plant)
-        g = c.geometry()
-        cam = np.asarray(g.camera_body_m, float)
-        tip = np.asarray(g.probe_tip_body_m, float)
-        aim = tip + np.array([c.camera_aim_ahead_m, 0.0, 0.0])
-        return cls(look_at_camera(cam, aim), cam, np.asarray(g.nose_body_m, float), tip)
+        m = camera_mount(DockingConfig() if plant is None else DockingConfig(plant=plant))
+        return cls(m.r_bc, m.camera_b, m.nose_b, m.probe_tip_b)
 
 
 def camera_pose_from_tick(

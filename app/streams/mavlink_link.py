@@ -1,0 +1,139 @@
+"""MAVLink 2 output of the navigation result (``pymavlink``): ``HEARTBEAT`` at 1 Hz and one
+``LANDING_TARGET`` per navigation result (the mapping: :mod:`app.streams.landing_target`).
+
+The service (``aar-dock serve --mavlink udpout:HOST:PORT``) and ``aar-dock track --mavlink …``
+open one :class:`MavlinkLink` and hand it each result. The link is an onboard component of its
+own (``MAV_TYPE_ONBOARD_CONTROLLER``, component ``MAV_COMP_ID_ONBOARD_COMPUTER`` by default);
+it only sends. A send that fails (network unreachable, a closed port) is counted, logged once
+per interval and never raised into the navigation loop.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import threading
+import time
+from dataclasses import dataclass
+
+from app.streams.landing_target import LandingTarget
+
+log = logging.getLogger(__name__)
+
+# MAVLink 2 for the dialect loaded below (pymavlink reads this when a dialect is set)
+os.environ["MAVLINK20"] = "1"
+from pymavlink import mavutil  # noqa: E402
+
+MAV_TYPE_ONBOARD_CONTROLLER = 18
+MAV_AUTOPILOT_INVALID = 8
+MAV_STATE_ACTIVE = 4
+MAV_COMP_ID_ONBOARD_COMPUTER = 191
+_SCHEMES = ("udpout:", "udpin:", "udp:", "tcp:", "tcpin:")
+
+
+def check_url(url: str) -> str:
+    """The link address, or a ValueError naming what is expected (``udpout:HOST:PORT``)."""
+    if not url.startswith(_SCHEMES):
+        raise ValueError(
+            f"MAVLink address {url!r}: expected udpout:HOST:PORT (or udpin:/udp:/tcp:/tcpin:)"
+        )
+    rest = url.split(":", 1)[1]
+    host, sep, port = rest.rpartition(":")
+    if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise ValueError(f"MAVLink address {url!r}: expected HOST:PORT after the scheme")
+    return url
+
+
+@dataclass
+class LinkStats:
+    """What the link has sent (counters since it opened)."""
+
+    heartbeats: int = 0
+    targets: int = 0
+    targets_valid: int = 0
+    send_errors: int = 0
+    last_error: str | None = None
+
+
+class MavlinkLink:
+    """A MAVLink 2 sender: heartbeats on a thread of their own, targets on the caller's."""
+
+    def __init__(
+        self,
+        url: str,
+        *,
+        system_id: int = 1,
+        component_id: int = MAV_COMP_ID_ONBOARD_COMPUTER,
+        heartbeat_hz: float = 1.0,
+    ) -> None:
+        self.url = check_url(url)
+        if not 1 <= system_id <= 255 or not 1 <= component_id <= 255:
+            raise ValueError("MAVLink system and component ids are 1..255")
+        if not heartbeat_hz > 0:
+            raise ValueError("heartbeat_hz must be > 0")
+        self.stats = LinkStats()
+        self._period_s = 1.0 / heartbeat_hz
+        self._lock = threading.Lock()  # one writer at a time on the connection
+        self._conn = mavutil.mavlink_connection(
+            url, source_system=system_id, source_component=component_id, dialect="common"
+        )
+        self._stop = threading.Event()
+        self._last_log = 0.0
+        self._thread = threading.Thread(target=self._beat, name="mavlink-heartbeat", daemon=True)
+        self._thread.start()
+
+    @property
+    def mavlink_version(self) -> int:
+        """2 for MAVLink 2 frames (the protocol this link speaks)."""
+        return 2 if float(self._conn.WIRE_PROTOCOL_VERSION) >= 2.0 else 1
+
+    def _failed(self, what: str, exc: OSError) -> None:
+        self.stats.send_errors += 1
+        self.stats.last_error = f"{what}: {exc}"
+        now = time.monotonic()
+        if now - self._last_log > 10.0:  # once per interval, not per message
+            self._last_log = now
+            log.warning("MAVLink %s to %s failed: %s", what, self.url, exc)
+
+    def _beat(self) -> None:
+        while not self._stop.is_set():
+            try:
+                with self._lock:
+                    self._conn.mav.heartbeat_send(
+                        MAV_TYPE_ONBOARD_CONTROLLER, MAV_AUTOPILOT_INVALID, 0, 0, MAV_STATE_ACTIVE
+                    )
+                self.stats.heartbeats += 1
+            except OSError as exc:
+                self._failed("HEARTBEAT", exc)
+            self._stop.wait(self._period_s)
+
+    def send(self, target: LandingTarget) -> None:
+        """Send one ``LANDING_TARGET`` (never raises on a network error: counted instead)."""
+        try:
+            with self._lock:
+                self._conn.mav.landing_target_send(
+                    target.time_usec,
+                    target.target_num,
+                    target.frame,
+                    target.angle_x,
+                    target.angle_y,
+                    target.distance,
+                    target.size_x,
+                    target.size_y,
+                    target.x,
+                    target.y,
+                    target.z,
+                    target.q,
+                    target.type,
+                    target.position_valid,
+                )
+            self.stats.targets += 1
+            self.stats.targets_valid += target.position_valid
+        except OSError as exc:
+            self._failed("LANDING_TARGET", exc)
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=2.0)
+        with self._lock:
+            self._conn.close()
