@@ -222,6 +222,38 @@ function wireControls() {
   });
 }
 
+// ---- cameras: the service draws the detections (GET /camera/{side}.jpg), the page shows them
+const CAMERA_HZ = 3;
+let cameraSeq = -1; // the telemetry seq of the images on screen
+let cameraBusy = false;
+
+async function fetchCamera(side, source) {
+  const r = await fetch(API + "/camera/" + side + ".jpg?source=" + source, { cache: "no-store" });
+  if (!r.ok) return null;
+  return { blob: await r.blob(), seq: Number(r.headers.get("X-Seq")), ids: r.headers.get("X-Led-Ids") || "", lock: r.headers.get("X-Lock") === "1" };
+}
+
+function showCamera(img, cap, side, got) {
+  const old = img.dataset.url;
+  img.dataset.url = URL.createObjectURL(got.blob);
+  img.src = img.dataset.url;
+  img.dataset.seq = String(got.seq);
+  if (old) URL.revokeObjectURL(old);
+  cap.textContent = side + " · #" + got.seq + " · " + (got.lock ? "LOCK" : "NO LOCK") + " · LEDs " + (got.ids ? got.ids.split(",").join(" ") : "none");
+  cap.dataset.ids = got.ids;
+}
+
+async function refreshCameras() {
+  if (cameraBusy || document.hidden || !latest || latest.seq === cameraSeq || latest.source === "upload") return;
+  cameraBusy = true;
+  try {
+    const [l, r] = await Promise.all([fetchCamera("left", "live"), fetchCamera("right", "live")]);
+    if (l) showCamera($("cam-left"), $("cam-left-cap"), "left", l);
+    if (r) showCamera($("cam-right"), $("cam-right-cap"), "right", r);
+    if (l) cameraSeq = latest.seq;
+  } catch (e) { /* the next round retries */ } finally { cameraBusy = false; }
+}
+
 // ---- upload ---------------------------------------------------------------------------------
 function loadImage(file) {
   return new Promise((resolve) => {
@@ -250,6 +282,13 @@ function drawPair(canvas, img, leds, key, size) {
   }
 }
 
+async function drawServed(canvas, got) {
+  const bmp = await createImageBitmap(got.blob);
+  canvas.width = bmp.width; canvas.height = bmp.height;
+  canvas.getContext("2d").drawImage(bmp, 0, 0);
+  canvas.dataset.ids = got.ids;
+}
+
 function clearUploadResult() {
   $("upload-result").hidden = true;
   $("upload").dataset.state = "pending";
@@ -270,10 +309,17 @@ function wireUpload() {
     st.textContent = "processing…"; st.className = "msg";
     try {
       const res = await api("POST", "/stereo", form);
-      const [li, ri] = await Promise.all([loadImage($("left-file").files[0]), loadImage($("right-file").files[0])]);
-      const size = serviceConfig ? serviceConfig.image_size : [li ? li.naturalWidth : 1280, li ? li.naturalHeight : 1024];
-      drawPair($("upload-left"), li, res.leds, "left_px", size);
-      drawPair($("upload-right"), ri, res.leds, "right_px", size);
+      // the service's drawing of this pair (the same as the live cameras'); the page's own
+      // drawing on the browser-decoded files only where the service has no image to give
+      const [ls, rs] = await Promise.all([fetchCamera("left", "upload"), fetchCamera("right", "upload")]);
+      if (ls && rs) {
+        await Promise.all([drawServed($("upload-left"), ls), drawServed($("upload-right"), rs)]);
+      } else {
+        const [li, ri] = await Promise.all([loadImage($("left-file").files[0]), loadImage($("right-file").files[0])]);
+        const size = serviceConfig ? serviceConfig.image_size : [li ? li.naturalWidth : 1280, li ? li.naturalHeight : 1024];
+        drawPair($("upload-left"), li, res.leds, "left_px", size);
+        drawPair($("upload-right"), ri, res.leds, "right_px", size);
+      }
       const tb = document.querySelector("#led-table tbody");
       tb.innerHTML = "";
       for (const led of res.leds) {
@@ -381,6 +427,7 @@ async function init() {
   connectTelemetry();
   setInterval(pullTelemetry, 1000 / RENDER_HZ);
   pollHealth(); setInterval(pollHealth, 1000);
+  setInterval(refreshCameras, 1000 / CAMERA_HZ);
   refreshRecordings(); setInterval(refreshRecordings, 5000);
 }
 

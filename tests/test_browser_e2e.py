@@ -164,6 +164,27 @@ def test_operators_page_end_to_end(service) -> None:
             rel2 = page.inner_text("#rel-x")
             assert (t1, rel1) != (t2, rel2), (t1, t2)
             assert float(page.inner_text("#tick-rate")) > 0
+            # 1b. both camera images are shown and follow the stream; a locked frame's image
+            #     carries the LED ids drawn on it (the caption names them)
+            page.wait_for_function(
+                "['cam-left', 'cam-right'].every(id => document.getElementById(id).naturalWidth"
+                " === 480 && document.getElementById(id).dataset.seq)",
+                timeout=30_000,
+            )
+            seqs1 = page.eval_on_selector_all("#cameras img", "ims => ims.map(i => i.dataset.seq)")
+            page.wait_for_function(
+                "s => [...document.querySelectorAll('#cameras img')]"
+                ".every((im, k) => im.dataset.seq !== s[k])",
+                arg=seqs1,
+                timeout=20_000,
+            )
+            page.wait_for_function(
+                "document.getElementById('cam-left-cap').textContent.includes('· LOCK ·')"
+                " && document.getElementById('cam-left-cap').dataset.ids.split(',').length >= 3",
+                timeout=30_000,
+            )
+            cap = page.inner_text("#cam-left-cap")
+            assert "LEDs " in cap and any(str(i) in cap.split("LEDs ")[1] for i in range(1, 6))
             # 2. the viser iframe connects and draws a non-blank canvas
             src = page.get_attribute("#viser-frame", "src")
             assert src is not None and f":{viser_port}" in src
@@ -212,6 +233,9 @@ def test_operators_page_end_to_end(service) -> None:
                 " return n; }",
             )
             assert px > 100
+            # the service's drawing of the uploaded pair (the live cameras' producer)
+            drawn = page.eval_on_selector("#upload-left", "c => c.dataset.ids")
+            assert sorted(drawn.split(",")) == ["1", "2", "3", "4", "5"]
             page.wait_for_timeout(1500)
             page.screenshot(path=str(ARTIFACTS / "operators_page.png"), full_page=True)
             if os.environ.get("AAR_UPDATE_SCREENSHOT"):

@@ -12,7 +12,6 @@ import pytest
 from app.geometry.calibration import paper_calibration
 from app.server.schemas import Control, TickRecord
 from app.vision.result import DrogueResult, LedResult, PoseResult
-from app.viz.overlay import draw_detections
 from app.viz.scene import NODE_NAMES, CameraPose, DockingScene
 from app.viz.service import ViserPortError, start_viser
 
@@ -114,27 +113,6 @@ def test_pinned_port_taken_fails_loudly() -> None:
         with pytest.raises(ViserPortError, match=str(port)):
             start_viser("127.0.0.1", port)
         assert time.time() - t0 < 30
-
-
-def test_overlay_circles_each_led_in_its_colour() -> None:
-    img = np.zeros((1024, 1280), np.uint8)
-    leds = [
-        LedResult(
-            id=3,
-            left_px=(640.0, 512.0),
-            right_px=(100.0, 100.0),
-            xyz_mm=(0.0, 0.0, 1.0),
-            descriptor_distance=0.0,
-            epipolar_px=0.0,
-            reprojection_px=0.0,
-        )
-    ]
-    out = draw_detections(img, PoseResult(lock=True, leds=leds), "left", width=320)
-    assert out.shape == (256, 320, 3) and out.dtype == np.uint8
-    # the circle (radius 7 px) around (160, 128) is drawn in LED 3's colour (green channel)
-    ring = out[128, 160 + 7]
-    assert ring[1] > 100 and ring[1] > ring[0]
-    assert out[128, 160].sum() < 60  # centre left untouched (dark background)
 
 
 @pytest.mark.parametrize("plant", ["linear", "jsbsim"])

@@ -12,6 +12,7 @@ from fastapi import Depends, HTTPException, Request, status
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
 from app.geometry.calibration import StereoCalibration
+from app.server.camera_view import CameraView
 from app.server.mavlink_output import MavlinkOutput
 from app.server.recording import Recorder
 from app.server.schemas import SimConfig
@@ -96,6 +97,7 @@ class AppState:
     sim_worker: Any = None  # app.server.sim_process.SimWorker; None: simulation in a thread
     streams: Any = None  # app.server.stream_service.StreamService (the active frame source)
     mavlink: MavlinkOutput | None = None  # the MAVLink 2 output (settings.mavlink)
+    camera_view: CameraView = field(default_factory=CameraView)  # the page's camera images
     extras: dict[str, Any] = field(default_factory=dict)
 
     def apply_sim_config(self, config: SimConfig) -> None:

@@ -31,11 +31,13 @@ from fastapi.staticfiles import StaticFiles
 
 from app.geometry.calibration import StereoCalibration
 from app.server import security
+from app.server.camera_view import CameraView
 from app.server.dependencies import AppState, CalibrationStore, UploadProcessor
 from app.server.errors import validation_exception_handler
 from app.server.recording import Recorder
 from app.server.routers import (
     calibration,
+    camera,
     checkerboard,
     recording,
     sim,
@@ -161,6 +163,7 @@ def create_app(
             recorder=recorder,
             upload_pool=upload_pool,
             sim_worker=None if process_factory is None else process_factory.worker,
+            camera_view=CameraView(image_hz=settings.image_hz),
         )
         st.streams = StreamService(loop, calib, settings)
 
@@ -226,6 +229,7 @@ def create_app(
             viz.add_scene_listener(recorder.on_scene_update)
         loop.subscribe(hub.publish)
         loop.subscribe(recorder.on_tick)
+        loop.subscribe(st.camera_view.on_tick)
         if settings.mavlink is not None:
             from app.server.mavlink_output import MavlinkOutput, default_mount
 
@@ -277,7 +281,17 @@ def create_app(
 
     app.add_exception_handler(SourceUnavailable, source_unavailable)
     security.install(app, settings, API_PREFIX)
-    for module in (state, sim, stereo, calibration, checkerboard, recording, telemetry, stream):
+    for module in (
+        state,
+        sim,
+        stereo,
+        calibration,
+        checkerboard,
+        recording,
+        telemetry,
+        stream,
+        camera,
+    ):
         app.include_router(module.router, prefix=API_PREFIX)
 
     static_dir = settings.static_dir

@@ -30,8 +30,8 @@ import viser
 import viser.uplot as uplot
 
 from app.sim.sim_config import LED_COUNT, TURBULENCE_LEVELS, SimConfig
+from app.streams.annotations import annotate
 from app.viz.access import MAX_TOKEN_CHARS, AccessPolicy
-from app.viz.overlay import draw_detections
 
 log = logging.getLogger(__name__)
 WINDOW = 300  # samples kept in each chart (fixed window)
@@ -583,4 +583,11 @@ class DockingGui:
         for side, handle in (("left", self.img_left), ("right", self.img_right)):
             img = getattr(raw, f"{side}_image", None)
             if img is not None:
-                handle.image = draw_detections(img, record.pose, side, width=320, lock=record.lock)
+                windows = getattr(raw, "image_windows_px", None)
+                handle.image = annotate(
+                    img,
+                    record.pose,
+                    side,
+                    lock=record.lock,
+                    windows_px=None if windows is None else windows[side == "right"],
+                )

@@ -24,7 +24,7 @@ import viser.transforms as vtf
 
 from app.geometry.led_ids import DEFAULT_PHASE_DEG
 from app.sim.frames import euler_to_matrix
-from app.viz.overlay import LED_COLORS_RGB, draw_detections, led_color
+from app.streams.annotations import LED_COLORS_RGB, annotate, led_color
 
 DROGUE_RADIUS_M = 0.305
 TRAIL_POINTS = 240
@@ -436,5 +436,12 @@ class DockingScene:
             img = getattr(raw, f"{side}_image", None)
             if img is None:
                 continue
-            rgb = draw_detections(img, record.pose, side, width=320, lock=record.lock)
+            windows = getattr(raw, "image_windows_px", None)
+            rgb = annotate(
+                img,
+                record.pose,
+                side,
+                lock=record.lock,
+                windows_px=None if windows is None else windows[side == "right"],
+            )
             self.frustums[side].image = rgb
