@@ -120,7 +120,7 @@ def draw_marks(
         label = "LOCK" if marks.lock else "NO LOCK"
         color = (60, 220, 90) if marks.lock else (240, 70, 70)
         cv2.putText(rgb, f"{marks.side} {label}", (6, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.45, color, 1)
-    return rgb
+    return np.asarray(rgb, dtype=np.uint8)
 
 
 def annotate(
