@@ -129,7 +129,7 @@ def run(args: argparse.Namespace) -> int:
     import uvicorn
 
     from app.server import log_hygiene
-    from app.server.connection_guard import protocol_classes
+    from app.server.connection_guard import guarded_listener, new_registry, protocol_classes
     from app.server.main import PUSH_PATH, create_app
     from app.sim.warmup import compile_kernels
 
@@ -148,7 +148,8 @@ def run(args: argparse.Namespace) -> int:
     )
     # connection caps, header timeout (slowloris), per-route WebSocket message sizes and
     # rates, enforced in uvicorn's protocol layer (app.server.connection_guard)
-    http_protocol, ws_protocol = protocol_classes(settings, PUSH_PATH)
+    registry = new_registry(settings, PUSH_PATH)
+    http_protocol, ws_protocol = protocol_classes(registry)
     config = uvicorn.Config(
         app,
         host=settings.host,
@@ -167,6 +168,7 @@ def run(args: argparse.Namespace) -> int:
     )
     log_hygiene.install()  # after uvicorn configured its loggers
     server = uvicorn.Server(config)
-    server.run()
+    # the listening socket stops accepting short of the descriptor limit (connection_guard)
+    server.run(sockets=[guarded_listener(config.bind_socket(), registry)])
     # uvicorn exits with started=False when the lifespan failed (e.g. viser port taken)
     return 0 if server.started else 1

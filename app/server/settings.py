@@ -15,7 +15,8 @@ Hardening round 2 (docs/service.md): stream supervision (``AAR_STREAM_FAILURE_ST
 ``AAR_PUSH_MAX_CLIENTS``) and connection limits (``AAR_MAX_CONNECTIONS``,
 ``AAR_MAX_CONNECTIONS_PER_CLIENT``, ``AAR_FD_RESERVE``, ``AAR_HEADER_TIMEOUT_S``,
 ``AAR_KEEP_ALIVE_S``, ``AAR_MAX_WEBSOCKETS``, ``AAR_MAX_WEBSOCKETS_PER_CLIENT``,
-``AAR_WS_MAX_MESSAGE_KB``, ``AAR_WS_MAX_MESSAGES_PER_S``, ``AAR_WS_MESSAGE_BURST``).
+``AAR_WS_MAX_MESSAGE_KB``, ``AAR_WS_MAX_MESSAGES_PER_S``, ``AAR_WS_MESSAGE_BURST``,
+``AAR_PUSH_MAX_MESSAGES_PER_S``, ``AAR_WS_ABUSE_PENALTY_S``).
 
 Where the CPU work runs: ``AAR_SIM_IN_PROCESS`` (default false: the simulation steps in a
 worker process, ``app.server.sim_process``), ``AAR_SIM_STEP_TIMEOUT_S``,
@@ -189,13 +190,27 @@ class Settings(BaseSettings):
         description="largest message on WebSockets other than the push route (kB)",
     )
     ws_max_messages_per_s: float = Field(
-        50.0, gt=0.0, le=1e6, description="sustained messages a second a WebSocket client may send"
-    )
-    push_max_messages_per_s: float = Field(
-        1000.0, gt=0.0, le=1e6, description="sustained messages a second on the push WebSocket"
+        10.0,
+        gt=0.0,
+        le=1e6,
+        description="sustained messages a second a client may send on a WebSocket other than "
+        "the push route (the telemetry socket needs none)",
     )
     ws_message_burst: int = Field(
-        200, ge=1, le=1_000_000, description="messages a WebSocket client may send in a burst"
+        20, ge=1, le=1_000_000, description="messages a WebSocket client may send in a burst"
+    )
+    push_max_messages_per_s: float = Field(
+        1000.0,
+        gt=0.0,
+        le=1e6,
+        description="sustained messages a second on the push WebSocket (burst: a fifth of it)",
+    )
+    ws_abuse_penalty_s: float = Field(
+        10.0,
+        ge=0.0,
+        le=3600.0,
+        description="after a WebSocket client is closed for its message rate or size, new "
+        "WebSocket handshakes from its address are refused (429) this long",
     )
 
     # ---- hardening -------------------------------------------------------------------
