@@ -61,7 +61,7 @@ def _status(c: TestClient) -> dict[str, Any]:
 
 def test_a_failing_push_stream_is_reported_and_restarts_itself(tmp_path: Path) -> None:
     seq = cached_sequence(8)
-    bad = encode_message(_undecodable(seq.lefts[0]), _undecodable(seq.rights[0]), t_s=0, seq=0)
+    bad_left, bad_right = _undecodable(seq.lefts[0]), _undecodable(seq.rights[0])
     with TestClient(create_app(_settings(tmp_path))) as c:
         assert c.get("/api/v1/healthz").json()["status"] == "ok"
         sent, closes = 0, []
@@ -70,13 +70,13 @@ def test_a_failing_push_stream_is_reported_and_restarts_itself(tmp_path: Path) -
                 try:
                     while sent < 25:
                         before = _status(c)["consecutive_failures"]
-                        ws.send_bytes(
-                            encode_message(*_split(bad), t_s=sent / 30, seq=sent)  # new seq
-                        )
+                        ws.send_bytes(encode_message(bad_left, bad_right, t_s=sent / 30, seq=sent))
                         sent += 1
                         wait_until(
-                            lambda b=before: _status(c)["consecutive_failures"] > b
-                            or _status(c)["state"] == "restarting",
+                            lambda b=before: (
+                                _status(c)["consecutive_failures"] > b
+                                or _status(c)["state"] == "restarting"
+                            ),
                             10,
                             f"bad pair {sent} counted",
                         )
@@ -89,7 +89,7 @@ def test_a_failing_push_stream_is_reported_and_restarts_itself(tmp_path: Path) -
         stream = [x for x in health["components"] if x["name"] == "stream:push"]
         assert stream and stream[0]["status"] == "degraded" and stream[0]["reason"]
         assert health["source"] == "push"
-        assert "aar_stream_up{source=\"push\"} 0" in c.get("/api/v1/metrics").text
+        assert 'aar_stream_up{source="push"} 0' in c.get("/api/v1/metrics").text
         # the pusher was told: close 1013 with the reason (20 failed pairs in a row)
         assert closes and closes[0][0] == 1013 and "failed pairs" in closes[0][1], closes
         # valid pairs: processed again within 2 s, nobody switched the source
@@ -110,15 +110,6 @@ def test_a_failing_push_stream_is_reported_and_restarts_itself(tmp_path: Path) -
         wait_until(lambda: c.get("/api/v1/healthz").json()["status"] == "ok", 5, "healthz ok")
         health = c.get("/api/v1/healthz").json()
         assert health["tick_rate_hz"] < 100  # the stream's rate, not the stopped simulation's
-
-
-def _split(message: bytes) -> tuple[bytes, bytes]:
-    """The two images of an encoded push message."""
-    hlen = struct.unpack_from("<I", message, 6)[0]
-    header = json.loads(message[10 : 10 + hlen])
-    start = 10 + hlen
-    nl = header["left_bytes"]
-    return message[start : start + nl], message[start + nl :]
 
 
 def test_one_pusher_at_a_time_seq_counters_and_unparsable_header(tmp_path: Path) -> None:
