@@ -398,3 +398,33 @@ def _trickle(live: list[socket.socket]) -> list[socket.socket]:
         except OSError:
             s.close()
     return kept
+
+
+class _FakeProtocol:
+    def __init__(self) -> None:
+        self.evicted = False
+
+    def evict(self) -> None:
+        self.evicted = True
+
+
+def test_registry_evicts_the_oldest_connection_waiting_for_headers() -> None:
+    from app.server.connection_guard import ConnectionPolicy, ConnectionRegistry, TokenBucketPolicy
+
+    rate = TokenBucketPolicy(10.0, 20)
+    policy = ConnectionPolicy(3, 2, 10.0, "/push", 10, 10, rate, rate, 0.0)
+    reg = ConnectionRegistry(policy)
+    p = [_FakeProtocol() for _ in range(6)]
+    assert reg.admit("t0", "a", p[0]) and reg.admit("t1", "b", p[1])
+    reg.set_waiting("t1", False)  # t1 sent its headers: busy, never evicted
+    assert reg.admit("t2", "c", p[2])
+    assert reg.admit("t3", "d", p[3])  # total cap 3: the oldest waiting (t0) makes room
+    assert p[0].evicted and not p[1].evicted and "t0" not in reg.entries
+    assert reg.admit("t4", "d", p[4]) and p[2].evicted  # full again: t2 was the oldest waiting
+    assert reg.admit("t5", "d", p[5])  # per-client cap 2 for d: d's oldest waiting (t3) goes
+    assert p[3].evicted and reg.per_client["d"] == 2
+    for t in ("t2", "t4", "t5"):
+        reg.set_waiting(t, False)
+    assert not reg.admit("t6", "e", _FakeProtocol())  # full and nobody waiting: refused
+    reg.remove("t1")
+    assert reg.admit("t6", "e", _FakeProtocol())

@@ -434,10 +434,11 @@ class FdBudget:
 class CountedSocket(socket.socket):
     """An accepted connection; its ``close`` gives its descriptor back to the budget."""
 
-    def __init__(self, budget: FdBudget, *args: Any, **kwargs: Any) -> None:
-        super().__init__(*args, **kwargs)
-        self._budget: FdBudget | None = budget
-        budget.opened()
+    def __init__(self, *args: Any, budget: FdBudget | None = None, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)  # (``dup()`` makes one without a budget)
+        self._budget = budget
+        if budget is not None:
+            budget.opened()
 
     def close(self) -> None:
         budget, self._budget = self._budget, None
@@ -456,13 +457,19 @@ class GuardedListener(socket.socket):
     iteration) while the descriptor budget is spent."""
 
     def __init__(
-        self, budget: FdBudget, registry: ConnectionRegistry, *args: Any, **kwargs: Any
+        self,
+        *args: Any,
+        budget: FdBudget | None = None,
+        registry: ConnectionRegistry | None = None,
+        **kwargs: Any,
     ) -> None:
         super().__init__(*args, **kwargs)
-        self.budget = budget
+        self.budget = budget or FdBudget()
         self.registry = registry
 
     def accept(self) -> tuple[socket.socket, Any]:
+        if self.registry is None:  # a dup(): a plain listening socket
+            return super().accept()
         cap = self.registry.policy.max_per_client
         for _ in range(MAX_REFUSALS_PER_ACCEPT):
             if not self.budget.may_accept():
@@ -475,7 +482,7 @@ class GuardedListener(socket.socket):
                 guard_events.count("connection_refused_per_client")
                 continue
             counted = CountedSocket(
-                self.budget, conn.family, conn.type, conn.proto, fileno=conn.detach()
+                conn.family, conn.type, conn.proto, fileno=conn.detach(), budget=self.budget
             )
             return counted, addr
         raise BlockingIOError("refused connections: the event loop's turn")
@@ -484,5 +491,5 @@ class GuardedListener(socket.socket):
 def guarded_listener(sock: socket.socket, registry: ConnectionRegistry) -> GuardedListener:
     """``sock`` (bound, e.g. by ``uvicorn.Config.bind_socket``) as a :class:`GuardedListener`."""
     return GuardedListener(
-        FdBudget(), registry, sock.family, sock.type, sock.proto, fileno=sock.detach()
+        sock.family, sock.type, sock.proto, fileno=sock.detach(), registry=registry
     )
