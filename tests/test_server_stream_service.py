@@ -137,3 +137,57 @@ def test_one_pusher_at_a_time_seq_counters_and_unparsable_header(tmp_path: Path)
             with pytest.raises(WebSocketDisconnect) as exc:
                 ws.receive_text()
         assert exc.value.code == 1007 and "nested too deeply" in exc.value.reason
+
+
+class _ThreadKiller(BaseException):
+    """Not an ``Exception``: ends the stream thread as a bug outside the pair loop would."""
+
+
+@pytest.mark.filterwarnings("ignore::pytest.PytestUnhandledThreadExceptionWarning")
+def test_a_dead_stream_thread_and_a_stall_are_seen_and_restarted(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from app.streams.processor import StreamProcessor
+
+    seq = cached_sequence(4)
+    real = StreamProcessor.process
+    mode = {"now": "kill"}
+
+    def process(self: StreamProcessor, frame: Any, kind: Any) -> Any:
+        if mode["now"] == "kill":
+            mode["now"] = "ok"
+            raise _ThreadKiller()
+        if mode["now"] == "hang":
+            time.sleep(3.0)
+        return real(self, frame, kind)
+
+    monkeypatch.setattr(StreamProcessor, "process", process)
+    settings = _settings(tmp_path, stream_stall_s=0.5)
+    with TestClient(create_app(settings)) as c:
+
+        def push(i: int) -> None:
+            msg = encode_message(_png(seq.lefts[i % 4]), _png(seq.rights[i % 4]), t_s=i, seq=i)
+            with c.websocket_connect(PUSH) as ws:
+                ws.send_bytes(msg)
+                ws.send_text("stats")
+                ws.receive_text()
+
+        push(0)  # the thread dies on it
+        wait_until(lambda: _status(c)["restarts"] == 1, 5, "restart after the thread died")
+        push(1)
+        wait_until(lambda: _status(c)["frames"] == 1, 20, "a pair processed after the restart")
+        mode["now"] = "hang"
+        push(2)  # the thread hangs on this one …
+        push(3)  # … and this one waits unread: stalled
+        wait_until(
+            lambda: (
+                "unread" in (c.get("/api/v1/healthz").json()["components"][1]["reason"] or "")
+                or _status(c)["restarts"] == 2
+            ),
+            5,
+            "the stall seen",
+        )
+        wait_until(lambda: _status(c)["restarts"] == 2, 5, "restart after the stall")
+        mode["now"] = "ok"
+        push(4)
+        wait_until(lambda: _status(c)["frames"] >= 2, 20, "pairs processed again")
