@@ -5,7 +5,8 @@
 * valid pairs pushed afterwards are processed again within 2 s, with no operator action;
 * in push mode ``tick_rate_hz`` is the stream's rate, not the stopped simulation's;
 * one pusher at a time (the second is refused with 1008), repeated/backward ``seq`` counted,
-  an unparsable (deeply nested) header closed with 1007 and a reason.
+  an unparsable (deeply nested) header closed with 1007 and a reason;
+* a stream thread that dies, or hangs while pushed pairs wait, is restarted by the watchdog.
 """
 
 from __future__ import annotations
