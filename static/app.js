@@ -169,6 +169,11 @@ async function pollHealth() {
     const h = await api("GET", "/healthz");
     $("tick-rate").textContent = fmt(h.tick_rate_hz, 1);
     $("dropped").textContent = h.dropped_ticks;
+    // degraded: which part and why (a stream that failed and restarts, a stopped tick loop)
+    const bad = (h.components || []).filter((c) => c.status !== "ok");
+    const health = $("health");
+    health.hidden = bad.length === 0;
+    health.textContent = bad.length ? "DEGRADED — " + bad.map((c) => c.name + ": " + (c.reason || "")).join("; ") : "";
     if (simRunning !== h.sim_running) { simRunning = h.sim_running; renderBanner(); }
   } catch (e) { /* server restarting */ }
 }

@@ -35,7 +35,7 @@
         el("src-pairs").textContent = s.pairs;
         el("src-drops").textContent = s.dropped_skew + " / " + s.dropped_backpressure + " / " + s.rejected;
         el("src-skew").textContent = fmt(s.last_skew_ms, 1) + " (max " + fmt(s.max_skew_ms, 1) + ")";
-        el("src-error").textContent = s.last_error || "";
+        el("src-error").textContent = s.health_reason || s.last_error || "";
       }
       const st = await fetch(API + "/state");
       if (st.ok) {

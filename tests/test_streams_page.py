@@ -78,3 +78,47 @@ def test_page_shows_the_video_source_and_switches_it(tmp_path: Path) -> None:
     finally:
         stop_process(proc)
         log.close()
+
+
+def test_page_shows_a_failing_stream_as_degraded(tmp_path: Path) -> None:
+    """A push source whose pairs all fail: the header says DEGRADED with the stream and why."""
+    from playwright.sync_api import sync_playwright
+    from test_server_stream_service import _undecodable
+    from websockets.sync.client import connect
+
+    from app.streams.protocol import encode_message
+
+    seq = cached_sequence(2)
+    port = _free_port()
+    env = {k: v for k, v in os.environ.items() if not k.startswith("AAR_")}
+    env.update(AAR_SIM_IN_PROCESS="1", AAR_UPLOADS_IN_PROCESS="1", AAR_LOG_LEVEL="warning")
+    env.update(AAR_RECORDINGS_DIR=str(tmp_path / "rec"), AAR_STREAM_FAILURE_STREAK="3")
+    env.update(AAR_STREAM_RESTART_BACKOFF_S="60")  # stays restarting while the page looks
+    cmd = [sys.executable, "-m", "app", "serve", "--no-viser", "--no-sim", "--source", "push"]
+    log = (tmp_path / "serve.log").open("wb")
+    proc = subprocess.Popen(cmd + ["--port", str(port)], cwd=ROOT, env=env, stdout=log, stderr=log)
+    base = f"http://127.0.0.1:{port}"
+    try:
+        wait_for_server(proc, lambda: _status(base) is not None, tmp_path / "serve.log")
+        bad_left, bad_right = _undecodable(seq.lefts[0]), _undecodable(seq.rights[0])
+        with connect(f"ws://127.0.0.1:{port}/api/v1/stream/push", max_size=None) as ws:
+            for i in range(3):
+                ws.send(encode_message(bad_left, bad_right, t_s=i / 30, seq=i))
+                wait_for_server(
+                    proc,
+                    lambda i=i: _status(base)["consecutive_failures"] > i,
+                    tmp_path / "serve.log",
+                    timeout_s=10,
+                )
+        assert _status(base)["state"] == "restarting"
+        with sync_playwright() as p:
+            browser = p.chromium.launch(executable_path=CHROMIUM, args=ARGS)
+            page = browser.new_page()
+            page.goto(base + "/", wait_until="domcontentloaded")
+            page.wait_for_selector("#health:not([hidden])", timeout=15_000)
+            text = page.text_content("#health") or ""
+            assert text.startswith("DEGRADED") and "stream:push" in text and "failed" in text
+            browser.close()
+    finally:
+        stop_process(proc)
+        log.close()

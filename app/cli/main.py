@@ -7,6 +7,7 @@ import importlib
 import os
 import sys
 from collections.abc import Sequence
+from typing import NoReturn
 
 # Each module defines ``register(subparsers)`` which adds its parser and sets ``func``.
 SUBCOMMANDS = (
@@ -21,8 +22,16 @@ SUBCOMMANDS = (
 )
 
 
+class CliParser(argparse.ArgumentParser):
+    """Bad arguments: one line (``aar-dock SUB: error: ...``) and exit code 2, no usage
+    block (``--help`` still prints it); the sub-commands' parsers are of this class too."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {' '.join(message.split())}\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = CliParser(
         prog="aar-dock", description="Vision-based probe-and-drogue docking navigation (AAR)."
     )
     sub = parser.add_subparsers(dest="command", required=True)
@@ -35,12 +44,16 @@ def build_parser() -> argparse.ArgumentParser:
                 continue
             raise
         module.register(sub)
+    for sub_parser in sub.choices.values():  # its own errors name the sub-command
+        sub_parser.set_defaults(cli_parser=sub_parser)
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args, extra = parser.parse_known_args(argv)
+    if extra:
+        getattr(args, "cli_parser", parser).error(f"unrecognized arguments: {' '.join(extra)}")
     try:
         code = args.func(args)
         sys.stdout.flush()

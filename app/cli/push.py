@@ -26,7 +26,12 @@ def register(subparsers: Any) -> None:
         help="left video/folder/glob, camera index, or a *.frames recording",
     )
     p.add_argument("--right", default="", help="right input (omit: recording or side-by-side)")
-    p.add_argument("--url", required=True, help="ws://HOST:PORT/api/v1/stream/push")
+    p.add_argument(
+        "--url",
+        required=True,
+        help="ws://HOST:PORT/api/v1/stream/push, or the service's base URL "
+        "(http://HOST:PORT: the push path is added)",
+    )
     p.add_argument("--token", help="bearer token (AAR_TOKEN of the service)")
     p.add_argument("--fps", type=float, help="send at this rate (default: the source's times)")
     p.add_argument("--as-fast-as-possible", action="store_true", help="no pacing at all")
@@ -41,6 +46,46 @@ def register(subparsers: Any) -> None:
     p.add_argument("--loop", action="store_true", help="restart file sources at their end")
     p.add_argument("--max-skew-ms", type=float, default=10.0)
     p.set_defaults(func=run)
+
+
+PUSH_PATH = "/api/v1/stream/push"
+RECONNECTS = 5  # a service that closes with 1013 (its stream restarts): reconnect this often
+
+
+class UsageError(ValueError):
+    """A bad argument: one line, exit code 2."""
+
+
+def push_url(url: str) -> str:
+    """The push WebSocket's URL: ``ws(s)://`` as given; ``http(s)://HOST:PORT[/]`` → the
+    service's push route on ``ws(s)://``."""
+    from urllib.parse import urlsplit, urlunsplit
+
+    try:
+        parts = urlsplit(url.strip())
+        parts.port  # noqa: B018 - raises on a bad port
+    except ValueError as exc:
+        raise UsageError(f"--url {url!r}: {exc}") from None
+    scheme = {"http": "ws", "https": "wss", "ws": "ws", "wss": "wss"}.get(parts.scheme.lower())
+    if scheme is None or not parts.hostname:
+        raise UsageError(
+            f"--url {url!r}: give ws://HOST:PORT{PUSH_PATH} or the service's http://HOST:PORT"
+        )
+    path = parts.path
+    if parts.scheme.lower() in ("http", "https") and path.rstrip("/") in ("", "/api/v1"):
+        path = PUSH_PATH
+    return urlunsplit((scheme, parts.netloc, path or PUSH_PATH, parts.query, ""))
+
+
+def check_args(args: argparse.Namespace) -> None:
+    if args.fps is not None and not args.fps > 0:
+        raise UsageError(f"--fps must be a positive number, got {args.fps}")
+    if args.count is not None and args.count < 1:
+        raise UsageError(f"--count must be >= 1, got {args.count}")
+    if not 0 <= args.jpeg_quality <= 100:
+        raise UsageError(f"--jpeg-quality must be in 0..100, got {args.jpeg_quality}")
+    if not args.max_skew_ms >= 0:
+        raise UsageError(f"--max-skew-ms must be >= 0, got {args.max_skew_ms}")
 
 
 def open_push_source(args: argparse.Namespace) -> Any:
@@ -70,15 +115,17 @@ def _encode(img: Any, fmt: str, quality: int) -> bytes:
 
 
 def run(args: argparse.Namespace) -> int:
-    from websockets.exceptions import ConnectionClosed, InvalidHandshake
+    from websockets.exceptions import ConnectionClosed, InvalidHandshake, InvalidURI
     from websockets.sync.client import connect
 
     from app.streams.frames import EndOfStream, SourceError
     from app.streams.protocol import encode_message
 
     try:
+        check_args(args)
+        url = push_url(args.url)
         source = open_push_source(args)
-    except SourceError as exc:
+    except (UsageError, SourceError) as exc:
         print(f"aar-dock push: {exc}", file=sys.stderr)
         return 2
     headers = {"Authorization": f"Bearer {args.token}"} if args.token else None
@@ -87,59 +134,67 @@ def run(args: argparse.Namespace) -> int:
     t0 = time.monotonic()
     period = 1.0 / args.fps if args.fps else 0.0
     next_t = time.monotonic()
+    stats: Any = None
+    reconnects = 0
     try:
-        with connect(
-            args.url,
-            additional_headers=headers,
-            max_size=None,
-            compression=None,
-            open_timeout=10,
-            proxy=None,
-        ) as ws:
-            while args.count is None or sent < args.count:
-                try:
-                    frame = source.read(timeout_s=1.0)
-                except EndOfStream:
-                    break
-                if frame is None:
-                    continue
-                if period:
-                    delay = next_t - time.monotonic()
-                    if delay > 0:
-                        time.sleep(delay)
-                    next_t = max(next_t + period, time.monotonic() - period)
-                msg = encode_message(
-                    _encode(frame.left, args.format, args.jpeg_quality),
-                    _encode(frame.right, args.format, args.jpeg_quality),
-                    t_s=frame.t_s,
-                    seq=frame.seq,
-                    exposure_ms=frame.exposure_ms,
-                    t_left_s=frame.t_left_s,
-                    t_right_s=frame.t_right_s,
-                )
-                ws.send(msg)
-                sent += 1
-                nbytes += len(msg)
-                try:  # the service answers only problems (at most one a second)
-                    while True:
-                        reply = ws.recv(timeout=0)
-                        print(f"aar-dock push: service: {reply}", file=sys.stderr)
-                except TimeoutError:
-                    pass
-            ws.send("stats")
-            stats: Any = None
-            deadline = time.monotonic() + 5.0
-            while time.monotonic() < deadline:
-                try:
-                    reply = json.loads(ws.recv(timeout=max(0.1, deadline - time.monotonic())))
-                except TimeoutError:
-                    break
-                if isinstance(reply, dict) and "error" in reply:
-                    print(f"aar-dock push: service: {reply['error']}", file=sys.stderr)
-                    continue
-                stats = reply
+        while True:
+            try:
+                with connect(
+                    url,
+                    additional_headers=headers,
+                    max_size=None,
+                    compression=None,
+                    open_timeout=10,
+                    proxy=None,
+                ) as ws:
+                    while args.count is None or sent < args.count:
+                        try:
+                            frame = source.read(timeout_s=1.0)
+                        except EndOfStream:
+                            break
+                        if frame is None:
+                            continue
+                        if period:
+                            delay = next_t - time.monotonic()
+                            if delay > 0:
+                                time.sleep(delay)
+                            next_t = max(next_t + period, time.monotonic() - period)
+                        msg = encode_message(
+                            _encode(frame.left, args.format, args.jpeg_quality),
+                            _encode(frame.right, args.format, args.jpeg_quality),
+                            t_s=frame.t_s,
+                            seq=frame.seq,
+                            exposure_ms=frame.exposure_ms,
+                            t_left_s=frame.t_left_s,
+                            t_right_s=frame.t_right_s,
+                        )
+                        ws.send(msg)
+                        sent += 1
+                        nbytes += len(msg)
+                        try:  # the service answers only problems (at most one a second)
+                            while True:
+                                reply = ws.recv(timeout=0)
+                                print(f"aar-dock push: service: {reply}", file=sys.stderr)
+                        except TimeoutError:
+                            pass
+                    stats = _final_stats(ws)
                 break
-    except (OSError, InvalidHandshake, ConnectionClosed) as exc:
+            except ConnectionClosed as exc:
+                rcvd = exc.rcvd
+                if rcvd is None or rcvd.code != 1013 or reconnects >= RECONNECTS:
+                    raise
+                reconnects += 1  # the service's stream restarts: reconnect and go on
+                print(f"aar-dock push: service: {rcvd.reason} (reconnecting)", file=sys.stderr)
+                time.sleep(1.0)
+    except InvalidURI as exc:
+        print(f"aar-dock push: --url: {exc}", file=sys.stderr)
+        return 2
+    except ConnectionClosed as exc:
+        rcvd = exc.rcvd
+        why = f"{rcvd.code} {rcvd.reason}" if rcvd is not None else str(exc)
+        print(f"aar-dock push: the service closed the connection: {why}", file=sys.stderr)
+        return 1
+    except (OSError, InvalidHandshake) as exc:
         print(f"aar-dock push: {type(exc).__name__}: {exc}", file=sys.stderr)
         return 1
     finally:
@@ -152,3 +207,19 @@ def run(args: argparse.Namespace) -> int:
     if stats is not None:
         print("service " + json.dumps(stats))
     return 0 if sent else 1
+
+
+def _final_stats(ws: Any) -> Any:
+    """Ask the service for its counters (``stats``); None if it does not answer in 5 s."""
+    ws.send("stats")
+    deadline = time.monotonic() + 5.0
+    while time.monotonic() < deadline:
+        try:
+            reply = json.loads(ws.recv(timeout=max(0.1, deadline - time.monotonic())))
+        except TimeoutError:
+            return None
+        if isinstance(reply, dict) and "error" in reply:
+            print(f"aar-dock push: service: {reply['error']}", file=sys.stderr)
+            continue
+        return reply
+    return None

@@ -6,6 +6,8 @@ import argparse
 import sys
 from typing import Any
 
+MAX_HEADER_BYTES = 16 * 1024  # a request's headers (h11_max_incomplete_event_size)
+
 
 def register(subparsers: Any) -> None:
     p = subparsers.add_parser(
@@ -101,7 +103,10 @@ def run(args: argparse.Namespace) -> int:
     try:
         settings = settings_from_args(args)
     except ValidationError as exc:
-        print(f"aar-dock serve: invalid setting: {exc}", file=sys.stderr)
+        problems = "; ".join(
+            f"{'.'.join(str(x) for x in e['loc'])}: {e['msg']}" for e in exc.errors()
+        )
+        print(f"aar-dock serve: invalid setting: {problems}", file=sys.stderr)
         return 2
     try:
         StereoCalibration.load(settings.calibration)
@@ -130,7 +135,9 @@ def run(args: argparse.Namespace) -> int:
 
     import uvicorn
 
-    from app.server.main import create_app
+    from app.server import log_hygiene
+    from app.server.connection_guard import guarded_listener, new_registry, protocol_classes
+    from app.server.main import PUSH_PATH, create_app
     from app.sim.warmup import compile_kernels
 
     # the navigation core's compiled loops: compiled once per install and cached on disk;
@@ -146,18 +153,29 @@ def run(args: argparse.Namespace) -> int:
         f"viser on port {settings.viser_port if settings.viser_enabled else 'off'}",
         flush=True,
     )
+    # connection caps, header timeout (slowloris), per-route WebSocket message sizes and
+    # rates, enforced in uvicorn's protocol layer (app.server.connection_guard)
+    registry = new_registry(settings, PUSH_PATH)
+    http_protocol, ws_protocol = protocol_classes(registry)
     config = uvicorn.Config(
         app,
         host=settings.host,
         port=settings.port,
         workers=1,
         log_level=settings.log_level,
-        ws_max_size=settings.push_limit_bytes + 4096,  # pushed pairs (the handler checks too)
+        http=http_protocol,
+        ws=ws_protocol,
+        # the largest message of any route (push); each connection gets its route's limit
+        ws_max_size=settings.push_limit_bytes + 4096,
         # no per-message compression: deflating every telemetry message once per client was
         # the web process's largest user of the GIL with 50 clients (bench_load, issue 10)
         ws_per_message_deflate=False,
+        timeout_keep_alive=max(1, round(settings.keep_alive_s)),
+        h11_max_incomplete_event_size=MAX_HEADER_BYTES,
     )
+    log_hygiene.install()  # after uvicorn configured its loggers
     server = uvicorn.Server(config)
-    server.run()
+    # the listening socket stops accepting short of the descriptor limit (connection_guard)
+    server.run(sockets=[guarded_listener(config.bind_socket(), registry)])
     # uvicorn exits with started=False when the lifespan failed (e.g. viser port taken)
     return 0 if server.started else 1

@@ -59,9 +59,11 @@ from app.server.tick_loop import (
     default_source_factory,
     raise_thread_priority,
 )
+from app.server.ws_guard import WebSocketGuard
 
 log = logging.getLogger(__name__)
 API_PREFIX = "/api/v1"
+PUSH_PATH = f"{API_PREFIX}/stream/push"
 GIL_SWITCH_S = 0.0005  # sys.setswitchinterval with the worker process (Python's default: 5 ms)
 _warned_opencv: list[bool] = []  # warn once per process
 
@@ -280,6 +282,8 @@ def create_app(
         )
 
     app.add_exception_handler(SourceUnavailable, source_unavailable)
+    # WebSocket caps and per-route message sizes, inside the request guard (Host/Origin first)
+    app.add_middleware(WebSocketGuard, settings=settings, push_path=PUSH_PATH)
     security.install(app, settings, API_PREFIX)
     for module in (
         state,

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+
+from app.server.stream_service import StreamService
 from app.server.tick_loop import TickLoop
 
 
@@ -19,6 +22,8 @@ def render_metrics(
     uploads: int = 0,
     sim_worker_restarts: int | None = None,
     upload_pool_restarts: int | None = None,
+    streams: StreamService | None = None,
+    guard_counters: Mapping[str, int] | None = None,
 ) -> str:
     """Text format 0.0.4 (``text/plain; version=0.0.4``)."""
     out: list[str] = []
@@ -90,5 +95,51 @@ def render_metrics(
             "counter",
             "Upload worker pools replaced after a worker died",
             [_line("aar_upload_pool_restarts_total", upload_pool_restarts)],
+        )
+    health = streams.health() if streams is not None else None
+    if streams is not None and health is not None:
+        st = streams.status()
+        src = {"source": health.source}
+        metric(
+            "aar_stream_up",
+            "gauge",
+            "1 while the active frame source delivers (0: degraded; see /healthz)",
+            [_line("aar_stream_up", 1 if health.status == "ok" else 0, src)],
+        )
+        metric(
+            "aar_stream_rate_hz",
+            "gauge",
+            "Pairs a second of the active frame source over the last 2 s",
+            [_line("aar_stream_rate_hz", health.rate_hz, src)],
+        )
+        metric(
+            "aar_stream_restarts_total",
+            "counter",
+            "Times the frame source was reopened after a failure",
+            [_line("aar_stream_restarts_total", st["restarts"], src)],
+        )
+        metric(
+            "aar_stream_consecutive_failures",
+            "gauge",
+            "Failed pairs since the last good one",
+            [_line("aar_stream_consecutive_failures", st["consecutive_failures"], src)],
+        )
+        for key, help_ in (
+            ("rejected", "Pushed pairs refused (header, undecodable image)"),
+            ("seq_duplicate", "Pushed pairs dropped: their seq repeated the previous one"),
+            ("seq_out_of_order", "Pushed pairs dropped: their seq went back"),
+            ("dropped_backpressure", "Pushed pairs replaced by a newer one before being read"),
+        ):
+            name = f"aar_push_{key}_total"
+            metric(name, "counter", help_, [_line(name, st.get(key) or 0, src)])
+    if guard_counters:
+        metric(
+            "aar_guard_events_total",
+            "counter",
+            "Connections and messages refused or closed by the connection guard, by reason",
+            [
+                _line("aar_guard_events_total", n, {"reason": reason})
+                for reason, n in sorted(guard_counters.items())
+            ],
         )
     return "\n".join(out) + "\n"

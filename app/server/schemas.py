@@ -122,12 +122,27 @@ class SimStatus(BaseModel):
     )
 
 
+class HealthComponent(BaseModel):
+    """One part of the service that can fail on its own (``tick_loop``, ``stream``)."""
+
+    name: str
+    status: Literal["ok", "degraded"]
+    reason: str | None = None
+
+
 class Health(BaseModel):
     status: Literal["ok", "degraded"]
+    source: str = Field("sim", description="the active source: sim, push, video:..., camera:...")
+    components: list[HealthComponent] = Field(
+        default_factory=list, description="what is degraded and why (each part, ok or not)"
+    )
     loop_alive: bool
     sim_running: bool
     tick_hz_target: float
-    tick_rate_hz: float
+    tick_rate_hz: float = Field(
+        description="records a second of the active source (the simulation's ticks, or the "
+        "stream's pairs) over the last 2 s"
+    )
     last_tick_age_s: float | None
     ticks: int
     dropped_ticks: int

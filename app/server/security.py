@@ -143,7 +143,7 @@ async def _send_json(
     await send({"type": "http.response.body", "body": body})
 
 
-async def _deny_websocket(
+async def deny_websocket(
     scope: Scope, receive: Receive, send: Send, status: int, detail: str
 ) -> None:
     """Refuse a handshake: an HTTP answer if the server supports it, else close (→ 403)."""
@@ -232,7 +232,7 @@ class RequestGuard:
         if error is not None:
             log.info("refused %s %s: %s", kind, scope.get("path"), error)
             if kind == "websocket":
-                await _deny_websocket(scope, receive, send, status, error)
+                await deny_websocket(scope, receive, send, status, error)
             else:
                 await _send_json(send, status, error, {"connection": "close"})
             return

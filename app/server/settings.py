@@ -10,6 +10,14 @@ Hardening (see ``app/server/security.py``): ``AAR_TRUSTED_HOSTS`` and ``AAR_ALLO
 ``AAR_MAX_CALIBRATION_PIXELS``, ``AAR_MAX_CHECKERBOARD_MPX``) and concurrency
 (``AAR_MAX_CONCURRENT_UPLOADS``, ``AAR_MAX_CONCURRENT_CALIBRATIONS``, ``AAR_RETRY_AFTER_S``).
 
+Hardening round 2 (docs/service.md): stream supervision (``AAR_STREAM_FAILURE_STREAK``,
+``AAR_STREAM_RESTART_BACKOFF_S``, ``AAR_STREAM_RESTART_BACKOFF_MAX_S``, ``AAR_STREAM_STALL_S``,
+``AAR_PUSH_MAX_CLIENTS``) and connection limits (``AAR_MAX_CONNECTIONS``,
+``AAR_MAX_CONNECTIONS_PER_CLIENT``, ``AAR_FD_RESERVE``, ``AAR_HEADER_TIMEOUT_S``,
+``AAR_KEEP_ALIVE_S``, ``AAR_MAX_WEBSOCKETS``, ``AAR_MAX_WEBSOCKETS_PER_CLIENT``,
+``AAR_WS_MAX_MESSAGE_KB``, ``AAR_WS_MAX_MESSAGES_PER_S``, ``AAR_WS_MESSAGE_BURST``,
+``AAR_PUSH_MAX_MESSAGES_PER_S``, ``AAR_WS_ABUSE_PENALTY_S``).
+
 Where the CPU work runs: ``AAR_SIM_IN_PROCESS`` (default false: the simulation steps in a
 worker process, ``app.server.sim_process``), ``AAR_SIM_STEP_TIMEOUT_S``,
 ``AAR_UPLOADS_IN_PROCESS`` (default false: uploads in a process pool, ``app.server.upload_pool``).
@@ -135,6 +143,81 @@ class Settings(BaseSettings):
         description="largest pushed WebSocket message (MB); default AAR_MAX_REQUEST_MB",
     )
 
+    # ---- hardening round 2: stream supervision (app/server/stream_service.py) --------
+    stream_failure_streak: int = Field(
+        20, ge=1, le=100_000, description="failed pairs in a row that restart a frame source"
+    )
+    stream_restart_backoff_s: float = Field(
+        0.5, gt=0.0, le=600.0, description="first wait before a failed source is reopened (s)"
+    )
+    stream_restart_backoff_max_s: float = Field(
+        30.0, gt=0.0, le=3600.0, description="longest wait between reopening attempts (s)"
+    )
+    stream_stall_s: float = Field(
+        5.0,
+        gt=0.0,
+        le=3600.0,
+        description="a camera/video source without a frame, or a pushed pair unread, this "
+        "long is stalled (degraded, restarted)",
+    )
+    push_max_clients: int = Field(
+        1, ge=1, le=64, description="pushers connected at once; one more is refused (1008)"
+    )
+
+    # ---- hardening round 2: connections (app/server/connection_guard.py) -------------
+    max_connections: int = Field(
+        1024,
+        ge=8,
+        le=1_000_000,
+        description="open connections (HTTP and WebSocket); also capped at the file-descriptor "
+        "limit minus AAR_FD_RESERVE",
+    )
+    max_connections_per_client: int = Field(
+        128, ge=1, le=1_000_000, description="open connections from one client address"
+    )
+    fd_reserve: int = Field(
+        128, ge=16, le=100_000, description="file descriptors kept free for everything else"
+    )
+    header_timeout_s: float = Field(
+        10.0, gt=0.0, le=600.0, description="time to send a request's headers (slowloris) (s)"
+    )
+    keep_alive_s: float = Field(5.0, gt=0.0, le=600.0, description="idle keep-alive timeout (s)")
+    max_websockets: int = Field(
+        256, ge=1, le=100_000, description="WebSocket connections at once (else 503)"
+    )
+    max_websockets_per_client: int = Field(
+        64, ge=1, le=100_000, description="WebSocket connections from one address (else 429)"
+    )
+    ws_max_message_kb: float = Field(
+        4.0,
+        gt=0.0,
+        le=1_000_000.0,
+        description="largest message on WebSockets other than the push route (kB)",
+    )
+    ws_max_messages_per_s: float = Field(
+        10.0,
+        gt=0.0,
+        le=1e6,
+        description="sustained messages a second a client may send on a WebSocket other than "
+        "the push route (the telemetry socket needs none)",
+    )
+    ws_message_burst: int = Field(
+        20, ge=1, le=1_000_000, description="messages a WebSocket client may send in a burst"
+    )
+    push_max_messages_per_s: float = Field(
+        1000.0,
+        gt=0.0,
+        le=1e6,
+        description="sustained messages a second on the push WebSocket (burst: a fifth of it)",
+    )
+    ws_abuse_penalty_s: float = Field(
+        10.0,
+        ge=0.0,
+        le=3600.0,
+        description="after a WebSocket client is closed for its message rate or size, new "
+        "WebSocket handshakes from its address are refused (429) this long",
+    )
+
     # ---- hardening -------------------------------------------------------------------
     trusted_hosts: Annotated[list[str] | None, NoDecode] = Field(
         None,
@@ -228,6 +311,10 @@ class Settings(BaseSettings):
         if self.push_max_mb is not None:
             return int(self.push_max_mb * 1e6)
         return self.stereo_request_limit_bytes
+
+    @property
+    def ws_message_limit_bytes(self) -> int:
+        return int(self.ws_max_message_kb * 1e3)
 
     @property
     def json_limit_bytes(self) -> int:

@@ -52,6 +52,8 @@ class SourceStats:
     dropped_skew: int = 0  # frames dropped by the pairing (|Δt| > max skew, or unmatched)
     dropped_backpressure: int = 0  # pairs overwritten before being read (push: keep newest)
     rejected: int = 0  # pushed messages refused (bad header, undecodable image)
+    seq_duplicate: int = 0  # pushed pairs whose seq equals the previous one (dropped)
+    seq_out_of_order: int = 0  # pushed pairs whose seq is below the previous one (dropped)
     last_skew_ms: float | None = None
     max_skew_ms: float = 0.0
     _times: deque[float] = field(default_factory=lambda: deque(maxlen=64))
@@ -87,6 +89,8 @@ class SourceStats:
                 "dropped_skew": self.dropped_skew,
                 "dropped_backpressure": self.dropped_backpressure,
                 "rejected": self.rejected,
+                "seq_duplicate": self.seq_duplicate,
+                "seq_out_of_order": self.seq_out_of_order,
                 "last_skew_ms": self.last_skew_ms,
                 "max_skew_ms": self.max_skew_ms,
             }

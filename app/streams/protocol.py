@@ -17,7 +17,8 @@ Layout (little-endian)::
 
 The message length must be exactly ``10 + H + left_bytes + right_bytes``. The header is at
 most ``MAX_HEADER_BYTES``. Anything else is refused with a :class:`ProtocolError` naming the
-problem (the server answers it as a text message and keeps the connection).
+problem (the server answers it as a text message and keeps the connection), except a header
+that cannot be parsed at all (:class:`HeaderSyntaxError`: the server closes with 1007).
 """
 
 from __future__ import annotations
@@ -36,6 +37,11 @@ MAX_HEADER_BYTES = 4096
 
 class ProtocolError(ValueError):
     pass
+
+
+class HeaderSyntaxError(ProtocolError):
+    """The JSON header cannot be parsed at all (not JSON, not UTF-8, nested too deeply): the
+    server closes the connection (1007) with this as the reason."""
 
 
 @dataclass(frozen=True)
@@ -102,8 +108,10 @@ def decode_message(data: bytes, max_bytes: int | None = None) -> PushMessage:
         raise ProtocolError(f"bad header length {hlen}")
     try:
         header = json.loads(data[_PREFIX.size : _PREFIX.size + hlen])
-    except ValueError:
-        raise ProtocolError("header is not JSON") from None
+    except RecursionError:  # "[[[[…" a few thousand deep: the parser's stack, not ours
+        raise HeaderSyntaxError("unparsable header: JSON nested too deeply") from None
+    except ValueError:  # UnicodeDecodeError included
+        raise HeaderSyntaxError("unparsable header: not UTF-8 JSON") from None
     if not isinstance(header, dict):
         raise ProtocolError("header must be a JSON object")
     t_s = _number(header, "t_s", True)

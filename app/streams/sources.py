@@ -14,7 +14,7 @@ from __future__ import annotations
 import threading
 import time
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Literal
 
 import cv2
 import numpy as np
@@ -37,6 +37,7 @@ from app.streams.recording import (
 )
 
 DEFAULT_MAX_SKEW_S = 0.010
+PutResult = Literal["queued", "duplicate", "out_of_order"]
 
 
 @dataclass(frozen=True)
@@ -291,16 +292,42 @@ class PushSource:
         self._cond = threading.Condition()
         self._pending: PushMessage | None = None
         self._closed = False
+        self._last_seq: int | None = None
+        self._pending_since = 0.0
         self.received = 0
         self.last_error: str | None = None
 
-    def put(self, message: PushMessage) -> None:
+    def begin_session(self) -> None:
+        """A pusher (re)connected: its ``seq`` may start again from anywhere."""
         with self._cond:
+            self._last_seq = None
+
+    def put(self, message: PushMessage) -> PutResult:
+        """Keep ``message`` as the newest pair; a pair whose ``seq`` repeats the previous
+        one (``duplicate``) or goes back (``out_of_order``) within one pusher's session is
+        counted and dropped (the filter's time must not run backwards)."""
+        with self._cond:
+            self.received += 1
+            last = self._last_seq
+            if last is not None and message.seq <= last:
+                result: PutResult = "duplicate" if message.seq == last else "out_of_order"
+                self.stats.add("seq_duplicate" if result == "duplicate" else "seq_out_of_order")
+                return result
+            self._last_seq = message.seq
             if self._pending is not None:
                 self.stats.add("dropped_backpressure")
+            else:
+                self._pending_since = time.monotonic()
             self._pending = message
-            self.received += 1
             self._cond.notify()
+            return "queued"
+
+    def pending_age_s(self) -> float | None:
+        """How long the oldest unread pair has waited (None: nothing waits)."""
+        with self._cond:
+            if self._pending is None:
+                return None
+            return time.monotonic() - self._pending_since
 
     def read(self, timeout_s: float | None = None) -> StereoFrame | None:
         with self._cond:

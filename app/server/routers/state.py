@@ -8,9 +8,10 @@ from fastapi import APIRouter, HTTPException, Query, Request, status
 from fastapi.responses import PlainTextResponse
 from pydantic import BaseModel, Field
 
+from app.server import guard_events
 from app.server.dependencies import StateDep
 from app.server.metrics import render_metrics
-from app.server.schemas import Health, Message, ServiceConfig, TickRecord
+from app.server.schemas import Health, HealthComponent, Message, ServiceConfig, TickRecord
 
 router = APIRouter(tags=["state"])
 
@@ -43,17 +44,39 @@ def get_history(
 
 @router.get("/healthz", response_model=Health)
 def healthz(state: StateDep) -> Health:
+    """``ok`` or ``degraded``; ``components`` names what is degraded and why."""
     loop = state.loop
     now = loop.clock.now()
     age = None if loop.last_tick_clock is None else max(0.0, now - loop.last_tick_clock)
     alive = loop.alive
     ok = alive and (not loop.running or loop.done or (age is not None and age < 5.0))
+    loop_reason = None
+    if not alive:
+        loop_reason = "the tick loop thread is not running"
+    elif not ok:
+        loop_reason = f"no tick for {age if age is not None else 0:.1f} s"
+    components = [
+        HealthComponent(name="tick_loop", status="ok" if ok else "degraded", reason=loop_reason)
+    ]
+    stream = state.streams.health() if state.streams is not None else None
+    rate = loop.tick_rate_hz() if loop.running else 0.0
+    source = "sim"
+    if stream is not None:
+        source, rate = stream.source, stream.rate_hz
+        components.append(
+            HealthComponent(
+                name=f"stream:{stream.source}", status=stream.status, reason=stream.reason
+            )
+        )
+    degraded = any(c.status != "ok" for c in components)
     return Health(
-        status="ok" if ok else "degraded",
+        status="degraded" if degraded else "ok",
+        source=source,
+        components=components,
         loop_alive=alive,
         sim_running=loop.running,
         tick_hz_target=loop.config.tick_hz,
-        tick_rate_hz=round(loop.tick_rate_hz(), 3),
+        tick_rate_hz=round(rate, 3),
         last_tick_age_s=None if age is None else round(age, 4),
         ticks=loop.ticks,
         dropped_ticks=loop.dropped,
@@ -72,6 +95,8 @@ def metrics(state: StateDep) -> PlainTextResponse:
         uploads=state.uploads.count,
         sim_worker_restarts=None if state.sim_worker is None else state.sim_worker.restarts,
         upload_pool_restarts=None if state.upload_pool is None else state.upload_pool.restarts,
+        streams=state.streams,
+        guard_counters=guard_events.snapshot(),
     )
     return PlainTextResponse(text, media_type="text/plain; version=0.0.4; charset=utf-8")
 

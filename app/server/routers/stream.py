@@ -7,6 +7,12 @@ the two encoded images). The service keeps the newest pair (older unread ones ar
 and counted). The handler answers only problems, as JSON text messages
 ``{"error": ...}`` (at most one a second), and a text message ``stats`` with the source's
 counters. A message above ``AAR_PUSH_MAX_MB`` closes the connection (1009).
+
+Close codes (docs/service.md, "Hardening round 2"): 1008 bad token, or a pusher beyond
+``AAR_PUSH_MAX_CLIENTS`` (refused; the first keeps pushing); 1007 a header that cannot be
+parsed; 1009 a message over the limit; 1013 the push source this pusher fed failed and is
+being restarted (the reason says why; reconnect). A repeated or backward ``seq`` is dropped
+and counted (``seq_duplicate``, ``seq_out_of_order``).
 """
 
 from __future__ import annotations
@@ -24,7 +30,7 @@ from app.server.image_guard import ImageRefused, check
 from app.server.schemas import STRICT
 from app.server.security import token_ok
 from app.streams.frames import SourceError
-from app.streams.protocol import ProtocolError, decode_message
+from app.streams.protocol import HeaderSyntaxError, ProtocolError, decode_message
 from app.streams.sources import PushSource
 
 router = APIRouter(prefix="/stream", tags=["stream"])
@@ -34,7 +40,11 @@ ERROR_INTERVAL_S = 1.0
 class StreamStatus(BaseModel):
     source: str = Field(description="active source spec: sim, push, video:..., camera:...")
     kind: str
-    state: str = Field(description="sim | running | ended | error")
+    state: str = Field(description="sim | running | restarting | ended")
+    health: str = Field("ok", description="ok | degraded (the source failed, stalled)")
+    health_reason: str | None = None
+    restarts: int = Field(0, description="times the source was reopened after a failure")
+    consecutive_failures: int = Field(0, description="failed pairs since the last good one")
     fps: float | None = None
     frames: int = 0
     errors: int = 0
@@ -43,10 +53,13 @@ class StreamStatus(BaseModel):
     dropped_skew: int = Field(0, description="frames dropped by the left/right pairing")
     dropped_backpressure: int = Field(0, description="pushed pairs replaced by newer ones")
     rejected: int = Field(0, description="pushed pairs refused (header, image)")
+    seq_duplicate: int = Field(0, description="pushed pairs dropped: seq repeated")
+    seq_out_of_order: int = Field(0, description="pushed pairs dropped: seq went back")
     last_skew_ms: float | None = None
     max_skew_ms: float | None = None
     max_skew_ms_allowed: float
     received: int | None = None
+    pushers: int = Field(0, description="pushers connected")
 
 
 class SourceRequest(BaseModel):
@@ -91,6 +104,12 @@ def _ws_token(ws: WebSocket, token: str) -> bool:
     return query is not None and token_ok(f"Bearer {query}", token)
 
 
+def _close_reason(text: str) -> str:
+    """A WebSocket close reason: at most 123 bytes of UTF-8."""
+    raw = text.encode()
+    return text if len(raw) <= 123 else raw[:120].decode(errors="ignore") + "..."
+
+
 @router.websocket("/push")
 async def push(ws: WebSocket) -> None:
     state: AppState | None = getattr(ws.app.state, "aar", None)
@@ -102,16 +121,34 @@ async def push(ws: WebSocket) -> None:
         await ws.close(code=1008, reason="missing or wrong bearer token")
         return
     await ws.accept()
+    streams = state.streams
+    slots = streams.push_slots
+    if not slots.try_acquire():
+        await ws.close(
+            code=1008,
+            reason=f"refused: {slots.slots} pusher(s) already connected (AAR_PUSH_MAX_CLIENTS)",
+        )
+        return
+    try:
+        await _push_session(ws, state)
+    finally:
+        slots.release()
+
+
+async def _push_session(ws: WebSocket, state: AppState) -> None:
     limit = state.settings.push_limit_bytes
     max_pixels = state.settings.max_image_pixels
     last_error = 0.0
     streams = state.streams
+    streams.begin_push_session()
+    pushed_into: int | None = None  # the generation of the push source this pusher fed
 
-    async def problem(text: str) -> None:
+    async def problem(text: str, *, rejected: bool = True) -> None:
         nonlocal last_error
         src = streams.source
-        if isinstance(src, PushSource):
+        if rejected and isinstance(src, PushSource):
             src.stats.add("rejected")
+            src.last_error = text
         now = time.monotonic()
         if now - last_error >= ERROR_INTERVAL_S:
             last_error = now
@@ -132,6 +169,9 @@ async def push(ws: WebSocket) -> None:
                     code=1009, reason=f"message over {limit / 1e6:g} MB (AAR_PUSH_MAX_MB)"
                 )
                 return
+            if pushed_into is not None and (why := streams.failure_of(pushed_into)):
+                await ws.close(code=1013, reason=_close_reason(f"stream restarting: {why}"))
+                return
             try:
                 msg = decode_message(data, limit)
                 w, h = state.calibrations.current.image_size
@@ -141,11 +181,25 @@ async def push(ws: WebSocket) -> None:
                         raise ProtocolError(
                             f"{name}: {hdr.describe()} but the calibration is for {w}x{h} px"
                         )
+            except HeaderSyntaxError as exc:
+                await ws.close(code=1007, reason=_close_reason(str(exc)))
+                return
             except (ProtocolError, ImageRefused) as exc:
                 await problem(str(exc))
                 continue
-            if not streams.push(msg):
-                await problem(f"the active source is {streams.spec!r}, not push")
+            outcome, generation = streams.push(msg)
+            if outcome == "not_push":
+                await problem(f"the active source is {streams.spec!r}, not push", rejected=False)
+            elif outcome == "restarting":
+                await problem("the push stream is restarting; pair dropped", rejected=False)
+            else:
+                pushed_into = generation
+                if outcome != "queued":
+                    await problem(f"pair seq {msg.seq} dropped: {outcome}", rejected=False)
             await asyncio.sleep(0)
-    except (WebSocketDisconnect, RuntimeError):
+    except WebSocketDisconnect:
+        return
+    except RuntimeError as exc:  # the socket went away under a send (Starlette's state)
+        if "websocket" not in str(exc).lower():
+            raise
         return
