@@ -9,8 +9,10 @@ from app.sim.docking import DockingConfig, DockingSimulation
 
 
 def test_calm_air_vision_in_the_loop_captures_within_15s_and_5cm():
+    # on the controller's design model (plant="linear"); the JSBSim A-4's calm-air precision is
+    # a campaign figure (docs/control.md: p95 26 cm, the 5 cm target not met)
     sim = DockingSimulation(
-        DockingConfig(turbulence="none", seed=0, vision=True, station_keep_s=0.2)
+        DockingConfig(plant="linear", turbulence="none", seed=0, vision=True, station_keep_s=0.2)
     )
     locks = 0
     meas_err = []
@@ -117,7 +119,12 @@ def test_large_start_offset_is_absorbed_without_saturation_blowup(seed):
     """A 1.5 m (1σ) start offset: the bounded position error keeps the loop out of actuator
     saturation, so the approach still captures."""
     cfg = DockingConfig(
-        turbulence="moderate", seed=seed, vision=False, start_offset_sigma_m=1.5, station_keep_s=0.2
+        plant="linear",  # the design model's saturation behaviour (the A-4: campaigns)
+        turbulence="moderate",
+        seed=seed,
+        vision=False,
+        start_offset_sigma_m=1.5,
+        station_keep_s=0.2,
     )
     out = DockingSimulation(cfg).run()
     assert out.captured

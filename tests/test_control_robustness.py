@@ -152,6 +152,7 @@ def test_hold_gap_on_lost_lock_rides_out_long_frame_drop_bursts() -> None:
     for hold in (False, True):
         sim = DockingSimulation(
             DockingConfig(
+                plant="linear",  # the guidance rule on the design model
                 turbulence="light",
                 seed=1,
                 vision=False,

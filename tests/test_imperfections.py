@@ -173,7 +173,10 @@ def test_perturbed_plant_differs_from_the_design_model_and_is_stabilised() -> No
     m = _models()
     imp = replace(NONE, name="p", aero_frac=0.2, mass_frac=0.1, actuator_lag_s=0.03)
     for seed in range(4):
-        sim = DockingSimulation(DockingConfig(vision=False, seed=seed, imperfections=imp))
+        # the linear plant's perturbed copies (the A-4's: the FDM at another fuel state)
+        sim = DockingSimulation(
+            DockingConfig(plant="linear", vision=False, seed=seed, imperfections=imp)
+        )
         plant = sim.plant
         assert isinstance(plant, LinearPlant)
         ad, bd, c_off = plant.ad, plant.bd, plant.offset

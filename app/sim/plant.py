@@ -25,7 +25,7 @@ from app.control.linear_model import LinearModel
 FloatArray = NDArray[np.float64]
 PLANTS = ("jsbsim", "linear")
 # the plant of DockingConfig, the CLI and the service's simulated stream when none is named
-DEFAULT_PLANT: Literal["jsbsim", "linear"] = "linear"
+DEFAULT_PLANT: Literal["jsbsim", "linear"] = "jsbsim"
 
 
 @dataclass(frozen=True)
