@@ -60,3 +60,13 @@ def test_the_token_never_reaches_the_log(tmp_path: Path) -> None:
         assert httpx.get(f"{base}/stream?token=s3cret&x=1").status_code == 200
         text = log.read_text()
     assert "token=***" in text and "s3cret" not in text, text[-2000:]
+
+
+def test_served_with_opencvs_own_pixel_limit(tmp_path: Path) -> None:
+    """``aar-dock serve`` loads OpenCV after the image guard set its pixel limit (the second
+    line of defence against a header that lies): no warning that the limit is not in force."""
+    with serve(tmp_path, {"AAR_LOG_LEVEL": "info"}) as (_, port, log):
+        assert httpx.get(f"http://127.0.0.1:{port}/api/v1/healthz").status_code == 200
+        text = log.read_text()
+    assert "Application startup complete" in text, text[-2000:]
+    assert "pixel limit" not in text, text[-2000:]
