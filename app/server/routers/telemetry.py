@@ -24,9 +24,13 @@ async def telemetry(ws: WebSocket) -> None:
     client = hub.add_client()
 
     async def drain_incoming() -> None:
+        # the page sends nothing here; text or binary from a client is read and ignored (a
+        # binary frame must not end the reader, which would stop this client's stream)
         try:
             while True:
-                await ws.receive_text()
+                msg = await ws.receive()
+                if msg["type"] == "websocket.disconnect":
+                    return
         except (WebSocketDisconnect, RuntimeError):
             pass
 
