@@ -18,6 +18,7 @@ SUBCOMMANDS = (
     "serve",
     "track",
     "push",
+    "export_mcap",
 )
 
 

@@ -151,6 +151,7 @@ def create_app(
             max_mb=settings.recording_max_mb,
             max_frames_mb=settings.recording_frames_max_mb,
             min_free_mb=settings.recording_min_free_mb,
+            mcap_plant=settings.sim_plant,  # the rig mount of the MCAP log's /tf
         )
         st = AppState(
             settings=settings,

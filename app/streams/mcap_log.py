@@ -346,7 +346,7 @@ class McapLogWriter:
         self._telemetry = Channel(
             TOPIC_TELEMETRY,
             schema=Schema(
-                name=TELEMETRY_SCHEMA_NAME,
+                name=str(telemetry_schema.get("title") or TELEMETRY_SCHEMA_NAME),
                 encoding="jsonschema",
                 data=json.dumps(dict(telemetry_schema)).encode(),
             ),
@@ -446,6 +446,8 @@ class McapLogWriter:
         from foxglove.messages import CompressedImage
 
         ts = _timestamp(ns)
+        # the pair's own times first: a replay has them when its second image arrives
+        self._frame.log(json.dumps(pair.info.to_json()).encode(), log_time=ns)
         for side, data in (("left", pair.left), ("right", pair.right)):
             self._image[side].log(
                 CompressedImage(
@@ -456,7 +458,6 @@ class McapLogWriter:
             if self.calibration is not None:
                 msg = camera_calibration(self.calibration, side, ts)
                 self._calib[side].log(msg, log_time=ns)
-        self._frame.log(json.dumps(pair.info.to_json()).encode(), log_time=ns)
 
     def _log_tick(self, tick: McapTick, ns: int) -> None:
         self._telemetry.log(tick.telemetry_json, log_time=ns)
@@ -815,7 +816,7 @@ def export_recording(
                             (d / str(found["left"])).read_bytes(),
                             (d / str(found["right"])).read_bytes(),
                             "png",
-                            _frame_info(found),
+                            frame_info(found),
                         ),
                         tick.seq,
                     )
@@ -829,7 +830,9 @@ def export_recording(
     return stats
 
 
-def _frame_info(entry: Mapping[str, Any]) -> FrameInfo:
+def frame_info(entry: Mapping[str, Any]) -> FrameInfo:
+    """A frame recording's index line (``frames.jsonl``) as a :class:`FrameInfo`."""
+
     def opt(key: str) -> float | None:
         v = entry.get(key)
         return None if v is None else float(v)
