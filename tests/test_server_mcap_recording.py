@@ -11,10 +11,13 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
 import pytest
+from fastapi import FastAPI
+from fastapi.testclient import TestClient
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
 from mcap.records import Channel, Message
@@ -23,6 +26,7 @@ from mcap_protobuf.decoder import DecoderFactory
 
 from app.cli.main import main as cli_main
 from app.server.recording import Recorder
+from app.server.routers import recording as recording_router
 from app.server.schemas import TickRecord
 from app.sim.paths import load_default_calibration
 from app.vision.result import DrogueResult, LedResult, PoseResult
@@ -205,6 +209,14 @@ def test_recording_without_frames_still_writes_its_mcap(tmp_path: Path) -> None:
     rec.stop()
     schemas, msgs = read_mcap(tmp_path / f"{info.id}.mcap")
     assert "/camera/left/image" not in schemas
+    app = FastAPI()  # the download route
+    app.include_router(recording_router.router, prefix="/api/v1")
+    app.state.aar = SimpleNamespace(recorder=rec, settings=SimpleNamespace(token=None))
+    with TestClient(app) as c:
+        r = c.get(f"/api/v1/recordings/{info.id}/recording.mcap")
+        assert r.status_code == 200
+        assert r.content == (tmp_path / f"{info.id}.mcap").read_bytes()
+        assert c.get("/api/v1/recordings/rec-none/recording.mcap").status_code == 404
     assert sum(t == "/telemetry" for t, _, _ in msgs) == 5
     assert sum(t == "/drogue/pose" for t, _, _ in msgs) == 5
 
@@ -231,6 +243,7 @@ import numpy as np
 sys.path.insert(0, {tests!r})
 from test_server_mcap_recording import _Raw, _record
 from app.server.recording import Recorder
+from app.server.routers import recording as recording_router
 from app.sim.paths import load_default_calibration
 rec = Recorder({dir!r}, max_s=600, max_frames_mb=1e6)
 info = rec.start(frames=True, calibration=load_default_calibration())

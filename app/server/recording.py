@@ -767,14 +767,21 @@ class Recorder:
             log.warning("unreadable recording metadata %s", meta)
             return None
 
-    def locate(self, rec_id: str, kind: Literal["telemetry", "scene"]) -> tuple[Path | None, str]:
+    def locate(
+        self, rec_id: str, kind: Literal["telemetry", "scene", "mcap"]
+    ) -> tuple[Path | None, str]:
         """The file of a finished recording, or ``None`` and why not (for a 404's detail)."""
         info = self.get(rec_id)
         if info is None:
             return None, f"no recording {rec_id!r}"
         if info.active:
             return None, f"recording {rec_id!r} is still active"
-        name = info.telemetry_file if kind == "telemetry" else info.scene_file
+        name = {"telemetry": info.telemetry_file, "scene": info.scene_file}.get(kind)
+        if kind == "mcap":
+            name = info.mcap_file
+            if name is None:
+                why = info.mcap_note or "recorded without an MCAP log"
+                return None, f"recording {rec_id!r} has no MCAP log: {why}"
         if name is None:
             why = info.scene_note or "recorded without the 3-D scene"
             return None, f"recording {rec_id!r} has no scene file: {why}"
