@@ -96,6 +96,7 @@ class AppState:
     sim_worker: Any = None  # app.server.sim_process.SimWorker; None: simulation in a thread
     streams: Any = None  # app.server.stream_service.StreamService (the active frame source)
     mavlink: MavlinkOutput | None = None  # the MAVLink 2 output (settings.mavlink)
+    foxglove: Any = None  # app.server.foxglove_output.FoxgloveOutput (settings.foxglove_port)
     extras: dict[str, Any] = field(default_factory=dict)
 
     def apply_sim_config(self, config: SimConfig) -> None:

@@ -203,6 +203,8 @@ def create_app(
             loop.stop()
             if st.mavlink is not None:
                 st.mavlink.close()
+            if st.foxglove is not None:
+                st.foxglove.close()
             if st.viz is not None:
                 st.viz.stop()
             release_workers()
@@ -233,6 +235,18 @@ def create_app(
             st.mavlink = MavlinkOutput(settings.mavlink, default_mount(settings.sim_plant))
             loop.subscribe(st.mavlink.on_tick)
             log.info("MAVLink 2 output to %s", settings.mavlink)
+        if settings.foxglove_port is not None:
+            from app.server.foxglove_output import FoxgloveOutput
+
+            st.foxglove = FoxgloveOutput(
+                settings.foxglove_host,
+                settings.foxglove_port,
+                calib,
+                plant=settings.sim_plant,
+                image_hz=settings.foxglove_image_hz,
+            )
+            loop.subscribe(st.foxglove.on_tick)
+            log.info("Foxglove live on ws://%s:%d", settings.foxglove_host, st.foxglove.port)
         if settings.sim_autostart:
             loop.start_sim()  # with a worker process: spawned and the simulation built here
         loop.start()

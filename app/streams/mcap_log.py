@@ -48,6 +48,7 @@ from typing import TYPE_CHECKING, Any, Literal
 
 import cv2
 import numpy as np
+from foxglove import Context
 from foxglove import messages as fm
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
@@ -273,54 +274,52 @@ class _Pending:
     seq_ns: dict[int, int] = field(default_factory=dict)
 
 
-class McapLogWriter:
-    """Writes ticks and encoded pairs to one MCAP file (see the module's channel table).
+@dataclass(frozen=True)
+class RawPair:
+    """A stereo pair's images as arrays, encoded by the logger's thread (live: JPEG)."""
 
-    ``threaded``: the file is written by a thread of its own behind a bounded queue
-    (``write_*`` never block; an item that does not fit is dropped and counted), else in the
-    caller's thread. A pair is logged at the log time of the tick with the same ``seq``
-    (written before it), else at its own ``info.t_s`` through the same clock.
+    left: NDArray[np.uint8]
+    right: NDArray[np.uint8]
+    info: FrameInfo
+
+
+_Item = tuple[McapTick, EncodedPair | RawPair | None]
+
+
+class FoxgloveLogger:
+    """The channels of the module's table on one foxglove ``Context``, fed ticks and pairs.
+
+    ``threaded``: logged by a thread of its own behind a bounded queue (``write_*`` never
+    block; an item that does not fit is dropped and counted), else in the caller's thread.
+    A pair is logged at the log time of the tick with the same ``seq`` (written before it),
+    else at its own ``info.t_s`` through the same clock. Subclasses bind the context to a sink
+    (an MCAP file, a WebSocket server) and finish it in :meth:`_finish`.
     """
 
     def __init__(
         self,
-        path: str | Path,
+        ctx: Context,
         *,
+        name: str,
         calibration: StereoCalibration | None,
         telemetry_schema: Mapping[str, object],
         mount: CameraMount | None = None,
         threaded: bool = True,
         queue_items: int = 64,
-        flush_period_s: float = 1.0,
-        chunk_bytes: int = 1 << 20,
-        overwrite: bool = False,
+        image_format: ImageFormat = "png",
+        jpeg_quality: int = 90,
     ) -> None:
-        import foxglove
-        from foxglove import Channel, Context, Schema
+        from foxglove import Channel, Schema
         from foxglove import channels as fc
-        from foxglove.mcap import MCAPCompression, MCAPWriteOptions
 
-        self.path = Path(path)
         self.calibration = calibration
         self.mount = mount
-        self.flush_period_s = flush_period_s
-        self.stats = McapStats(str(self.path))
+        self.image_format: ImageFormat = image_format
+        self.jpeg_quality = jpeg_quality
+        self.stats = McapStats(name)
         self._clock = ExposureClock()
         self._pending = _Pending()
-        self._ctx = Context()
-        options = MCAPWriteOptions(
-            compression=MCAPCompression.Zstd,
-            chunk_size=chunk_bytes,
-            compression_threads=0,  # compressed in the writer's thread: no extra threads
-        )
-        self._writer = foxglove.open_mcap(
-            self.path, context=self._ctx, writer_options=options, allow_overwrite=overwrite
-        )
-        meta = {"format": FORMAT, "time": "log time = exposure time, ns since the UNIX epoch"}
-        if calibration is not None:
-            meta["calibration"] = json.dumps(calibration.to_dict())
-        self._writer.write_metadata(METADATA_NAME, meta)
-        ctx = self._ctx
+        self._ctx = ctx
         self._image = {
             s: fc.CompressedImageChannel(f"/camera/{s}/image", context=ctx) for s in SIDES
         }
@@ -353,14 +352,13 @@ class McapLogWriter:
             message_encoding="json",
             context=ctx,
         )
-        self._last_flush = time.monotonic()
         self._lock = threading.Lock()
         self._closed = False
-        self._queue: queue.Queue[tuple[McapTick | None, EncodedPair | None] | None] | None = None
+        self._queue: queue.Queue[_Item | None] | None = None
         self._thread: threading.Thread | None = None
         if threaded:
             self._queue = queue.Queue(queue_items)
-            self._thread = threading.Thread(target=self._run, name="mcap-writer", daemon=True)
+            self._thread = threading.Thread(target=self._run, name=f"{name}-log", daemon=True)
             self._thread.start()
 
     # ---- public ------------------------------------------------------------------------
@@ -368,13 +366,14 @@ class McapLogWriter:
         """Log a tick (telemetry, tf, pose, scene, annotations); ``False`` if dropped."""
         return self._submit((tick, None))
 
-    def write_pair(self, pair: EncodedPair, record_seq: int | None = None) -> bool:
-        """Log a pair's images (+ calibration, frame times) at the time of tick ``record_seq``."""
+    def write_pair(self, pair: EncodedPair | RawPair, record_seq: int | None = None) -> bool:
+        """Log a pair's images (+ calibration, frame times) at the time of tick ``record_seq``
+        (a :class:`RawPair` is encoded as ``image_format`` by the logger's thread)."""
         seq = pair.info.seq if record_seq is None else record_seq
         return self._submit((McapTick(seq, pair.info.t_s, 0.0, b""), pair))
 
     def close(self) -> McapStats:
-        """Write what is queued and finish the file (summary, footer); returns the counts."""
+        """Log what is queued and finish the sink; returns the counts."""
         with self._lock:
             if self._closed:
                 return self.stats
@@ -382,18 +381,17 @@ class McapLogWriter:
         if self._queue is not None and self._thread is not None:
             self._queue.put(None)
             self._thread.join(timeout=120.0)
-        try:
-            self._writer.close()
-        except Exception as exc:  # disk full, ...: the chunks already written stay readable
-            self.stats.error = self.stats.error or f"close failed: {exc}"
-        try:
-            self.stats.bytes = self.path.stat().st_size
-        except OSError:
-            pass
+        self._finish()
         return self.stats
 
+    def _finish(self) -> None:
+        """Finish the sink (subclasses)."""
+
+    def _after_item(self) -> None:
+        """Called after each item (subclasses: a periodic flush)."""
+
     # ---- internals ---------------------------------------------------------------------
-    def _submit(self, item: tuple[McapTick | None, EncodedPair | None]) -> bool:
+    def _submit(self, item: _Item) -> bool:
         if self._closed or self.stats.error is not None:
             return False
         if self._queue is None:
@@ -415,16 +413,20 @@ class McapLogWriter:
             if self.stats.error is None:
                 self._handle(item)
 
-    def _handle(self, item: tuple[McapTick | None, EncodedPair | None]) -> bool:
+    def _handle(self, item: _Item) -> bool:
         tick, pair = item
         try:
-            if pair is not None and tick is not None:
+            if pair is not None:
                 ns = self._pending.seq_ns.pop(tick.seq, None)
                 if ns is None:
                     ns = self._clock.to_ns(pair.info.t_s, time.time())
+                if isinstance(pair, RawPair):
+                    pair = encode_pair(
+                        pair.left, pair.right, pair.info, self.image_format, self.jpeg_quality
+                    )
                 self._log_pair(pair, ns)
                 self.stats.pairs += 1
-            elif tick is not None:
+            else:
                 ns = self._clock.to_ns(tick.t_s, tick.wall_time)
                 self._pending.seq_ns[tick.seq] = ns
                 if len(self._pending.seq_ns) > 256:  # pairs that never came: forget them
@@ -432,12 +434,9 @@ class McapLogWriter:
                         del self._pending.seq_ns[old]
                 self._log_tick(tick, ns)
                 self.stats.ticks += 1
-            now = time.monotonic()
-            if now - self._last_flush >= self.flush_period_s:
-                self._writer.flush()  # finish the chunk: a kill loses at most this period
-                self._last_flush = now
+            self._after_item()
         except Exception as exc:
-            log.error("MCAP %s: %s", self.path, exc)
+            log.error("%s: %s", self.stats.path, exc)
             self.stats.error = f"write failed: {exc}"
             return False
         return True
@@ -511,6 +510,73 @@ class McapLogWriter:
             r, t = right_in_left(self.calibration)
             add(FRAME_IDS["left"], FRAME_IDS["right"], r, t)
         return FrameTransforms(transforms=out)
+
+
+class McapLogWriter(FoxgloveLogger):
+    """Writes ticks and pairs to one MCAP file (see the module's channel table): chunked,
+    the current chunk finished every ``flush_period_s`` (a kill loses at most that much)."""
+
+    def __init__(
+        self,
+        path: str | Path,
+        *,
+        calibration: StereoCalibration | None,
+        telemetry_schema: Mapping[str, object],
+        mount: CameraMount | None = None,
+        threaded: bool = True,
+        queue_items: int = 64,
+        flush_period_s: float = 1.0,
+        chunk_bytes: int = 1 << 20,
+        overwrite: bool = False,
+        image_format: ImageFormat = "png",
+        jpeg_quality: int = 90,
+    ) -> None:
+        import foxglove
+        from foxglove.mcap import MCAPCompression, MCAPWriteOptions
+
+        self.path = Path(path)
+        self.flush_period_s = flush_period_s
+        ctx = Context()
+        options = MCAPWriteOptions(
+            compression=MCAPCompression.Zstd,
+            chunk_size=chunk_bytes,
+            compression_threads=0,  # compressed in the writer's thread: no extra threads
+        )
+        self._writer = foxglove.open_mcap(
+            self.path, context=ctx, writer_options=options, allow_overwrite=overwrite
+        )
+        meta = {"format": FORMAT, "time": "log time = exposure time, ns since the UNIX epoch"}
+        if calibration is not None:
+            meta["calibration"] = json.dumps(calibration.to_dict())
+        self._writer.write_metadata(METADATA_NAME, meta)
+        self._last_flush = time.monotonic()
+        super().__init__(
+            ctx,
+            name=str(self.path),
+            calibration=calibration,
+            telemetry_schema=telemetry_schema,
+            mount=mount,
+            threaded=threaded,
+            queue_items=queue_items,
+            image_format=image_format,
+            jpeg_quality=jpeg_quality,
+        )
+
+    def _after_item(self) -> None:
+        now = time.monotonic()
+        if now - self._last_flush >= self.flush_period_s:
+            self._writer.flush()  # finish the chunk: a kill loses at most this period
+            self._last_flush = now
+
+    def _finish(self) -> None:
+        try:
+            self._writer.close()
+        except Exception as exc:  # disk full, ...: the chunks already written stay readable
+            self.stats.error = self.stats.error or f"close failed: {exc}"
+        try:
+            self.stats.bytes = self.path.stat().st_size
+        except OSError:
+            pass
 
 
 def camera_calibration(
