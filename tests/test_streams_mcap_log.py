@@ -126,3 +126,14 @@ def test_exposure_clock_maps_source_time_onto_the_epoch_increasing() -> None:
     # a reset (t_s back to 0) re-anchors on the wall time, never going back
     assert c.to_ns(0.0, 1000.2) == 1000 * 10**9 + 500_000_001
     assert c.to_ns(0.0, 1003.0) == 1003 * 10**9  # t_s not advancing (uploads): wall time
+
+
+def test_serve_refuses_a_corrupt_mcap_source_in_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(b"\x89MCAP0\r\n" + b"\xff" * 64)  # the magic, then garbage
+    assert cli_main(["serve", "--source", f"mcap:{bad}", "--no-viser"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("aar-dock serve: --source:") and err.count("\n") == 1
+    assert "Traceback" not in err

@@ -129,6 +129,13 @@ def run(args: argparse.Namespace) -> int:
     if not _port_free(settings.host, settings.port):
         print(f"aar-dock serve: port {settings.port} on {settings.host} is in use", file=sys.stderr)
         return 2
+    fg = settings.foxglove_port
+    if fg and not _port_free(settings.foxglove_host, fg):
+        print(
+            f"aar-dock serve: Foxglove port {fg} on {settings.foxglove_host} is in use",
+            file=sys.stderr,
+        )
+        return 2
     if settings.viser_enabled and not _port_free(settings.viser_bind_host, settings.viser_port):
         print(
             f"aar-dock serve: viser port {settings.viser_port} is in use "
