@@ -32,6 +32,8 @@ from app.sim.paths import load_default_calibration
 from app.vision.result import DrogueResult, LedResult, PoseResult
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tests"))
+
 TOPICS = {
     "/camera/left/image": "foxglove.CompressedImage",
     "/camera/right/image": "foxglove.CompressedImage",
@@ -297,3 +299,46 @@ def test_kill_9_leaves_a_readable_mcap_and_recovery_completes_it(tmp_path: Path)
     lines = (tmp_path / f"{rec_id}.jsonl").read_bytes().count(b"\n")
     assert sum(t == "/telemetry" for t, _, _ in msgs) == lines == meta.ticks
     assert sum(t == "/camera/left/image" for t, _, _ in msgs) == meta.frame_pairs >= n_img
+
+
+@pytest.fixture(scope="module")
+def png_pairs(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    from streams_sequence import cached_sequence, write_png_folders
+
+    return write_png_folders(cached_sequence(40), tmp_path_factory.mktemp("media"))
+
+
+def test_serve_and_track_replay_a_recordings_mcap_to_the_live_results(
+    tmp_path: Path, png_pairs: tuple[Path, Path]
+) -> None:
+    """A video stream recorded with frames; ``serve --source mcap:<id>.mcap`` (switched
+    through the API) and ``track --left <id>.mcap`` give the live poses."""
+    from test_streams_service import _records, _same_pose, _settings
+    from waiting import wait_until
+
+    from app.server.main import create_app
+
+    source = f"video:{png_pairs[0]},{png_pairs[1]}"
+    app = create_app(_settings(tmp_path, source=source, stream_fps=8.0))  # the writer keeps up
+    with TestClient(app) as c:
+        wait_until(lambda: c.get("/api/v1/stream").json()["frames"] >= 5, 30, "first frames")
+        assert c.post("/api/v1/recording/start?frames=true").status_code == 200
+        wait_until(lambda: c.get("/api/v1/stream").json()["state"] == "ended", 60, "end of video")
+        info = c.post("/api/v1/recording/stop").json()
+        assert info["frames_dropped"] == 0, "the frame writer fell behind: test not valid"
+        live = {r["stream"]["frame"]: r for r in _records(c, "video")}
+        mcap = tmp_path / "rec" / info["mcap_file"]
+        r = c.put("/api/v1/stream/source", json={"source": f"mcap:{mcap}", "realtime": False})
+        assert r.status_code == 200, r.text
+        wait_until(lambda: c.get("/api/v1/stream").json()["state"] == "ended", 60, "end of replay")
+        served = _records(c, "video")[len(live) :]
+    out = tmp_path / "replay.jsonl"
+    assert cli_main(["track", "--left", str(mcap), "--jsonl", str(out), "--no-progress"]) == 0
+    rows = [json.loads(x) for x in out.open()]
+    assert len(rows) == len(served) == info["frame_pairs"] >= 20
+    assert rows[0]["mode"] == "acquired"
+    for row, srv in zip(rows, served, strict=True):
+        ref = live[row["frame"]]
+        assert srv["stream"]["frame"] == row["frame"]
+        for other in (row, srv["pose"]):
+            _same_pose(ref["pose"], other)
