@@ -51,7 +51,6 @@ import numpy as np
 from foxglove import Context
 from foxglove import messages as fm
 from numpy.typing import NDArray
-from scipy.spatial.transform import Rotation
 
 from app.geometry.calibration import StereoCalibration
 from app.sim.frames import euler_to_matrix
@@ -222,12 +221,16 @@ def encode_pair(
 
 # ---- geometry --------------------------------------------------------------------------
 def _quat(r: NDArray[np.float64]) -> tuple[float, float, float, float]:
+    from scipy.spatial.transform import Rotation  # imported on first use (≈ 0.5 s)
+
     x, y, z, w = Rotation.from_matrix(np.asarray(r, float)).as_quat()
     return float(x), float(y), float(z), float(w)
 
 
 def z_to(normal: VecLike) -> NDArray[np.float64]:
     """The smallest rotation taking +z onto ``normal`` (a ring's axis)."""
+    from scipy.spatial.transform import Rotation
+
     n = np.asarray(normal, float)
     n = n / np.linalg.norm(n)
     z = np.array([0.0, 0.0, 1.0])
