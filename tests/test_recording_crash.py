@@ -86,7 +86,11 @@ def test_metadata_written_at_start_and_updated_at_stop(tmp_path: Path) -> None:
     meta = _meta(tmp_path, info.id)
     assert meta["status"] == "complete" and meta["active"] is False
     assert meta["stop_reason"] == "stopped" and meta["ticks"] == 1
-    assert sorted(p.name for p in tmp_path.iterdir()) == [f"{info.id}.json", f"{info.id}.jsonl"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        f"{info.id}.json",
+        f"{info.id}.jsonl",
+        f"{info.id}.mcap",
+    ]
 
 
 def test_each_record_is_on_disk_before_stop(tmp_path: Path) -> None:

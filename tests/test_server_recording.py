@@ -66,7 +66,9 @@ def test_recording_writes_jsonl_and_viser_scene(tmp_path: Path) -> None:
         client_page = c.get("/viser-client/")
         assert client_page.status_code == 200 and "<html" in client_page.text.lower()
     files = sorted(p.name for p in (tmp_path / "rec").iterdir())
-    assert files == sorted([f"{rec_id}.json", f"{rec_id}.jsonl", f"{rec_id}.viser"])
+    assert files == sorted(
+        [f"{rec_id}.json", f"{rec_id}.jsonl", f"{rec_id}.mcap", f"{rec_id}.viser"]
+    )
 
 
 def test_recording_is_bounded(tmp_path: Path) -> None:

@@ -24,6 +24,7 @@ SUBCOMMANDS = (
     "serve",
     "track",
     "push",
+    "export_mcap",
 )
 
 

@@ -47,6 +47,13 @@ def register(subparsers: Any) -> None:
         help="send the navigation result as MAVLink 2 LANDING_TARGET (AAR_MAVLINK; "
         "docs/ecosystem.md)",
     )
+    p.add_argument(
+        "--foxglove-port",
+        type=int,
+        help="live Foxglove WebSocket server on this port (AAR_FOXGLOVE_PORT; off by default; "
+        "no authentication: loopback unless --foxglove-host says otherwise)",
+    )
+    p.add_argument("--foxglove-host", help="its interface (AAR_FOXGLOVE_HOST, 127.0.0.1)")
     p.set_defaults(func=run)
 
 
@@ -80,6 +87,8 @@ def settings_from_args(args: argparse.Namespace) -> Any:
         ("max_skew_ms", "stream_max_skew_ms"),
         ("fps", "stream_fps"),
         ("mavlink", "mavlink"),
+        ("foxglove_port", "foxglove_port"),
+        ("foxglove_host", "foxglove_host"),
     ):
         value = getattr(args, flag, None)
         if value is not None:
@@ -124,6 +133,13 @@ def run(args: argparse.Namespace) -> int:
             return 2
     if not _port_free(settings.host, settings.port):
         print(f"aar-dock serve: port {settings.port} on {settings.host} is in use", file=sys.stderr)
+        return 2
+    fg = settings.foxglove_port
+    if fg and not _port_free(settings.foxglove_host, fg):
+        print(
+            f"aar-dock serve: Foxglove port {fg} on {settings.foxglove_host} is in use",
+            file=sys.stderr,
+        )
         return 2
     if settings.viser_enabled and not _port_free(settings.viser_bind_host, settings.viser_port):
         print(

@@ -20,11 +20,14 @@ def register(subparsers: Any) -> None:
         help="run the pipeline with tracking over recorded stereo video or image folders",
         description=(
             "Track the drogue through a recorded sequence: two video files, two image folders "
-            "or globs (--left/--right), or a raw-frame recording folder (--left DIR). Writes one "
-            "JSON line per pair (PoseResult + frame + t_s), a summary and optional plots."
+            "or globs (--left/--right), a raw-frame recording folder (--left DIR) or an MCAP log "
+            "(--left REC.mcap). Writes one JSON line per pair (PoseResult + frame + t_s), a "
+            "summary, optional plots and an optional MCAP log for Foxglove."
         ),
     )
-    p.add_argument("--left", required=True, help="left video/folder/glob, or a *.frames folder")
+    p.add_argument(
+        "--left", required=True, help="left video/folder/glob, a *.frames folder or a *.mcap log"
+    )
     p.add_argument("--right", help="right video/folder/glob (omit for a frame recording)")
     p.add_argument(
         "--calib",
@@ -59,16 +62,33 @@ def register(subparsers: Any) -> None:
         help="the rig's mount for MAVLink's body-frame position: an airframe's (default: the "
         "simulation's default plant) or 'camera' (relative to the left camera, looking forward)",
     )
+    p.add_argument(
+        "--mcap",
+        metavar="OUT.mcap",
+        help="also write an MCAP log (images, calibration, annotations, pose, telemetry; "
+        "docs/ecosystem.md) for Foxglove",
+    )
+    p.add_argument(
+        "--mcap-jpeg",
+        type=int,
+        metavar="QUALITY",
+        help="JPEG images of this quality (1-100) in the MCAP log instead of lossless PNG",
+    )
     p.set_defaults(func=run)
 
 
 def _calibration(args: argparse.Namespace) -> Any:
     from app.geometry.calibration import StereoCalibration
     from app.sim.paths import load_default_calibration
+    from app.streams.mcap_source import is_mcap, mcap_calibration
     from app.streams.recording import is_frame_recording, recording_calibration
 
     if args.calib:
         return StereoCalibration.load(args.calib)
+    if not args.right and is_mcap(args.left) and Path(args.left).is_file():
+        calib = mcap_calibration(args.left)  # SourceError: not a readable MCAP
+        if calib is not None:
+            return calib
     if not args.right and is_frame_recording(args.left):
         calib = recording_calibration(args.left)
         if calib is not None:
@@ -171,7 +191,7 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         calib = _calibration(args)
-    except (CalibrationError, OSError) as exc:
+    except (CalibrationError, OSError, SourceError) as exc:
         print(f"aar-dock track: {exc}", file=sys.stderr)
         return 2
     options = SourceOptions(
@@ -191,6 +211,16 @@ def run(args: argparse.Namespace) -> int:
             source.close()
             print(f"aar-dock track: {exc}", file=sys.stderr)
             return 2
+    mcap = None
+    if args.mcap:
+        from app.cli.mcap_output import TrackMcap
+
+        try:
+            mcap = TrackMcap(args.mcap, calib, args.mcap_jpeg)
+        except (OSError, ValueError) as exc:
+            source.close()
+            print(f"aar-dock track: cannot write {args.mcap}: {exc}", file=sys.stderr)
+            return 2
     out: TextIO | None = None
     if args.jsonl == "-":
         out = sys.stdout
@@ -206,6 +236,8 @@ def run(args: argparse.Namespace) -> int:
                 out.write(json.dumps(row) + "\n")
             rows.append(row)
             est.append(tick.guidance.drogue_estimate_m)
+            if mcap is not None:
+                mcap.write(row, tick)
             if mavlink is not None:
                 from app.streams.landing_target import landing_target
 
@@ -220,6 +252,8 @@ def run(args: argparse.Namespace) -> int:
             mavlink[0].close()
         if out is not None and out is not sys.stdout:
             out.close()
+        if mcap is not None and (error := mcap.close()) is not None:
+            print(f"aar-dock track: MCAP {args.mcap}: {error}", file=sys.stderr)
     wall = time.perf_counter() - t0
     n = len(rows)
     locked = sum(1 for r in rows if r["lock"])

@@ -98,6 +98,7 @@ class AppState:
     streams: Any = None  # app.server.stream_service.StreamService (the active frame source)
     mavlink: MavlinkOutput | None = None  # the MAVLink 2 output (settings.mavlink)
     camera_view: CameraView = field(default_factory=CameraView)  # the page's camera images
+    foxglove: Any = None  # app.server.foxglove_output.FoxgloveOutput (settings.foxglove_port)
     extras: dict[str, Any] = field(default_factory=dict)
 
     def apply_sim_config(self, config: SimConfig) -> None:

@@ -155,6 +155,7 @@ def create_app(
             max_mb=settings.recording_max_mb,
             max_frames_mb=settings.recording_frames_max_mb,
             min_free_mb=settings.recording_min_free_mb,
+            mcap_plant=settings.sim_plant,  # the rig mount of the MCAP log's /tf
         )
         st = AppState(
             settings=settings,
@@ -207,6 +208,8 @@ def create_app(
             loop.stop()
             if st.mavlink is not None:
                 st.mavlink.close()
+            if st.foxglove is not None:
+                st.foxglove.close()
             if st.viz is not None:
                 st.viz.stop()
             release_workers()
@@ -238,6 +241,18 @@ def create_app(
             st.mavlink = MavlinkOutput(settings.mavlink, default_mount(settings.sim_plant))
             loop.subscribe(st.mavlink.on_tick)
             log.info("MAVLink 2 output to %s", settings.mavlink)
+        if settings.foxglove_port is not None:
+            from app.server.foxglove_output import FoxgloveOutput
+
+            st.foxglove = FoxgloveOutput(
+                settings.foxglove_host,
+                settings.foxglove_port,
+                calib,
+                plant=settings.sim_plant,
+                image_hz=settings.foxglove_image_hz,
+            )
+            loop.subscribe(st.foxglove.on_tick)
+            log.info("Foxglove live on ws://%s:%d", settings.foxglove_host, st.foxglove.port)
         if settings.sim_autostart:
             loop.start_sim()  # with a worker process: spawned and the simulation built here
         loop.start()

@@ -21,6 +21,13 @@ Layout of one recording ``<id>`` (``rec-YYYYmmdd-HHMMSS-xxxxxx``) in the recordi
     recovered metadata says so: ``scene_file: null``, ``scene_note``). Replay offline: viser's
     client with ``?playbackPath=<url of the .viser file>`` (served at ``/viser-client/``).
 
+``<id>.mcap``
+    The same run as one MCAP log for Foxglove (:mod:`app.server.mcap_recording`,
+    docs/ecosystem.md): telemetry, /tf, pose, scene, annotations and, with frames, the very PNG
+    bytes of ``<id>.frames``; written by a thread of its own, chunked and flushed every second,
+    so a kill leaves it readable up to its last complete chunk; recovery rebuilds a complete one
+    from the JSONL and the frames (``mcap_note`` says so).
+
 ``<id>.frames/`` (``POST /recording/start?frames=true``)
     Lossless PNG pairs, per-pair times and the calibration used, written by a thread of its
     own (a pair it cannot keep up with is dropped and counted, never blocking the tick
@@ -111,6 +118,9 @@ class RecordingMeta(RecordingInfo):
     frame_pairs: int = 0
     frames_bytes: int = 0
     frames_dropped: int = 0  # pairs the frame writer could not keep up with
+    mcap_file: str | None = None  # the MCAP log of the run (docs/ecosystem.md)
+    mcap_bytes: int = 0
+    mcap_note: str | None = None  # why the MCAP log is missing or was rebuilt
 
 
 class SceneSerializer(Protocol):
@@ -204,6 +214,8 @@ class Recorder:
         min_free_mb: float = 0.0,
         scene_serializer_factory: Any = None,
         recover: bool = True,
+        mcap: bool = True,
+        mcap_plant: str | None = None,
     ) -> None:
         self.directory = Path(directory)
         self.max_s = max_s
@@ -227,6 +239,10 @@ class Recorder:
         self._dirty = False
         self._frames: Any = None  # app.streams.recording.FrameRecordingWriter
         self._accept_frame: Callable[[Any], bool] | None = None
+        self.mcap = mcap  # also write <id>.mcap (app.server.mcap_recording)
+        self.mcap_plant = mcap_plant  # the airframe whose rig mount /tf uses (None: default)
+        self._mcap: Any = None  # app.server.mcap_recording.RecordingMcap
+        self._mount: Any = None
         self.recovered: list[RecordingMeta] = self.recover() if recover else []
 
     @property
@@ -278,6 +294,7 @@ class Recorder:
                     scene_file = f"{rec_id}.viser"
                 except Exception:
                     log.exception("could not start the scene serializer")
+            mcap = self._open_mcap(rec_id, calibration)
             writer = None
             if frames:
                 from app.streams.recording import FrameRecordingWriter
@@ -289,8 +306,10 @@ class Recorder:
                         max_s=self.max_s,
                         max_bytes=self.max_frames_bytes,
                         source=source,
+                        on_pair=None if mcap is None else mcap.on_pair,
                     )
                 except Exception as exc:
+                    self._discard_mcap(mcap)
                     fh.close()
                     tele.unlink(missing_ok=True)
                     shutil.rmtree(self.directory / f"{rec_id}.frames", ignore_errors=True)
@@ -307,10 +326,13 @@ class Recorder:
                 max_s=self.max_s,
                 max_mb=self.max_mb,
                 frames_dir=None if writer is None else writer.directory.name,
+                mcap_file=None if mcap is None else mcap.path.name,
+                mcap_note=None if mcap is not None or not self.mcap else "could not be opened",
             )
             try:
                 self._write_meta(info)
             except Exception as exc:
+                self._discard_mcap(mcap)
                 fh.close()
                 tele.unlink(missing_ok=True)
                 if writer is not None:
@@ -320,6 +342,7 @@ class Recorder:
                     raise storage_error("cannot write the recording's metadata", exc) from None
                 raise
             self._frames = writer
+            self._mcap = mcap
             self._accept_frame = accept_frame
             self._fh = fh
             self._serializer = serializer
@@ -358,6 +381,8 @@ class Recorder:
             info.ticks += 1
             info.telemetry_bytes += len(line)
             info.last_record_wall = record.wall_time
+            if self._mcap is not None:
+                self._mcap.on_record(record, line, raw)  # queued: never blocks
             writer = self._frames
             if writer is not None and raw is not None:
                 self._submit_frame(writer, record, raw)
@@ -384,6 +409,26 @@ class Recorder:
 
             frame = StereoFrame(left=left, right=right, t_s=record.t_s, seq=record.seq)
         writer.submit(frame, record.seq)
+
+    def _open_mcap(self, rec_id: str, calibration: Any) -> Any:
+        """(lock held) The recording's MCAP log, or None (disabled, or it cannot be opened:
+        logged; the recording goes on without it)."""
+        if not self.mcap:
+            return None
+        try:
+            from app.server.mcap_recording import RecordingMcap, default_mount
+
+            if self._mount is None:
+                self._mount = default_mount(self.mcap_plant)
+            return RecordingMcap(self.directory / f"{rec_id}.mcap", calibration, self._mount)
+        except Exception:
+            log.exception("recording %s: the MCAP log could not be opened", rec_id)
+            return None
+
+    def _discard_mcap(self, mcap: Any) -> None:
+        if mcap is not None:
+            mcap.close()
+            mcap.path.unlink(missing_ok=True)
 
     def _fail(self, info: RecordingMeta, reason: str) -> None:
         """(lock held) A write error: the recording stops as ``failed`` with ``reason``."""
@@ -481,6 +526,7 @@ class Recorder:
             fh, self._fh = self._fh, None
             ser, self._serializer = self._serializer, None
             writer, self._frames = self._frames, None
+            mcap, self._mcap = self._mcap, None
             wake, self._wake = self._wake, None
             failure, self._failure = self._failure, None
             self._limit_reason = None
@@ -505,6 +551,13 @@ class Recorder:
                 why = str(fmeta.get("stop_reason") or "")
                 if why.startswith("write failed") and f"frames: {why}" not in errors:
                     errors.append(f"frames: {why}")
+            if mcap is not None:  # after the frames: their last pairs are in its queue
+                mstats = mcap.close()
+                update["mcap_bytes"] = mstats.bytes
+                if mstats.error is not None:
+                    update["mcap_note"] = mstats.error
+                elif mstats.dropped:
+                    update["mcap_note"] = f"{mstats.dropped} items dropped (writer behind)"
             if ser is not None and info.scene_file is not None:
                 if errors:  # the disk already failed: the scene (in memory) is not written
                     update["scene_file"] = None
@@ -623,6 +676,7 @@ class Recorder:
                 from app.streams.recording import read_index
 
                 frame_pairs = len(read_index(frames_path))  # complete pairs only
+            mcap_file, mcap_note = self._recover_mcap(rec_id, tele, frames_path)
             started = prior.started_wall if prior is not None else _wall_time(first)
             meta = RecordingMeta(
                 id=rec_id,
@@ -644,9 +698,42 @@ class Recorder:
                 recovery_note="; ".join(notes) or None,
                 frames_dir=frames_path.name if frame_pairs or frames_path.is_dir() else None,
                 frame_pairs=frame_pairs,
+                mcap_file=mcap_file,
+                mcap_bytes=0 if mcap_file is None else (self.directory / mcap_file).stat().st_size,
+                mcap_note=mcap_note,
             )
             self._write_meta(meta)  # while still holding the lock
         return meta
+
+    def _recover_mcap(self, rec_id: str, tele: Path, frames: Path) -> tuple[str | None, str | None]:
+        """An MCAP log cut by the crash is rebuilt, complete, from the (already truncated)
+        telemetry and the complete frame pairs; the cut one is kept if that fails."""
+        path = self.directory / f"{rec_id}.mcap"
+        if not path.is_file():
+            return None, None
+        from app.streams.mcap_log import export_recording, is_complete
+
+        if is_complete(path):
+            return path.name, None
+        try:
+            from app.server.mcap_recording import default_mount, telemetry_schema
+            from app.streams.recording import recording_calibration
+
+            calib = recording_calibration(frames) if frames.is_dir() else None
+            if self._mount is None:
+                self._mount = default_mount(self.mcap_plant)
+            export_recording(
+                tele,
+                path,
+                telemetry_schema=telemetry_schema(),
+                frames_dir=frames if frames.is_dir() else None,
+                calibration=calib,
+                mount=self._mount,
+            )
+        except Exception as exc:
+            log.exception("recording %s: the MCAP log could not be rebuilt", rec_id)
+            return path.name, f"cut by the crash (readable up to its last chunk); rebuild: {exc}"
+        return path.name, "rebuilt from the telemetry and frames after the crash"
 
     # ---- reading ---------------------------------------------------------------------
     def list(self) -> list[RecordingMeta]:
@@ -680,14 +767,21 @@ class Recorder:
             log.warning("unreadable recording metadata %s", meta)
             return None
 
-    def locate(self, rec_id: str, kind: Literal["telemetry", "scene"]) -> tuple[Path | None, str]:
+    def locate(
+        self, rec_id: str, kind: Literal["telemetry", "scene", "mcap"]
+    ) -> tuple[Path | None, str]:
         """The file of a finished recording, or ``None`` and why not (for a 404's detail)."""
         info = self.get(rec_id)
         if info is None:
             return None, f"no recording {rec_id!r}"
         if info.active:
             return None, f"recording {rec_id!r} is still active"
-        name = info.telemetry_file if kind == "telemetry" else info.scene_file
+        name = {"telemetry": info.telemetry_file, "scene": info.scene_file}.get(kind)
+        if kind == "mcap":
+            name = info.mcap_file
+            if name is None:
+                why = info.mcap_note or "recorded without an MCAP log"
+                return None, f"recording {rec_id!r} has no MCAP log: {why}"
         if name is None:
             why = info.scene_note or "recorded without the 3-D scene"
             return None, f"recording {rec_id!r} has no scene file: {why}"

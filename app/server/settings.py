@@ -271,6 +271,20 @@ class Settings(BaseSettings):
         "1 Hz and LANDING_TARGET per navigation record (docs/ecosystem.md); None: off",
     )
 
+    foxglove_port: int | None = Field(
+        None,
+        ge=0,
+        le=65535,
+        description="live Foxglove WebSocket server on this port (the MCAP log's channels, "
+        "images at foxglove_image_hz; no authentication: docs/service.md); None: off",
+    )
+    foxglove_host: str = Field(
+        "127.0.0.1", description="interface of the Foxglove server (loopback unless told)"
+    )
+    foxglove_image_hz: float = Field(
+        5.0, ge=0, le=60, description="stereo pairs per second sent to Foxglove (JPEG)"
+    )
+
     @field_validator("mavlink")
     @classmethod
     def _check_mavlink(cls, v: str | None) -> str | None:

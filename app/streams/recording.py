@@ -24,6 +24,7 @@ import os
 import queue
 import threading
 import time
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
@@ -78,7 +79,10 @@ class FrameRecordingWriter:
         max_bytes: int = 2_000_000_000,
         queue_pairs: int = 16,
         source: str | None = None,
+        on_pair: Callable[[dict[str, Any], bytes, bytes], None] | None = None,
     ) -> None:
+        """``on_pair(index line, left PNG, right PNG)``: called (in the writer's thread) once a
+        pair is on disk, with the very bytes written (the MCAP log takes them from here)."""
         self.directory = Path(directory)
         self.directory.mkdir(parents=True, exist_ok=False)
         (self.directory / "left").mkdir()
@@ -89,6 +93,7 @@ class FrameRecordingWriter:
         self.dropped = 0
         self.stop_reason: str | None = None
         self.source = source
+        self.on_pair = on_pair
         self._t0 = time.monotonic()
         self._queue: queue.Queue[tuple[StereoFrame, int | None] | None] = queue.Queue(queue_pairs)
         self._lines = open(self.directory / "frames.jsonl", "ab")
@@ -178,6 +183,8 @@ class FrameRecordingWriter:
         self._lines.flush()
         self.pairs += 1
         self.bytes += size
+        if self.on_pair is not None:
+            self.on_pair(line, blobs[0], blobs[1])
         now = time.monotonic()
         if now - self._last_sync >= FSYNC_PERIOD_S:
             os.fsync(self._lines.fileno())

@@ -3,7 +3,8 @@
 Spec strings (``aar-dock serve --source``, ``AAR_SOURCE``, ``PUT /api/v1/stream/source``):
 
 * ``video:LEFT,RIGHT`` — two video files, folders or globs; ``video:DIR`` — a raw-frame
-  recording (``DIR/frames.jsonl``);
+  recording (``DIR/frames.jsonl``); ``mcap:FILE`` (or ``video:FILE.mcap``) — the stereo pairs
+  of an MCAP log (:mod:`app.streams.mcap_source`);
 * ``camera:I,J`` — two capture devices (``VideoCapture(I)``; a path works too, for tests);
   ``camera:I`` — one side-by-side stereo device, split in halves;
 * ``push`` — pairs pushed over the WebSocket (:mod:`app.streams.protocol`).
@@ -27,6 +28,7 @@ from app.streams.frames import (
     StereoFrame,
     ensure_gray_or_bgr,
 )
+from app.streams.mcap_source import McapRecordingSource, is_mcap
 from app.streams.pairing import TimestampPairer
 from app.streams.protocol import PushMessage
 from app.streams.readers import CaptureReader, open_reader
@@ -75,10 +77,14 @@ def parse_source(text: str) -> SourceSpec:
     if t == "push":
         return SourceSpec("push")
     kind, sep, rest = t.partition(":")
+    if kind == "mcap" and sep:
+        if not rest.strip() or "," in rest:
+            raise SourceError(f"mcap source needs one MCAP file, got {rest!r}")
+        return SourceSpec("video", rest.strip())
     if not sep or kind not in ("video", "camera"):
         raise SourceError(
             f"unknown source {text!r}: use sim, push, video:LEFT,RIGHT, video:DIR, "
-            "camera:I,J or camera:I"
+            "mcap:FILE, camera:I,J or camera:I"
         )
     parts = [p.strip() for p in rest.split(",")]
     if len(parts) > 2 or not parts[0] or (len(parts) == 2 and not parts[1]):
@@ -121,10 +127,13 @@ class VideoSource:
         self._first_t: float | None = None
         self._seq_offset = 0
         self._last_seq = -1
-        self._recording: FrameRecordingSource | None = None
+        self._recording: FrameRecordingSource | McapRecordingSource | None = None
         self._pairer: TimestampPairer | None = None
         self.calibration: Any = None  # a frame recording's own calibration, if it has one
-        if not right:
+        if not right and is_mcap(left):
+            self._recording = McapRecordingSource(left)
+            self.calibration = self._recording.calibration
+        elif not right:
             if not is_frame_recording(left):
                 raise SourceError(
                     f"video:{left} — a single input must be a frame recording "

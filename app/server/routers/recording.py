@@ -115,3 +115,12 @@ def recording_scene(rec_id: str, state: StateDep) -> FileResponse:
     if path is None:
         raise HTTPException(status.HTTP_404_NOT_FOUND, why)
     return FileResponse(path, media_type="application/octet-stream", filename=path.name)
+
+
+@router.get("/recordings/{rec_id}/recording.mcap", responses={404: {"model": Message}})
+def recording_mcap(rec_id: str, state: StateDep) -> FileResponse:
+    """The recording's MCAP log: open it in Foxglove (docs/ecosystem.md)."""
+    path, why = state.recorder.locate(rec_id, "mcap")
+    if path is None:
+        raise HTTPException(status.HTTP_404_NOT_FOUND, why)
+    return FileResponse(path, media_type="application/octet-stream", filename=path.name)

@@ -1,0 +1,63 @@
+"""``serve --foxglove-port``: the service's records live to Foxglove (a tick-loop subscriber).
+
+Every record goes out on the MCAP log's channels (:mod:`app.streams.foxglove_live`); the
+stereo pair at most ``image_hz`` times a second, as JPEG. Never blocks the tick thread: the
+logger's queue drops what it cannot keep up with.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+from app.geometry.calibration import StereoCalibration
+from app.server.mcap_recording import default_mount, mcap_tick, telemetry_schema
+from app.server.schemas import TickRecord
+from app.streams.foxglove_live import FoxgloveLive
+from app.streams.mcap_log import FrameInfo, RawPair
+
+
+class FoxgloveOutput:
+    """The Foxglove WebSocket server of the service and its subscriber."""
+
+    def __init__(
+        self,
+        host: str,
+        port: int,
+        calibration: StereoCalibration | None,
+        *,
+        plant: str | None = None,
+        image_hz: float = 5.0,
+    ) -> None:
+        self.image_period_s = 1.0 / image_hz if image_hz > 0 else float("inf")
+        self._last_image = float("-inf")
+        self.live = FoxgloveLive(
+            host=host,
+            port=port,
+            calibration=calibration,
+            telemetry_schema=telemetry_schema(),
+            mount=default_mount(plant),
+        )
+        self.port = self.live.port
+
+    def on_tick(self, record: TickRecord, raw: Any = None) -> None:
+        """Tick-loop subscriber: the record now, its images at the reduced rate."""
+        line = record.model_dump_json().encode()
+        self.live.write_tick(mcap_tick(record, line, raw))
+        now = time.monotonic()
+        if raw is None or now - self._last_image < self.image_period_s:
+            return
+        frame = getattr(raw, "frame", None)  # a stream tick carries its StereoFrame
+        if frame is not None:
+            left, right = frame.left, frame.right
+            info = FrameInfo(frame.seq, frame.t_s, frame.t_left_s, frame.t_right_s)
+        else:
+            left, right = getattr(raw, "left_image", None), getattr(raw, "right_image", None)
+            info = FrameInfo(record.seq, record.t_s)
+        if left is None or right is None:
+            return
+        self._last_image = now
+        self.live.write_pair(RawPair(left, right, info), record.seq)
+
+    def close(self) -> None:
+        self.live.close()

@@ -1,0 +1,75 @@
+"""The service's recordings as MCAP logs (``<id>.mcap``, :mod:`app.streams.mcap_log`).
+
+Adapter between the tick loop's records (:class:`~app.server.schemas.TickRecord` + the raw
+tick) and the MCAP writer: one :class:`~app.streams.mcap_log.McapTick` per record (the
+telemetry exactly as its JSONL line), the frame recording's own PNG bytes for the images.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from app.geometry.calibration import StereoCalibration
+from app.server.schemas import TickRecord
+from app.sim.rig_mount import CameraMount
+from app.streams.mcap_log import EncodedPair, McapLogWriter, McapStats, McapTick, frame_info
+
+
+def telemetry_schema() -> dict[str, Any]:
+    """The JSON schema of a tick record (``/telemetry``), titled ``aar_dock.TickRecord``."""
+    schema: dict[str, Any] = TickRecord.model_json_schema()
+    schema["title"] = "aar_dock.TickRecord"
+    return schema
+
+
+def default_mount(plant: str | None = None) -> CameraMount:
+    """The rig's mount on ``plant``'s airframe (the simulation's default plant if None)."""
+    from app.sim.docking import DockingConfig
+    from app.sim.rig_mount import camera_mount
+
+    return camera_mount(DockingConfig() if plant is None else DockingConfig(plant=plant))
+
+
+def mcap_tick(record: TickRecord, line: bytes, raw: Any = None) -> McapTick:
+    """The MCAP view of one record (``line``: its JSONL line) and its raw tick's windows."""
+
+    def v3(v: Any) -> tuple[float, float, float] | None:
+        return None if v is None else (float(v[0]), float(v[1]), float(v[2]))
+
+    windows = getattr(raw, "image_windows_px", None)
+    return McapTick(
+        seq=record.seq,
+        t_s=record.t_s,
+        wall_time=record.wall_time,
+        telemetry_json=line.rstrip(b"\n"),
+        pose=record.pose,
+        uav_state=None if record.uav_state is None else tuple(record.uav_state),
+        drogue_truth_m=v3(record.drogue_truth_m),
+        drogue_normal=v3(record.drogue_normal),
+        probe_tip_m=v3(record.probe_tip_m),
+        image_windows_px=None if windows is None else (list(windows[0]), list(windows[1])),
+    )
+
+
+class RecordingMcap:
+    """The MCAP log of one recording (written by its own thread, never blocking a tick)."""
+
+    def __init__(
+        self, path: Path, calibration: StereoCalibration | None, mount: CameraMount | None
+    ) -> None:
+        self.path = path
+        self.writer = McapLogWriter(
+            path, calibration=calibration, telemetry_schema=telemetry_schema(), mount=mount
+        )
+
+    def on_record(self, record: TickRecord, line: bytes, raw: Any = None) -> None:
+        self.writer.write_tick(mcap_tick(record, line, raw))
+
+    def on_pair(self, entry: dict[str, Any], left_png: bytes, right_png: bytes) -> None:
+        """The frame writer's hook: the pair's PNG bytes, at its record's log time."""
+        pair = EncodedPair(left_png, right_png, "png", frame_info(entry))
+        self.writer.write_pair(pair, entry.get("record_seq"))
+
+    def close(self) -> McapStats:
+        return self.writer.close()
