@@ -29,6 +29,7 @@ from app.server.recording import Recorder
 from app.server.routers import recording as recording_router
 from app.server.schemas import TickRecord
 from app.sim.paths import load_default_calibration
+from app.streams.annotations import led_color
 from app.vision.result import DrogueResult, LedResult, PoseResult
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -178,10 +179,18 @@ def test_recording_writes_one_mcap_foxglove_reads(tmp_path: Path) -> None:
     assert by["/telemetry"][-1][0] - t0 == pytest.approx((tele[-1]["t_s"] - tele[0]["t_s"]) * 1e9)
     # annotations: the matched LEDs with their ids, the tracker's windows
     ann = by["/camera/right/annotations"][0][1]
-    pts = [(p.x, p.y) for p in ann.points[0].points]
-    assert pts == [tuple(led["right_px"]) for led in tele[0]["pose"]["leds"]]
+    leds = tele[0]["pose"]["leds"]
+    pts = [(a.points[0].x, a.points[0].y) for a in ann.points[: len(leds)]]
+    assert pts == [tuple(led["right_px"]) for led in leds]
     assert [t.text for t in ann.texts] == ["1", "2", "3", "4", "5"]
-    assert len(ann.points) == 1 + 2  # the LEDs, two windows
+    # each LED in its colour (the page's palette: one producer of the marks)
+    for a, led in zip(ann.points, leds, strict=False):
+        rgb = tuple(
+            round(255 * v) for v in (a.outline_color.r, a.outline_color.g, a.outline_color.b)
+        )
+        assert rgb == led_color(led["id"])
+    assert len(ann.points) == len(leds) + 2  # the LEDs, two windows (4 corners each)
+    assert all(len(a.points) == 4 for a in ann.points[len(leds) :])
     # /tf: tanker → drogue, tanker → receiver → camera_left → camera_right
     tf = by["/tf"][0][1]
     edges = {(t.parent_frame_id, t.child_frame_id): t for t in tf.transforms}

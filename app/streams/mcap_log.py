@@ -54,6 +54,7 @@ from numpy.typing import NDArray
 
 from app.geometry.calibration import StereoCalibration
 from app.sim.frames import euler_to_matrix
+from app.streams.annotations import WINDOW_RGB, Rect, Side, image_marks, led_color
 from app.vision.result import PoseResult
 
 if TYPE_CHECKING:
@@ -65,7 +66,7 @@ FORMAT = "aar-dock-mcap/1"
 METADATA_NAME = "aar-dock"
 TELEMETRY_SCHEMA_NAME = "aar_dock.TickRecord"
 FRAME_SCHEMA_NAME = "aar_dock.StereoFrame"
-SIDES = ("left", "right")
+SIDES: tuple[Side, Side] = ("left", "right")
 FRAME_IDS = {"left": "camera_left", "right": "camera_right"}
 TOPICS = {
     "image": "/camera/{side}/image",
@@ -84,7 +85,6 @@ PROBE_SPHERE_M = 0.08
 ImageFormat = Literal["png", "jpeg"]
 Vec3 = tuple[float, float, float]
 VecLike = Sequence[float] | NDArray[np.float64]
-Rect = tuple[int, int, int, int]  # x0, y0, x1, y1 (px)
 FRAME_SCHEMA: dict[str, object] = {
     "type": "object",
     "title": FRAME_SCHEMA_NAME,
@@ -450,7 +450,7 @@ class FoxgloveLogger:
         ts = _timestamp(ns)
         # the pair's own times first: a replay has them when its second image arrives
         self._frame.log(json.dumps(pair.info.to_json()).encode(), log_time=ns)
-        for side, data in (("left", pair.left), ("right", pair.right)):
+        for side, data in zip(SIDES, (pair.left, pair.right), strict=True):
             self._image[side].log(
                 CompressedImage(
                     timestamp=ts, frame_id=FRAME_IDS[side], data=data, format=pair.format
@@ -616,7 +616,9 @@ def _q(r: NDArray[np.float64]) -> fm.Quaternion:
     return fm.Quaternion(x=x, y=y, z=z, w=w)
 
 
-def _annotations(tick: McapTick, side: str, ts: fm.Timestamp) -> fm.ImageAnnotations:
+def _annotations(tick: McapTick, side: Side, ts: fm.Timestamp) -> fm.ImageAnnotations:
+    """The marks the page and the 3-D view draw (:func:`app.streams.annotations.image_marks`)
+    as Foxglove annotations: each LED a point and its id in its colour, the windows outlined."""
     from foxglove.messages import (
         Color,
         ImageAnnotations,
@@ -626,49 +628,51 @@ def _annotations(tick: McapTick, side: str, ts: fm.Timestamp) -> fm.ImageAnnotat
         TextAnnotation,
     )
 
-    green = Color(r=0.1, g=1.0, b=0.2, a=1.0)
-    amber = Color(r=1.0, g=0.7, b=0.0, a=1.0)
+    def colour(rgb: tuple[int, int, int]) -> Color:
+        return Color(r=rgb[0] / 255, g=rgb[1] / 255, b=rgb[2] / 255, a=1.0)
+
+    windows = None if tick.image_windows_px is None else tick.image_windows_px[side == "right"]
+    marks = image_marks(
+        tick.pose, side, windows_px=[(w[0], w[1], w[2], w[3]) for w in windows or ()]
+    )
     points, texts = [], []
-    leds = [] if tick.pose is None else tick.pose.leds
-    if leds:
-        px = [led.left_px if side == "left" else led.right_px for led in leds]
+    for m in marks.leds:
+        c = colour(led_color(m.led_id))
         points.append(
             PointsAnnotation(
                 timestamp=ts,
                 type=PointsAnnotationType.Points,
-                points=[Point2(x=float(u), y=float(v)) for u, v in px],
-                outline_color=green,
-                fill_color=green,
+                points=[Point2(x=float(m.u_px), y=float(m.v_px))],
+                outline_color=c,
+                fill_color=c,
                 thickness=6.0,
             )
         )
-        for led, (u, v) in zip(leds, px, strict=True):
-            texts.append(
-                TextAnnotation(
-                    timestamp=ts,
-                    position=Point2(x=float(u) + 6.0, y=float(v) - 6.0),
-                    text=str(led.id),
-                    font_size=14.0,
-                    text_color=green,
-                    background_color=Color(r=0.0, g=0.0, b=0.0, a=0.5),
-                )
+        texts.append(
+            TextAnnotation(
+                timestamp=ts,
+                position=Point2(x=float(m.u_px) + 6.0, y=float(m.v_px) - 6.0),
+                text=str(m.led_id),
+                font_size=14.0,
+                text_color=c,
+                background_color=Color(r=0.0, g=0.0, b=0.0, a=0.5),
             )
-    if tick.image_windows_px is not None:
-        for x0, y0, x1, y1 in tick.image_windows_px[0 if side == "left" else 1]:
-            points.append(
-                PointsAnnotation(
-                    timestamp=ts,
-                    type=PointsAnnotationType.LineLoop,
-                    points=[
-                        Point2(x=float(x0), y=float(y0)),
-                        Point2(x=float(x1), y=float(y0)),
-                        Point2(x=float(x1), y=float(y1)),
-                        Point2(x=float(x0), y=float(y1)),
-                    ],
-                    outline_color=amber,
-                    thickness=1.5,
-                )
+        )
+    for x0, y0, x1, y1 in marks.windows_px:
+        points.append(
+            PointsAnnotation(
+                timestamp=ts,
+                type=PointsAnnotationType.LineLoop,
+                points=[
+                    Point2(x=float(x0), y=float(y0)),
+                    Point2(x=float(x1), y=float(y0)),
+                    Point2(x=float(x1), y=float(y1)),
+                    Point2(x=float(x0), y=float(y1)),
+                ],
+                outline_color=colour(WINDOW_RGB),
+                thickness=1.5,
             )
+        )
     return ImageAnnotations(points=points, texts=texts)
 
 
