@@ -144,6 +144,25 @@ def test_tick_loop_on_time_drops_nothing_and_keeps_rate() -> None:
     assert loop.tick_rate_hz() == pytest.approx(20.0, rel=1e-6)
 
 
+def test_stopped_simulation_counts_no_dropped_ticks() -> None:
+    """Deadlines that pass while the simulation is stopped (the service ran with --no-sim, or
+    the loop thread was late) are not dropped ticks: healthz must not report drops of a
+    simulation that is not running; once it runs, a late deadline is counted again."""
+    clock = FakeClock()
+    loop = TickLoop(
+        SimConfig(tick_hz=20.0), None, clock=clock, source_factory=lambda c, k: FakeSim(c, k)
+    )
+    loop.run_iterations(5)
+    clock.advance(1.0)  # 20 deadlines pass unserved while stopped
+    loop.run_iterations(5)
+    assert loop.dropped == 0 and loop.ticks == 0
+    loop.start_sim()
+    loop.run_iterations(20)
+    clock.advance(0.5)  # the running loop 10 periods late: 9 deadlines dropped, the 10th served
+    loop.run_iterations(5)
+    assert loop.dropped == 9
+
+
 def test_tick_loop_auto_restart_after_done() -> None:
     clock = FakeClock()
     loop = TickLoop(

@@ -527,7 +527,8 @@ class TickLoop:
             return
         missed = int((now - self._next_t) / period + 1e-9)
         if missed > 0:
-            self.dropped += missed
+            if self.running:  # a stopped simulation has no ticks to drop (healthz says so)
+                self.dropped += missed
             self._next_t += missed * period
         deadline = self._next_t
         self._next_t += period
