@@ -21,9 +21,10 @@ def _run(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str]
 def test_unknown_option_is_one_line_and_exit_2(
     command: str, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    code, err = _run([command, "--no-such-option"], capsys)
+    name = command.replace("_", "-")  # the module export_mcap is the command export-mcap
+    code, err = _run([name, "--no-such-option"], capsys)
     assert code == 2
-    assert err.count("\n") == 1 and err.startswith(f"aar-dock {command}: error:"), err
+    assert err.count("\n") == 1 and err.startswith(f"aar-dock {name}: error:"), err
 
 
 @pytest.mark.parametrize(
