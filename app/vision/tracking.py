@@ -69,7 +69,12 @@ from app.vision.appearance import (
     equivalent_radius_px,
 )
 from app.vision.blob_kernels import window_blobs
-from app.vision.error_bound import bound_result, isotropic_sigma_px
+from app.vision.error_bound import (
+    bound_lock,
+    drogue_with_bound,
+    isotropic_sigma_px,
+    led_bound_fields,
+)
 from app.vision.features import gate_array
 from app.vision.ihwt import SAMPLES_PER_SUBSQUARE, describe
 from app.vision.ihwt import window_side_px as ihwt_window_side_px
@@ -89,7 +94,6 @@ from app.vision.pipeline import (
     PipelineTrace,
     _Track,
     check_pair,
-    drogue_result,
 )
 from app.vision.preprocess import (
     ImageError,
@@ -592,6 +596,12 @@ class StereoTracker:
         # the pipeline's trace describes its last full frame; a tracked frame leaves only
         # its thresholds there (no full-frame features were computed)
         self.pipeline.trace = PipelineTrace(thresholds=(thr_l, thr_r), roll_deg=roll)
+        sigmas = [
+            (isotropic_sigma_px(a), isotropic_sigma_px(b)) for a, b in zip(bl, br, strict=True)
+        ]
+        bound = bound_lock(cal, pl, pr, sigmas, X, circle, cfg.error_bound)
+        if isinstance(bound, str):
+            raise _Fallback(bound)
         results = [
             LedResult(
                 id=i,
@@ -601,20 +611,14 @@ class StereoTracker:
                 descriptor_distance=d,
                 epipolar_px=e,
                 reprojection_px=rp,
+                **led_bound_fields(bound, k, sigmas[k]),
             )
             for k, (i, d, e, rp) in enumerate(
                 zip(led_ids, desc_dist.tolist(), epi.tolist(), reproj.tolist(), strict=True)
             )
         ]
-        sigmas = [
-            (isotropic_sigma_px(a), isotropic_sigma_px(b)) for a, b in zip(bl, br, strict=True)
-        ]
-        bounded = bound_result(
-            cal, pl, pr, sigmas, X, circle, results, drogue_result(circle), cfg.error_bound
-        )
-        if isinstance(bounded, str):
-            raise _Fallback(bounded)
-        return PoseResult(lock=True, reason="tracked", leds=bounded[0], drogue=bounded[1])
+        drogue = drogue_with_bound(circle, bound)
+        return PoseResult(lock=True, reason="tracked", leds=results, drogue=drogue)
 
     def _ring_checks(self, X: np.ndarray, st: _State) -> tuple[Circle3D, float, list[int]]:
         """The ring tests of :func:`app.geometry.ring.find_ring` on the tracked points, with
