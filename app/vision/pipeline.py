@@ -45,7 +45,7 @@ from app.vision.features import (
     detect_blobs,
 )
 from app.vision.ihwt import describe
-from app.vision.local_centroid import LocalCentroidConfig, refine_blobs
+from app.vision.local_centroid import LocalCentroidConfig
 from app.vision.matching import (
     MatchArrays,
     descriptor_distances,
@@ -211,8 +211,10 @@ class NavigationPipeline:
         threshold = choose_threshold(gray, cfg.threshold, stats, float(bands.max()))
         t1 = time.perf_counter()
         # binarise, median-filter, label and centroid only around the bright pixels
-        blobs, rejected = detect_blobs(gray, threshold, bg, cfg.gate, cfg.median_ksize, bands)
-        blobs = refine_blobs(gray, blobs, cfg.centroid)
+        # (each blob built once with its local-support centroid: app.vision.local_centroid)
+        blobs, rejected = detect_blobs(
+            gray, threshold, bg, cfg.gate, cfg.median_ksize, bands, cfg.centroid
+        )
         if image.ndim == 3 and cfg.appearance.enabled:
             sat = cfg.appearance.saturated_dn
             blobs = [replace(b, color_bgr=blob_color_bgr(image, b, threshold, sat)) for b in blobs]

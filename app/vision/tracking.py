@@ -37,7 +37,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Literal
 
 import cv2
@@ -83,9 +83,10 @@ from app.vision.local_centroid import (
     OUT_X1,
     OUT_Y0,
     OUT_Y1,
-    measure_blobs,
+    box_table,
+    local_blob,
+    local_centroids,
     window_pad_px,
-    with_local_centroids,
 )
 from app.vision.matching import epipolar_distances
 from app.vision.pipeline import (
@@ -458,7 +459,15 @@ class StereoTracker:
         counts, stats, cents = window_blobs(
             gray, rows, thr, np.array(bgs, np.float64), cfg.median_ksize, self._gate
         )
+        # the local-support centroids of all windows' blobs in one compiled call (a window
+        # with no blob or several is refused below before its row is used)
+        local = (
+            local_centroids(gray, box_table(stats), cfg.centroid.params()).tolist()
+            if cfg.centroid.enabled
+            else None
+        )
         got: list[dict[int, Blob]] = [{}, {}]
+        outside: str | None = None  # the first blob whose local centroid reads outside its window
         for k, ((x, y, w, h, area), (u, v, mass, peak), n) in enumerate(
             zip(stats.tolist(), cents.tolist(), counts.tolist(), strict=True)
         ):
@@ -479,28 +488,28 @@ class StereoTracker:
                 or v + need > win.row + side - 1
             ):
                 raise _Fallback(f"LED {win.led_id} is at the edge of its {side_name} window")
-            blob = Blob((u, v), area, (x, y, w, h), peak, mass)
+            colour = None
             if mosaic.ndim == 3 and cfg.appearance.enabled:
                 t = thr_l if k < len(win_l) else thr_r
                 sat = cfg.appearance.saturated_dn
-                blob = replace(blob, color_bgr=blob_color_bgr(mosaic, blob, t, sat))
-            got[0 if k < len(win_l) else 1][win.led_id] = blob
-        # the local-support centroids of all windows' blobs in one compiled call; the pixels
-        # each reads must lie in its own window (else they are not the full frame's)
-        if cfg.centroid.enabled:
-            bounds = {w.led_id + (0 if k < len(win_l) else 1 << 20): w for k, w in enumerate(wins)}
-            for s, found in enumerate(got):
-                ids = list(found)
-                table = measure_blobs(gray, [found[i] for i in ids], cfg.centroid)
-                for i, row in zip(ids, table.tolist(), strict=True):
-                    w = bounds[i + (s << 20)]
-                    x0, y0, x1, y1 = row[OUT_X0], row[OUT_Y0], row[OUT_X1], row[OUT_Y1]
-                    if x0 < w.mx or y0 < w.row or x1 > w.mx + side or y1 > w.row + side:
-                        raise _Fallback(f"LED {i}'s centroid support leaves its window")
-                for i, blob in zip(
-                    ids, with_local_centroids([found[i] for i in ids], table), strict=True
+                colour = blob_color_bgr(
+                    mosaic, Blob((u, v), area, (x, y, w, h), peak, mass), t, sat
+                )
+            if local is None:
+                blob = Blob((u, v), area, (x, y, w, h), peak, mass, colour)
+            else:
+                # the pixels the local centroid reads must lie in its own window (else they
+                # are not the full frame's)
+                row = local[k]
+                x0, y0, x1, y1 = row[OUT_X0], row[OUT_Y0], row[OUT_X1], row[OUT_Y1]
+                if outside is None and (
+                    x0 < win.mx or y0 < win.row or x1 > win.mx + side or y1 > win.row + side
                 ):
-                    found[i] = blob
+                    outside = f"LED {win.led_id}'s centroid support leaves its window"
+                blob = local_blob((u, v), area, (x, y, w, h), peak, mass, colour, row)
+            got[0 if k < len(win_l) else 1][win.led_id] = blob
+        if outside is not None:
+            raise _Fallback(outside)
         return win_l, win_r, gray, got[0], got[1], (thr_l, thr_r)
 
     def _track_frame(
