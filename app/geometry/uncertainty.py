@@ -211,8 +211,11 @@ def _stereo_kernel(
 
 
 def _sigmas(sigma: FloatArray | float, n: int, name: str) -> FloatArray:
-    s = np.broadcast_to(np.asarray(sigma, dtype=np.float64).reshape(-1), (n,)).copy()
-    if not np.all(np.isfinite(s) & (s > 0)):
+    if isinstance(sigma, np.ndarray) and sigma.dtype == np.float64 and sigma.shape == (n,):
+        s = sigma.copy()  # (the common case: one σ per point already)
+    else:
+        s = np.broadcast_to(np.asarray(sigma, dtype=np.float64).reshape(-1), (n,)).copy()
+    if not all(0.0 < v < math.inf for v in s.tolist()):
         raise ValueError(f"{name} must be positive and finite (px)")
     return s
 
@@ -246,12 +249,7 @@ def _stereo_inputs(
     X = np.ascontiguousarray(np.asarray(X_mm, dtype=np.float64).reshape(-1, 3))
     n = len(X)
     return (
-        np.ascontiguousarray(calib.left.K),
-        np.ascontiguousarray(calib.left.dist),
-        np.ascontiguousarray(calib.P_left),
-        np.ascontiguousarray(calib.right.K),
-        np.ascontiguousarray(calib.right.dist),
-        np.ascontiguousarray(calib.P_right),
+        *calib.kernel_arrays,
         np.ascontiguousarray(np.asarray(left_px, dtype=np.float64).reshape(n, 2)),
         np.ascontiguousarray(np.asarray(right_px, dtype=np.float64).reshape(n, 2)),
         X,
@@ -375,7 +373,9 @@ def _fit_jacobians(
 
 def _center_normal(circle: Circle3D) -> tuple[FloatArray, FloatArray]:
     nrm = np.asarray(circle.normal, dtype=np.float64).reshape(3)
-    return np.asarray(circle.center, dtype=np.float64).reshape(3), nrm / np.linalg.norm(nrm)
+    x, y, z = nrm.tolist()
+    norm = math.sqrt(x * x + y * y + z * z)  # (cheaper than np.linalg.norm for 3 terms)
+    return np.asarray(circle.center, dtype=np.float64).reshape(3), nrm / norm
 
 
 @njit(cache=True, nogil=True)

@@ -93,7 +93,7 @@ def lock_bound(
     triangulated points mm and the fitted circle); None when a σ is not measured."""
     sl = np.asarray(sigma_left_px, dtype=np.float64)
     sr = np.asarray(sigma_right_px, dtype=np.float64)
-    if not cfg.enabled or not (np.all(np.isfinite(sl)) and np.all(np.isfinite(sr))):
+    if not cfg.enabled or not all(math.isfinite(v) for v in sl.tolist() + sr.tolist()):
         return None
     if cfg.calibration_px > 0:
         c2 = cfg.calibration_px * cfg.calibration_px
