@@ -201,6 +201,8 @@ class StereoTracker:
         self._planned: tuple[list[_Window], list[_Window]] | None = None
         self._params: RingParams = self.pipeline._ring_params()
         self._gate = gate_array(self.config.gate)
+        # _support_half by blob radius (px): a few radii recur frame after frame
+        self._support_cache: dict[float, float] = {}
 
     def reset(self) -> None:
         """Forget the lock and the pipeline's track (a new, unrelated sequence)."""
@@ -313,7 +315,17 @@ class StereoTracker:
     # ------------------------------------------------------------------ tracking
     def _support_half(self, radius_px: float) -> float:
         """Half-size (px) around a centroid that must lie inside its window: the blob, its
-        eq. 11 centroid margin and (with descriptors) the IHWT descriptor window."""
+        eq. 11 centroid margin and (with descriptors) the IHWT descriptor window (cached by
+        radius: :meth:`_support_half_of`)."""
+        got = self._support_cache.get(radius_px)
+        if got is None:
+            if len(self._support_cache) > 256:
+                self._support_cache.clear()
+            got = self._support_cache[radius_px] = self._support_half_of(radius_px)
+        return got
+
+    def _support_half_of(self, radius_px: float) -> float:
+        """:meth:`_support_half` computed."""
         area = math.pi * radius_px * radius_px
         support = radius_px + 2.0 + max(2.0, 0.5 * math.sqrt(area)) + 2.0
         # the local centroid's window and its background ring (app.vision.local_centroid)
