@@ -81,3 +81,37 @@ def test_too_many_blobs_is_refused_as_before() -> None:
         detect_blobs(img, 100, 10.0, gate)
     with pytest.raises(TooManyBlobs):
         _reference(img, 100, 10.0, gate)
+
+
+@pytest.mark.parametrize("n", [0, 5, 40, 300])
+def test_blobs_built_with_local_centroids_equal_refined_eq11_blobs(n: int) -> None:
+    """``detect_blobs(..., centroid=cfg)`` builds each blob once with its local-support
+    centroid: the same records as refining the eq. 11 blobs afterwards (``refine_blobs``,
+    the reference), field for field; disabled, the eq. 11 blobs as they are."""
+    import math
+
+    from app.vision.local_centroid import LocalCentroidConfig, refine_blobs
+
+    img = _scene(7000 + n, n)
+    stats = background_level(img)
+    thr = choose_threshold(img, "auto", stats)
+    gate = BlobGate()
+    eq11, rej = detect_blobs(img, thr, stats[0], gate)
+    for cfg in (LocalCentroidConfig(), LocalCentroidConfig(support_frac=0.5), None):
+        got, got_rej = detect_blobs(img, thr, stats[0], gate, centroid=cfg)
+        want = eq11 if cfg is None else refine_blobs(img, eq11, cfg)
+        assert got_rej == rej and len(got) == len(want)
+        for a, b in zip(got, want, strict=True):
+            for f in ("centroid_px", "area_px", "bbox", "peak", "mass", "color_bgr", "local_bg"):
+                assert getattr(a, f) == getattr(b, f), f
+            sa, sb = a.centroid_sigma_px, b.centroid_sigma_px
+            assert (sa is None) == (sb is None)
+            if sa is not None and sb is not None:  # (NaN: not measured, in both)
+                assert all(
+                    x == y or (math.isnan(x) and math.isnan(y)) for x, y in zip(sa, sb, strict=True)
+                )
+    got, _ = detect_blobs(img, thr, stats[0], gate, centroid=LocalCentroidConfig(enabled=False))
+    assert got == eq11
+    if n >= 5:  # the local centroids are measured (the test can fail)
+        measured, _ = detect_blobs(img, thr, stats[0], gate, centroid=LocalCentroidConfig())
+        assert any(not math.isnan((b.centroid_sigma_px or (0.0,))[0]) for b in measured)

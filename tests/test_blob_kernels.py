@@ -167,6 +167,7 @@ def test_warmup_compiles_everything_frames_need() -> None:
         blob_kernels.window_blobs,
         blob_kernels.detect_in_boxes,
         preprocess.frame_summary,
+        preprocess.frame_levels,
         ihwt._describe_kernel,
         triangulation._linear_kernel,
         triangulation._refine_kernel,

@@ -23,6 +23,8 @@ from scipy import stats
 from app.geometry.calibration import CameraIntrinsics, StereoCalibration
 from app.geometry.circle_fit import Circle3D, FitError, fit_circle_3d
 from app.geometry.uncertainty import (
+    _largest_eigenvalue_sym3,
+    eigen_protection_levels_mm,
     fit_consistency,
     led_protection_levels_mm,
     lock_terms,
@@ -316,6 +318,44 @@ def test_lock_terms_in_one_call_equal_the_three_functions(name, keep):
     test = fit_consistency(CALIB, pl, pr, X, sl, sr, circle)
     assert terms.dof == test.dof == 3 * len(k) - 6
     assert terms.chi2 == pytest.approx(test.statistic, rel=1e-9)
+    # the "eigen" protection levels from the call's largest eigenvalues equal the reference's
+    both = np.concatenate([terms.led_cov_mm2, terms.center_cov_mm2[None]])
+    np.testing.assert_allclose(
+        eigen_protection_levels_mm(terms.lambda_max_mm2, 1e-3),
+        led_protection_levels_mm(both, 1e-3, "eigen"),
+        rtol=1e-10,
+    )
+
+
+def test_largest_eigenvalue_in_closed_form_equals_lapack():
+    """The compiled λ_max of a symmetric 3×3 equals numpy's eigvalsh to rounding: random SPD
+    matrices over 12 decades of conditioning, elongated (a point's depth) and degenerate
+    (isotropic, repeated, rank-deficient, diagonal) ones; NaN for a non-finite matrix."""
+    rng = np.random.default_rng(5)
+    mats = []
+    for _ in range(400):
+        q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+        lam = 10.0 ** rng.uniform(-6, 6, 3)
+        mats.append(q @ np.diag(lam) @ q.T)
+    mats += [
+        np.eye(3) * 2.5,
+        np.diag([1.0, 1.0, 4.0]),
+        np.diag([4.0, 1.0, 1.0]),
+        np.diag([3.0, 7.0, 5.0]),
+        np.zeros((3, 3)),
+        np.outer([1.0, 2.0, 3.0], [1.0, 2.0, 3.0]),  # rank 1
+        np.array([[1.0, 1.0 - 1e-12, 0.0], [1.0 - 1e-12, 1.0, 0.0], [0.0, 0.0, 1.0]]),
+    ]
+    for m in mats:
+        m = 0.5 * (m + m.T)
+        want = np.linalg.eigvalsh(m)[-1]
+        scale = np.abs(np.linalg.eigvalsh(m)).max()
+        assert _largest_eigenvalue_sym3(m) == pytest.approx(want, rel=1e-10, abs=1e-13 * scale)
+    bad = np.eye(3)
+    bad[0, 1] = bad[1, 0] = np.nan
+    assert np.isnan(_largest_eigenvalue_sym3(bad))
+    with pytest.raises(ValueError):
+        eigen_protection_levels_mm(np.array([1.0, np.nan]))
 
 
 def test_lock_terms_refuse_what_is_not_a_circle():

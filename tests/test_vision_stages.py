@@ -244,6 +244,46 @@ def test_background_level_matches_numpy_median_and_mad():
     assert 3.5 < sigma < 6.5
 
 
+@pytest.mark.parametrize("case", ["noise", "flat", "zero", "sunlit", "odd", "narrow"])
+def test_frame_summary_statistics_equal_the_separate_passes(case: str) -> None:
+    """The one-pass summary's histograms equal the separate passes' count for count, and
+    its compiled levels equal background_from_histogram's median and noise_sigma."""
+    from app.vision.preprocess import (
+        BACKGROUND_COL_STEP,
+        BACKGROUND_ROW_STEP,
+        background_from_histogram,
+        difference_histogram,
+        frame_levels,
+        frame_summary,
+        noise_from_histogram,
+        noise_sigma,
+        subsampled_histogram,
+    )
+
+    rng = np.random.default_rng(11)
+    shape = {"odd": (37, 61), "narrow": (300, 17)}.get(case, (240, 320))
+    if case == "flat":
+        img = np.full(shape, 40, np.uint8)
+    elif case == "zero":
+        img = np.zeros(shape, np.uint8)
+    elif case == "sunlit":  # a gradient plus noise and a saturated patch
+        ramp = np.linspace(20, 220, shape[1])[None, :] + rng.normal(0, 3, shape)
+        img = np.clip(ramp, 0, 255).astype(np.uint8)
+        img[50:60, 70:90] = 255
+    else:
+        img = np.clip(rng.normal(60, 7, shape), 0, 255).astype(np.uint8)
+    rs, cs = BACKGROUND_ROW_STEP, BACKGROUND_COL_STEP
+    _, hist, dhist = frame_summary(img, 16, rs, cs)
+    assert np.array_equal(hist, subsampled_histogram(img, rs, cs))
+    assert np.array_equal(dhist, difference_histogram(img, rs, cs))
+    bg, sigma = frame_levels(hist, dhist)
+    assert bg == background_from_histogram(hist)[0]
+    assert sigma == noise_from_histogram(dhist) == noise_sigma(img)
+    _, h0, d0 = frame_summary(img, 16, 0, cs)  # no histograms
+    assert not h0.any() and not d0.any()
+    assert frame_levels(h0, d0) == (0.0, 0.5) == (background_from_histogram(h0)[0], 0.5)
+
+
 def test_descriptor_on_crop_equals_full_frame(calib):
     from app.sim.stereo_render import render_pair
     from app.vision.ihwt import describe

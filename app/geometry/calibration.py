@@ -212,6 +212,21 @@ class StereoCalibration:
         return _frozen(self.right.K @ np.hstack([self.R, self.T.reshape(3, 1)]))
 
     @cached_property
+    def kernel_arrays(
+        self,
+    ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
+        """(K, distortion, P) of the left then the right camera as C-contiguous float64 arrays,
+        as the compiled loops take them (prepared once)."""
+        return (
+            np.ascontiguousarray(self.left.K, dtype=np.float64),
+            np.ascontiguousarray(self.left.dist, dtype=np.float64),
+            np.ascontiguousarray(self.P_left, dtype=np.float64),
+            np.ascontiguousarray(self.right.K, dtype=np.float64),
+            np.ascontiguousarray(self.right.dist, dtype=np.float64),
+            np.ascontiguousarray(self.P_right, dtype=np.float64),
+        )
+
+    @cached_property
     def fundamental(self) -> FloatArray:
         """F with x_rᵀ F x_l = 0 for undistorted pixel coordinates."""
         t = self.T

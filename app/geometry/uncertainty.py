@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import Literal
 
 import numpy as np
@@ -210,8 +211,11 @@ def _stereo_kernel(
 
 
 def _sigmas(sigma: FloatArray | float, n: int, name: str) -> FloatArray:
-    s = np.broadcast_to(np.asarray(sigma, dtype=np.float64).reshape(-1), (n,)).copy()
-    if not np.all(np.isfinite(s) & (s > 0)):
+    if isinstance(sigma, np.ndarray) and sigma.dtype == np.float64 and sigma.shape == (n,):
+        s = sigma.copy()  # (the common case: one σ per point already)
+    else:
+        s = np.broadcast_to(np.asarray(sigma, dtype=np.float64).reshape(-1), (n,)).copy()
+    if not all(0.0 < v < math.inf for v in s.tolist()):
         raise ValueError(f"{name} must be positive and finite (px)")
     return s
 
@@ -245,12 +249,7 @@ def _stereo_inputs(
     X = np.ascontiguousarray(np.asarray(X_mm, dtype=np.float64).reshape(-1, 3))
     n = len(X)
     return (
-        np.ascontiguousarray(calib.left.K),
-        np.ascontiguousarray(calib.left.dist),
-        np.ascontiguousarray(calib.P_left),
-        np.ascontiguousarray(calib.right.K),
-        np.ascontiguousarray(calib.right.dist),
-        np.ascontiguousarray(calib.P_right),
+        *calib.kernel_arrays,
         np.ascontiguousarray(np.asarray(left_px, dtype=np.float64).reshape(n, 2)),
         np.ascontiguousarray(np.asarray(right_px, dtype=np.float64).reshape(n, 2)),
         X,
@@ -374,7 +373,9 @@ def _fit_jacobians(
 
 def _center_normal(circle: Circle3D) -> tuple[FloatArray, FloatArray]:
     nrm = np.asarray(circle.normal, dtype=np.float64).reshape(3)
-    return np.asarray(circle.center, dtype=np.float64).reshape(3), nrm / np.linalg.norm(nrm)
+    x, y, z = nrm.tolist()
+    norm = math.sqrt(x * x + y * y + z * z)  # (cheaper than np.linalg.norm for 3 terms)
+    return np.asarray(circle.center, dtype=np.float64).reshape(3), nrm / norm
 
 
 @njit(cache=True, nogil=True)
@@ -450,6 +451,29 @@ def ring_covariance(
 
 # ---- a lock's terms in one call ------------------------------------------------------------
 @njit(cache=True, nogil=True)
+def _largest_eigenvalue_sym3(m: np.ndarray) -> float:  # pragma: no cover - compiled
+    """λ_max of a symmetric 3×3 matrix in closed form (the trigonometric solution of the
+    characteristic cubic; equal to ``np.linalg.eigvalsh(m)[-1]`` to rounding, tested); NaN
+    when ``m`` is not finite."""
+    a00, a11, a22 = m[0, 0], m[1, 1], m[2, 2]
+    a01, a02, a12 = m[0, 1], m[0, 2], m[1, 2]
+    p1 = a01 * a01 + a02 * a02 + a12 * a12
+    q = (a00 + a11 + a22) / 3.0
+    if not math.isfinite(p1 + q):
+        return np.nan
+    d0, d1, d2 = a00 - q, a11 - q, a22 - q
+    p2 = d0 * d0 + d1 * d1 + d2 * d2 + 2.0 * p1
+    if p2 == 0.0:  # a multiple of the identity
+        return q
+    p = math.sqrt(p2 / 6.0)
+    # r = det((m − q·I) / p) / 2, in [−1, 1] up to rounding
+    det = d0 * (d1 * d2 - a12 * a12) - a01 * (a01 * d2 - a12 * a02) + a02 * (a01 * a12 - d1 * a02)
+    r = det / (2.0 * p * p * p)
+    r = min(1.0, max(-1.0, r))
+    return q + 2.0 * p * math.cos(math.acos(r) / 3.0)
+
+
+@njit(cache=True, nogil=True)
 def _lock_kernel(
     K_l: np.ndarray,
     dist_l: np.ndarray,
@@ -466,9 +490,10 @@ def _lock_kernel(
     c: np.ndarray,
     nrm: np.ndarray,
     radius: float,
-) -> tuple[np.ndarray, np.ndarray, float]:  # pragma: no cover - compiled
+) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:  # pragma: no cover - compiled
     """(point covariances N×3×3 and centre covariance 3×3 with σ² + systematic² per image,
-    mm²; the χ² statistic with σ alone); NaN centre covariance when the fit is degenerate."""
+    mm²; the χ² statistic with σ alone; the largest eigenvalue of each point's covariance,
+    then of the centre's, mm²); NaN centre covariance when the fit is degenerate."""
     _, gain, C, a, epi = _stereo_kernel(
         K_l, dist_l, P_l, K_r, dist_r, P_r, left_px, right_px, X, sigma_l, sigma_r, False
     )
@@ -488,9 +513,13 @@ def _lock_kernel(
     for k in range(X.shape[0]):
         jk = jt[0:3, 3 * k : 3 * k + 3].copy()
         centre += _mm(_mm(jk, cov[k]), jk.T.copy())
+    lam = np.empty(n + 1)
+    for k in range(n):
+        lam[k] = _largest_eigenvalue_sym3(cov[k])
+    lam[n] = _largest_eigenvalue_sym3(centre)
     if not np.all(np.isfinite(jr)):
-        return cov, centre, np.nan
-    return cov, centre, _chi2_kernel(a, gain, C, epi, X, c, nrm, radius, jr)
+        return cov, centre, np.nan, lam
+    return cov, centre, _chi2_kernel(a, gain, C, epi, X, c, nrm, radius, jr), lam
 
 
 @dataclass(frozen=True)
@@ -501,6 +530,9 @@ class LockTerms:
     center_cov_mm2: FloatArray  # (3, 3), σ² + systematic² per image
     chi2: float  # the χ² statistic of :func:`fit_consistency` (σ alone)
     dof: int  # 3N − 6
+    # (N + 1,) the largest eigenvalue of each LED's covariance, then of the centre's (mm²):
+    # the "eigen" protection levels sqrt(λ_max·χ²₃(1 − p)) of :func:`led_protection_levels_mm`
+    lambda_max_mm2: FloatArray
 
 
 def lock_terms(
@@ -526,10 +558,12 @@ def lock_terms(
     if not (math.isfinite(systematic_px) and systematic_px >= 0.0):
         raise ValueError("systematic_px must be finite and ≥ 0 (px)")
     c, nrm = _center_normal(circle)
-    cov, centre, T = _lock_kernel(*args, float(systematic_px), c, nrm, float(circle.radius))
+    cov, centre, T, lam = _lock_kernel(*args, float(systematic_px), c, nrm, float(circle.radius))
     if not (np.all(np.isfinite(centre)) and math.isfinite(T)):
         raise FitError("the circle fit is degenerate at these points")
-    return LockTerms(led_cov_mm2=cov, center_cov_mm2=centre, chi2=float(T), dof=3 * n - 6)
+    return LockTerms(
+        led_cov_mm2=cov, center_cov_mm2=centre, chi2=float(T), dof=3 * n - 6, lambda_max_mm2=lam
+    )
 
 
 # ---- protection level -------------------------------------------------------------------
@@ -609,6 +643,24 @@ def _pl_kernel(
             x = xn
         out[i] = math.sqrt(x)
     return out
+
+
+@lru_cache(maxsize=16)
+def chi2_3_quantile(p_exceed: float) -> float:
+    """χ²₃(1 − p): the squared radius a standard 3-D Gaussian exceeds with probability p."""
+    if not 0.0 < p_exceed < 1.0:
+        raise ValueError("p_exceed must be in (0, 1)")
+    return float(chdtri(3.0, p_exceed))
+
+
+def eigen_protection_levels_mm(lambda_max_mm2: FloatArray, p_exceed: float = 1e-3) -> FloatArray:
+    """The ``method="eigen"`` levels of :func:`led_protection_levels_mm`, sqrt(λ_max·χ²₃(1 − p))
+    mm, from each covariance's largest eigenvalue (mm², e.g. :class:`LockTerms`'
+    ``lambda_max_mm2``); ``ValueError`` when one is not finite."""
+    lam = np.asarray(lambda_max_mm2, dtype=np.float64)
+    if not np.all(np.isfinite(lam)):
+        raise ValueError("covariance is not finite")
+    return np.asarray(np.sqrt(np.maximum(lam, 0.0) * chi2_3_quantile(float(p_exceed))))
 
 
 def led_protection_levels_mm(

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -22,8 +23,8 @@ from scipy.special import chdtrc
 
 from app.geometry.calibration import StereoCalibration
 from app.geometry.circle_fit import Circle3D, FitError
-from app.geometry.uncertainty import led_protection_levels_mm, lock_terms
-from app.vision.result import DrogueResult, LedResult
+from app.geometry.uncertainty import eigen_protection_levels_mm, lock_terms
+from app.vision.result import DrogueResult
 from app.vision.types import Blob
 
 FloatArray = NDArray[np.float64]
@@ -92,7 +93,7 @@ def lock_bound(
     triangulated points mm and the fitted circle); None when a σ is not measured."""
     sl = np.asarray(sigma_left_px, dtype=np.float64)
     sr = np.asarray(sigma_right_px, dtype=np.float64)
-    if not cfg.enabled or not (np.all(np.isfinite(sl)) and np.all(np.isfinite(sr))):
+    if not cfg.enabled or not all(math.isfinite(v) for v in sl.tolist() + sr.tolist()):
         return None
     if cfg.calibration_px > 0:
         c2 = cfg.calibration_px * cfg.calibration_px
@@ -103,11 +104,10 @@ def lock_bound(
         )
     except (FitError, np.linalg.LinAlgError, ValueError):
         return None
-    # the LEDs' and the centre's levels in one call: sqrt(λ_max·χ²₃(1 − p)), conservative by
-    # construction (≤ 1.23× the exact quantile of :func:`protection_level_mm`, 4× cheaper)
-    levels = led_protection_levels_mm(
-        np.concatenate([terms.led_cov_mm2, terms.center_cov_mm2[None]]), cfg.p_exceed, "eigen"
-    )
+    # the LEDs' and the centre's levels: sqrt(λ_max·χ²₃(1 − p)), conservative by construction
+    # (≤ 1.23× the exact quantile of :func:`protection_level_mm`, 4× cheaper), from the
+    # largest eigenvalues the compiled call gives (led_protection_levels_mm's "eigen" levels)
+    levels = eigen_protection_levels_mm(terms.lambda_max_mm2, cfg.p_exceed)
     p_value = float(chdtrc(terms.dof, terms.chi2))
     return LockBound(
         led_cov_mm2=terms.led_cov_mm2,
@@ -121,49 +121,19 @@ def lock_bound(
     )
 
 
-def with_bound(
-    leds: list[LedResult],
-    drogue: DrogueResult,
-    bound: LockBound,
-    sigmas_px: list[tuple[float, float]],
-) -> tuple[list[LedResult], DrogueResult]:
-    """The result records with the bound's numbers (``leds`` in the bound's row order)."""
-    out = [
-        led.model_copy(
-            update={
-                "sigma_px": sigmas_px[k],
-                "cov_mm2": bound.led_cov_mm2[k].tolist(),
-                "protection_level_mm": float(bound.led_pl_mm[k]),
-            }
-        )
-        for k, led in enumerate(leds)
-    ]
-    dro = drogue.model_copy(
-        update={
-            "center_cov_mm2": bound.center_cov_mm2.tolist(),
-            "protection_level_mm": bound.center_pl_mm,
-            "fit_chi2": bound.chi2,
-            "fit_dof": bound.dof,
-        }
-    )
-    return out, dro
-
-
-def bound_result(
+def bound_lock(
     calib: StereoCalibration,
     left_px: FloatArray,
     right_px: FloatArray,
     sigmas_px: list[tuple[float, float]],
     xyz_mm: FloatArray,
     circle: Circle3D,
-    leds: list[LedResult],
-    drogue: DrogueResult,
     cfg: ErrorBoundConfig,
-) -> tuple[list[LedResult], DrogueResult] | str:
-    """A lock's records with its bound (rows: the ring LEDs' distorted centroids px in both
-    images, their (left, right) σ px, their points mm and ``leds``, all in the same order),
-    the records unchanged where no σ is measured, or the no-lock reason when its residuals are
-    inconsistent and ``cfg.refuse_inconsistent``."""
+) -> LockBound | None | str:
+    """:func:`lock_bound` of a lock's ring LEDs (rows: their distorted centroids px in both
+    images, their (left, right) σ px, their points mm, all in the same order): the bound,
+    None where no σ is measured, or the no-lock reason when its residuals are inconsistent
+    and ``cfg.refuse_inconsistent``."""
     bound = lock_bound(
         calib,
         np.asarray(left_px, dtype=np.float64),
@@ -174,8 +144,41 @@ def bound_result(
         circle,
         cfg,
     )
-    if bound is None:
-        return leds, drogue
-    if not bound.consistent and cfg.refuse_inconsistent:
+    if bound is not None and not bound.consistent and cfg.refuse_inconsistent:
         return bound.refusal()
-    return with_bound(leds, drogue, bound, sigmas_px)
+    return bound
+
+
+def led_bound_fields(
+    bound: LockBound | None, k: int, sigma_px: tuple[float, float]
+) -> dict[str, Any]:
+    """The bound's fields of row ``k``'s :class:`LedResult` (none without a bound): the
+    records are built once with them."""
+    if bound is None:
+        return {}
+    return {
+        "sigma_px": sigma_px,
+        "cov_mm2": bound.led_cov_mm2[k].tolist(),
+        "protection_level_mm": float(bound.led_pl_mm[k]),
+    }
+
+
+def drogue_with_bound(circle: Circle3D, bound: LockBound | None) -> DrogueResult:
+    """The result contract's drogue (centre mm, unit normal, radius mm, RMS mm) and, with a
+    bound, its centre covariance, protection level and residual test."""
+    c, n = circle.center.tolist(), circle.normal.tolist()
+    fields: dict[str, Any] = {}
+    if bound is not None:
+        fields = {
+            "center_cov_mm2": bound.center_cov_mm2.tolist(),
+            "protection_level_mm": bound.center_pl_mm,
+            "fit_chi2": bound.chi2,
+            "fit_dof": bound.dof,
+        }
+    return DrogueResult(
+        center_mm=(c[0], c[1], c[2]),
+        normal=(n[0], n[1], n[2]),
+        radius_mm=float(circle.radius),
+        rms_mm=float(circle.rms),
+        **fields,
+    )

@@ -17,7 +17,6 @@ from typing import Literal
 import numpy as np
 
 from app.geometry.calibration import StereoCalibration
-from app.geometry.circle_fit import Circle3D
 from app.geometry.led_ids import DEFAULT_PHASE_DEG, led_ids_for_angles, roll_from_offset
 from app.geometry.projection import undistort_pixels
 from app.geometry.ring import RingFit, RingParams, RingPrior, find_ring
@@ -30,7 +29,14 @@ from app.vision.appearance import (
     blob_color_bgr,
     colour_reason,
 )
-from app.vision.error_bound import ErrorBoundConfig, bound_result, isotropic_sigma_px, lock_bound
+from app.vision.error_bound import (
+    ErrorBoundConfig,
+    bound_lock,
+    drogue_with_bound,
+    isotropic_sigma_px,
+    led_bound_fields,
+    lock_bound,
+)
 from app.vision.features import (
     BAND_ROWS,
     MAX_REJECTED_REPORTED,
@@ -39,7 +45,7 @@ from app.vision.features import (
     detect_blobs,
 )
 from app.vision.ihwt import describe
-from app.vision.local_centroid import LocalCentroidConfig, refine_blobs
+from app.vision.local_centroid import LocalCentroidConfig
 from app.vision.matching import (
     MatchArrays,
     descriptor_distances,
@@ -53,14 +59,13 @@ from app.vision.preprocess import (
     ColourDetect,
     ImageError,
     ThresholdMode,
-    background_from_histogram,
     choose_threshold,
     detection_image,
+    frame_levels,
     frame_summary,
-    noise_sigma,
     validate_image,
 )
-from app.vision.result import DrogueResult, LedResult, PoseResult, StageTimings
+from app.vision.result import LedResult, PoseResult, StageTimings
 from app.vision.types import Blob, FeatureSet, Match, RejectedBlob
 
 OUR_WINDOW_FACTOR = 8.0
@@ -83,17 +88,6 @@ def check_pair(
                 f"is for {w}×{h} px"
             )
     return left, right
-
-
-def drogue_result(circle: Circle3D) -> DrogueResult:
-    """The result contract's drogue (centre mm, unit normal, radius mm, RMS mm)."""
-    c, n = circle.center, circle.normal
-    return DrogueResult(
-        center_mm=(float(c[0]), float(c[1]), float(c[2])),
-        normal=(float(n[0]), float(n[1]), float(n[2])),
-        radius_mm=float(circle.radius),
-        rms_mm=float(circle.rms),
-    )
 
 
 @dataclass(frozen=True)
@@ -203,18 +197,24 @@ class NavigationPipeline:
         gray = detection_image(image, cfg.colour_detect)
         t0 = time.perf_counter()
         # one pass over the frame: the band maxima (the peak of eq. 10's "auto" rule and the
-        # bright bands) and the background's histogram
-        bands, hist = frame_summary(gray, BAND_ROWS, BACKGROUND_ROW_STEP, BACKGROUND_COL_STEP)
+        # bright bands), the background's histogram and that of neighbouring pixels'
+        # differences
+        bands, hist, dhist = frame_summary(
+            gray, BAND_ROWS, BACKGROUND_ROW_STEP, BACKGROUND_COL_STEP
+        )
         # the background level (median) and the sensor's noise σ from neighbouring pixels'
-        # differences: the MAD of the values would measure a sunlit scene, not the noise,
-        # and lift the 6σ floor of eq. 10's threshold above unsaturated LEDs
-        bg = background_from_histogram(hist)[0]
-        stats = (bg, noise_sigma(gray))
+        # differences (preprocess.noise_sigma): the MAD of the values would measure a sunlit
+        # scene, not the noise, and lift the 6σ floor of eq. 10's threshold above unsaturated
+        # LEDs
+        stats = frame_levels(hist, dhist)
+        bg = stats[0]
         threshold = choose_threshold(gray, cfg.threshold, stats, float(bands.max()))
         t1 = time.perf_counter()
         # binarise, median-filter, label and centroid only around the bright pixels
-        blobs, rejected = detect_blobs(gray, threshold, bg, cfg.gate, cfg.median_ksize, bands)
-        blobs = refine_blobs(gray, blobs, cfg.centroid)
+        # (each blob built once with its local-support centroid: app.vision.local_centroid)
+        blobs, rejected = detect_blobs(
+            gray, threshold, bg, cfg.gate, cfg.median_ksize, bands, cfg.centroid
+        )
         if image.ndim == 3 and cfg.appearance.enabled:
             sat = cfg.appearance.saturated_dn
             blobs = [replace(b, color_bgr=blob_color_bgr(image, b, threshold, sat)) for b in blobs]
@@ -442,42 +442,47 @@ class NavigationPipeline:
         ids = led_ids_for_angles(slot_angles, roll, cfg.led_count, cfg.led_phase_deg)
         self.trace.roll_deg = roll
         self._track = _Track(ring.circle.center.copy(), ring.circle.normal.copy(), roll)
-        leds = []
-        rows: list[tuple[Blob, Blob, np.ndarray]] = []
-        for k, led_id in sorted(zip(ring.indices, ids.tolist(), strict=True), key=lambda t: t[1]):
-            j = int(idx[k])
-            blob_l = feats_l.blobs[int(matches.left[j])]
-            blob_r = feats_r.blobs[int(matches.right[j])]
-            bl, br = blob_l.centroid_px, blob_r.centroid_px
-            x = X[j]
-            rows.append((blob_l, blob_r, x))
-            leds.append(
-                LedResult(
-                    id=int(led_id),
-                    left_px=(bl[0], bl[1]),
-                    right_px=(br[0], br[1]),
-                    xyz_mm=(float(x[0]), float(x[1]), float(x[2])),
-                    descriptor_distance=float(matches.descriptor_distance[j]),
-                    epipolar_px=float(matches.epipolar_px[j]),
-                    reprojection_px=float(reproj[j]),
-                )
-            )
-        drogue = drogue_result(ring.circle)
+        # the ring's LEDs in id order, their bound, then the records, built once with it
+        order = sorted(zip(ring.indices, ids.tolist(), strict=True), key=lambda t: t[1])
+        rows = [int(idx[k]) for k, _ in order]
+        blobs_l = [feats_l.blobs[int(matches.left[j])] for j in rows]
+        blobs_r = [feats_r.blobs[int(matches.right[j])] for j in rows]
+        sigmas = [
+            (isotropic_sigma_px(a), isotropic_sigma_px(b))
+            for a, b in zip(blobs_l, blobs_r, strict=True)
+        ]
+        X_ring = X[rows]
         t3 = time.perf_counter()
-        bounded = bound_result(
+        bound = bound_lock(
             cal,
-            np.array([r[0].centroid_px for r in rows]),
-            np.array([r[1].centroid_px for r in rows]),
-            [(isotropic_sigma_px(r[0]), isotropic_sigma_px(r[1])) for r in rows],
-            np.array([r[2] for r in rows]),
+            np.array([b.centroid_px for b in blobs_l]),
+            np.array([b.centroid_px for b in blobs_r]),
+            sigmas,
+            X_ring,
             ring.circle,
-            leds,
-            drogue,
             cfg.error_bound,
         )
         self._stage_ms["bound"] = (time.perf_counter() - t3) * 1e3
-        if isinstance(bounded, str):
+        if isinstance(bound, str):
             self._track = None
-            return PoseResult(lock=False, reason=bounded)
-        leds, drogue = bounded
+            return PoseResult(lock=False, reason=bound)
+        X_f = X_ring.tolist()
+        leds = [
+            LedResult(
+                id=int(led_id),
+                left_px=bl.centroid_px,
+                right_px=br.centroid_px,
+                xyz_mm=(x[0], x[1], x[2]),
+                descriptor_distance=float(matches.descriptor_distance[j]),
+                epipolar_px=float(matches.epipolar_px[j]),
+                reprojection_px=float(reproj[j]),
+                **led_bound_fields(bound, k, sigmas[k]),
+            )
+            for k, ((_, led_id), j, bl, br, x) in enumerate(
+                zip(order, rows, blobs_l, blobs_r, X_f, strict=True)
+            )
+        ]
+        t4 = time.perf_counter()
+        drogue = drogue_with_bound(ring.circle, bound)
+        self._stage_ms["bound"] += (time.perf_counter() - t4) * 1e3
         return PoseResult(lock=True, reason=None, leds=leds, drogue=drogue)

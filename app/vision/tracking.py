@@ -37,7 +37,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Literal
 
 import cv2
@@ -69,7 +69,12 @@ from app.vision.appearance import (
     equivalent_radius_px,
 )
 from app.vision.blob_kernels import window_blobs
-from app.vision.error_bound import bound_result, isotropic_sigma_px
+from app.vision.error_bound import (
+    bound_lock,
+    drogue_with_bound,
+    isotropic_sigma_px,
+    led_bound_fields,
+)
 from app.vision.features import gate_array
 from app.vision.ihwt import SAMPLES_PER_SUBSQUARE, describe
 from app.vision.ihwt import window_side_px as ihwt_window_side_px
@@ -78,9 +83,10 @@ from app.vision.local_centroid import (
     OUT_X1,
     OUT_Y0,
     OUT_Y1,
-    measure_blobs,
+    box_table,
+    local_blob,
+    local_centroids,
     window_pad_px,
-    with_local_centroids,
 )
 from app.vision.matching import epipolar_distances
 from app.vision.pipeline import (
@@ -89,7 +95,6 @@ from app.vision.pipeline import (
     PipelineTrace,
     _Track,
     check_pair,
-    drogue_result,
 )
 from app.vision.preprocess import (
     ImageError,
@@ -196,6 +201,8 @@ class StereoTracker:
         self._planned: tuple[list[_Window], list[_Window]] | None = None
         self._params: RingParams = self.pipeline._ring_params()
         self._gate = gate_array(self.config.gate)
+        # _support_half by blob radius (px): a few radii recur frame after frame
+        self._support_cache: dict[float, float] = {}
 
     def reset(self) -> None:
         """Forget the lock and the pipeline's track (a new, unrelated sequence)."""
@@ -308,7 +315,17 @@ class StereoTracker:
     # ------------------------------------------------------------------ tracking
     def _support_half(self, radius_px: float) -> float:
         """Half-size (px) around a centroid that must lie inside its window: the blob, its
-        eq. 11 centroid margin and (with descriptors) the IHWT descriptor window."""
+        eq. 11 centroid margin and (with descriptors) the IHWT descriptor window (cached by
+        radius: :meth:`_support_half_of`)."""
+        got = self._support_cache.get(radius_px)
+        if got is None:
+            if len(self._support_cache) > 256:
+                self._support_cache.clear()
+            got = self._support_cache[radius_px] = self._support_half_of(radius_px)
+        return got
+
+    def _support_half_of(self, radius_px: float) -> float:
+        """:meth:`_support_half` computed."""
         area = math.pi * radius_px * radius_px
         support = radius_px + 2.0 + max(2.0, 0.5 * math.sqrt(area)) + 2.0
         # the local centroid's window and its background ring (app.vision.local_centroid)
@@ -454,7 +471,15 @@ class StereoTracker:
         counts, stats, cents = window_blobs(
             gray, rows, thr, np.array(bgs, np.float64), cfg.median_ksize, self._gate
         )
+        # the local-support centroids of all windows' blobs in one compiled call (a window
+        # with no blob or several is refused below before its row is used)
+        local = (
+            local_centroids(gray, box_table(stats), cfg.centroid.params()).tolist()
+            if cfg.centroid.enabled
+            else None
+        )
         got: list[dict[int, Blob]] = [{}, {}]
+        outside: str | None = None  # the first blob whose local centroid reads outside its window
         for k, ((x, y, w, h, area), (u, v, mass, peak), n) in enumerate(
             zip(stats.tolist(), cents.tolist(), counts.tolist(), strict=True)
         ):
@@ -475,28 +500,28 @@ class StereoTracker:
                 or v + need > win.row + side - 1
             ):
                 raise _Fallback(f"LED {win.led_id} is at the edge of its {side_name} window")
-            blob = Blob((u, v), area, (x, y, w, h), peak, mass)
+            colour = None
             if mosaic.ndim == 3 and cfg.appearance.enabled:
                 t = thr_l if k < len(win_l) else thr_r
                 sat = cfg.appearance.saturated_dn
-                blob = replace(blob, color_bgr=blob_color_bgr(mosaic, blob, t, sat))
-            got[0 if k < len(win_l) else 1][win.led_id] = blob
-        # the local-support centroids of all windows' blobs in one compiled call; the pixels
-        # each reads must lie in its own window (else they are not the full frame's)
-        if cfg.centroid.enabled:
-            bounds = {w.led_id + (0 if k < len(win_l) else 1 << 20): w for k, w in enumerate(wins)}
-            for s, found in enumerate(got):
-                ids = list(found)
-                table = measure_blobs(gray, [found[i] for i in ids], cfg.centroid)
-                for i, row in zip(ids, table.tolist(), strict=True):
-                    w = bounds[i + (s << 20)]
-                    x0, y0, x1, y1 = row[OUT_X0], row[OUT_Y0], row[OUT_X1], row[OUT_Y1]
-                    if x0 < w.mx or y0 < w.row or x1 > w.mx + side or y1 > w.row + side:
-                        raise _Fallback(f"LED {i}'s centroid support leaves its window")
-                for i, blob in zip(
-                    ids, with_local_centroids([found[i] for i in ids], table), strict=True
+                colour = blob_color_bgr(
+                    mosaic, Blob((u, v), area, (x, y, w, h), peak, mass), t, sat
+                )
+            if local is None:
+                blob = Blob((u, v), area, (x, y, w, h), peak, mass, colour)
+            else:
+                # the pixels the local centroid reads must lie in its own window (else they
+                # are not the full frame's)
+                row = local[k]
+                x0, y0, x1, y1 = row[OUT_X0], row[OUT_Y0], row[OUT_X1], row[OUT_Y1]
+                if outside is None and (
+                    x0 < win.mx or y0 < win.row or x1 > win.mx + side or y1 > win.row + side
                 ):
-                    found[i] = blob
+                    outside = f"LED {win.led_id}'s centroid support leaves its window"
+                blob = local_blob((u, v), area, (x, y, w, h), peak, mass, colour, row)
+            got[0 if k < len(win_l) else 1][win.led_id] = blob
+        if outside is not None:
+            raise _Fallback(outside)
         return win_l, win_r, gray, got[0], got[1], (thr_l, thr_r)
 
     def _track_frame(
@@ -592,6 +617,12 @@ class StereoTracker:
         # the pipeline's trace describes its last full frame; a tracked frame leaves only
         # its thresholds there (no full-frame features were computed)
         self.pipeline.trace = PipelineTrace(thresholds=(thr_l, thr_r), roll_deg=roll)
+        sigmas = [
+            (isotropic_sigma_px(a), isotropic_sigma_px(b)) for a, b in zip(bl, br, strict=True)
+        ]
+        bound = bound_lock(cal, pl, pr, sigmas, X, circle, cfg.error_bound)
+        if isinstance(bound, str):
+            raise _Fallback(bound)
         results = [
             LedResult(
                 id=i,
@@ -601,20 +632,14 @@ class StereoTracker:
                 descriptor_distance=d,
                 epipolar_px=e,
                 reprojection_px=rp,
+                **led_bound_fields(bound, k, sigmas[k]),
             )
             for k, (i, d, e, rp) in enumerate(
                 zip(led_ids, desc_dist.tolist(), epi.tolist(), reproj.tolist(), strict=True)
             )
         ]
-        sigmas = [
-            (isotropic_sigma_px(a), isotropic_sigma_px(b)) for a, b in zip(bl, br, strict=True)
-        ]
-        bounded = bound_result(
-            cal, pl, pr, sigmas, X, circle, results, drogue_result(circle), cfg.error_bound
-        )
-        if isinstance(bounded, str):
-            raise _Fallback(bounded)
-        return PoseResult(lock=True, reason="tracked", leds=bounded[0], drogue=bounded[1])
+        drogue = drogue_with_bound(circle, bound)
+        return PoseResult(lock=True, reason="tracked", leds=results, drogue=drogue)
 
     def _ring_checks(self, X: np.ndarray, st: _State) -> tuple[Circle3D, float, list[int]]:
         """The ring tests of :func:`app.geometry.ring.find_ring` on the tracked points, with
