@@ -235,7 +235,7 @@ let cameraBusy = false;
 async function fetchCamera(side, source) {
   const r = await fetch(API + "/camera/" + side + ".jpg?source=" + source, { cache: "no-store" });
   if (!r.ok) return null;
-  return { blob: await r.blob(), seq: Number(r.headers.get("X-Seq")), ids: r.headers.get("X-Led-Ids") || "", lock: r.headers.get("X-Lock") === "1" };
+  return { blob: await r.blob(), seq: Number(r.headers.get("X-Seq")), ids: r.headers.get("X-Led-Ids") || "", lock: r.headers.get("X-Lock") === "1", rejected: Number(r.headers.get("X-Rejected") || 0) };
 }
 
 function showCamera(img, cap, side, got) {
@@ -244,7 +244,7 @@ function showCamera(img, cap, side, got) {
   img.src = img.dataset.url;
   img.dataset.seq = String(got.seq);
   if (old) URL.revokeObjectURL(old);
-  cap.textContent = side + " · #" + got.seq + " · " + (got.lock ? "LOCK" : "NO LOCK") + " · LEDs " + (got.ids ? got.ids.split(",").join(" ") : "none");
+  cap.textContent = side + " · #" + got.seq + " · " + (got.lock ? "LOCK" : "NO LOCK") + " · LEDs " + (got.ids ? got.ids.split(",").join(" ") : "none") + (got.rejected ? " · rejected " + got.rejected : "");
   cap.dataset.ids = got.ids;
 }
 

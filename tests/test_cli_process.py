@@ -27,7 +27,16 @@ def test_process_json_contract(pair_dir, capsys):
     d, truth = pair_dir
     assert main(["process", str(d / "left.png"), str(d / "right.png"), "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
-    assert set(out) == {"lock", "reason", "leds", "drogue", "timing_ms"}
+    assert set(out) == {
+        "lock",
+        "reason",
+        "leds",
+        "drogue",
+        "timing_ms",
+        "rejected_left_px",
+        "rejected_right_px",
+    }
+    assert out["rejected_left_px"] == out["rejected_right_px"] == []  # a clean pair: none
     assert out["lock"] is True and out["reason"] is None
     assert set(out["drogue"]) == {
         "center_mm",

@@ -15,7 +15,7 @@ from app.server.main import create_app
 from app.server.settings import Settings
 from app.streams.annotations import led_color
 
-PAIR = Path(__file__).resolve().parents[1] / "sample_data" / "pair_1000mm"
+PAIR = Path(__file__).resolve().parents[1] / "sample_data" / "pair_1000mm_clutter"
 
 
 def _led_colour_near(img_bgr: np.ndarray, u: float, v: float, rgb: tuple[int, int, int]) -> bool:
@@ -85,6 +85,13 @@ def test_uploaded_pair_is_drawn_by_the_same_producer(tmp_path: Path) -> None:
             r = c.get(f"/api/v1/camera/{side}.jpg", params={"source": "upload"})
             assert r.status_code == 200
             assert r.headers["x-led-ids"] == ",".join(str(led["id"]) for led in res["leds"])
+            rejected = res[f"rejected_{side}_px"]
+            assert len(rejected) >= 5 and r.headers["x-rejected"] == str(len(rejected))
+            img = cv2.imdecode(np.frombuffer(r.content, np.uint8), cv2.IMREAD_COLOR)
+            for u, v in rejected:  # a grey tilted cross on each clutter light: its 4 arms
+                x, y = round(u * 480 / 1280), round(v * 480 / 1280)
+                arms = [img[y + dy, x + dx] for dx in (-3, 3) for dy in (-3, 3)]
+                assert all(int(a.min()) > 80 for a in arms), (u, v, arms)
             _check_drawn(r.content, res["leds"], f"{side}_px", 1280)
         # the live stream is stopped: no live image
         assert c.get("/api/v1/camera/left.jpg").status_code == 404

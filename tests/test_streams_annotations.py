@@ -54,3 +54,15 @@ def test_windows_and_banner_are_drawn() -> None:
 
 def test_colours_cycle_past_five_ids() -> None:
     assert led_color(6) == led_color(1) and led_color(5) != led_color(1)
+
+
+def test_rejected_candidates_are_grey_crosses() -> None:
+    img = np.zeros((1024, 1280), np.uint8)
+    pose = PoseResult(lock=False, rejected_left_px=[(400.0, 400.0)], rejected_right_px=[])
+    marks = image_marks(pose, "left")
+    assert marks.rejected_px == ((400.0, 400.0),) and image_marks(pose, "right").rejected_px == ()
+    out = annotate(img, pose, "left", width=640)
+    # a tilted cross centred on (200, 200): grey on its diagonals, dark off them
+    diag = out[202, 202].astype(int)
+    assert diag.min() > 60 and np.ptp(diag) < 30
+    assert out[200, 206].sum() < 60

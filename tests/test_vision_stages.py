@@ -311,3 +311,31 @@ def test_epipolar_distances_equal_opencv_epilines(calib):
     got = epipolar_distances(F, xl, xr)
     assert got.shape == (7, 9) and np.median(ref) > 1.0
     assert np.allclose(got, ref, rtol=1e-9, atol=1e-9)
+
+
+@pytest.mark.parametrize("pair", ["pair_1000mm", "pair_1000mm_clutter"])
+def test_rejected_candidates_are_the_renderers_clutter_lights(pair: str) -> None:
+    """The result names the candidates it did not use: on the clutter pair, exactly the
+    rendered distractor lights in view (renderer truth, within 0.2 px); none on a clean pair."""
+    import json
+    from pathlib import Path
+
+    from app.sim.paths import load_default_calibration
+
+    d = Path(__file__).resolve().parents[1] / "sample_data" / pair
+    truth = json.loads((d / "truth.json").read_text())
+    left = cv2.imread(str(d / "left.png"), cv2.IMREAD_UNCHANGED)
+    right = cv2.imread(str(d / "right.png"), cv2.IMREAD_UNCHANGED)
+    res = NavigationPipeline(load_default_calibration()).process(left, right)
+    assert res.lock
+    for side in ("left", "right"):
+        rejected = np.array(getattr(res, f"rejected_{side}_px")).reshape(-1, 2)
+        clutter = np.array(
+            [p for p in truth.get(f"clutter_{side}_px", []) if p[0] is not None], float
+        ).reshape(-1, 2)
+        assert len(rejected) == len(clutter)
+        for u, v in rejected:
+            assert np.min(np.linalg.norm(clutter - (u, v), axis=1)) < 0.2
+        leds = np.array([led.left_px if side == "left" else led.right_px for led in res.leds])
+        for u, v in rejected:  # never an LED of the lock
+            assert np.min(np.linalg.norm(leds - (u, v), axis=1)) > 3.0

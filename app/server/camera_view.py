@@ -35,6 +35,7 @@ class CameraImage:
     led_ids: tuple[int, ...]
     lock: bool
     windows: int
+    rejected: int  # candidates drawn as rejected (grey crosses)
 
 
 class CameraView:
@@ -99,6 +100,7 @@ class CameraView:
             led_ids=tuple(marks.led_ids),
             lock=bool(record.lock),
             windows=len(marks.windows_px),
+            rejected=len(marks.rejected_px),
         )
         with self._lock:
             self._encoded[(kind, side)] = out

@@ -3,7 +3,9 @@ page, the 3-D view's side panel; its marks are what image-annotation channels ca
 
 :func:`image_marks` collects, for one image of a stereo pair, the matched LEDs (their
 centroids, px, and ids — a matched pair carries the same id and colour in both images, paper
-§4's correspondence) and the tracker's windows where the frame has them (x0, y0, x1, y1, px);
+§4's correspondence), the rejected candidates (blobs of a full-frame acquisition that are not
+among the LEDs: gated out, unmatched or refused) and the tracker's windows where the frame has
+them (x0, y0, x1, y1, px);
 :func:`draw_marks` draws them with OpenCV on a copy of the image, downscaled to ``width`` px.
 """
 
@@ -30,6 +32,7 @@ LED_COLORS_RGB: tuple[tuple[int, int, int], ...] = (
     (190, 80, 230),
 )
 WINDOW_RGB = (90, 170, 255)
+REJECTED_RGB = (150, 150, 150)
 
 
 def led_color(led_id: int) -> tuple[int, int, int]:
@@ -53,6 +56,7 @@ class ImageMarks:
     side: Side
     leds: tuple[LedMark, ...] = ()
     windows_px: tuple[Rect, ...] = ()
+    rejected_px: tuple[tuple[float, float], ...] = ()  # candidates not among the LEDs
     lock: bool | None = None  # None: no lock banner
     reason: str | None = None
 
@@ -70,14 +74,17 @@ def image_marks(
 ) -> ImageMarks:
     """The marks of ``side`` for a pipeline result (``pose`` None: windows and banner only)."""
     leds: tuple[LedMark, ...] = ()
+    rejected: tuple[tuple[float, float], ...] = ()
     if pose is not None:
         leds = tuple(
             LedMark(led.id, *(led.left_px if side == "left" else led.right_px)) for led in pose.leds
         )
+        rejected = tuple(pose.rejected_left_px if side == "left" else pose.rejected_right_px)
     return ImageMarks(
         side=side,
         leds=leds,
         windows_px=tuple(tuple(int(c) for c in w) for w in (windows_px or ())),  # type: ignore[misc]
+        rejected_px=rejected,
         lock=lock,
         reason=None if pose is None else pose.reason,
     )
@@ -87,7 +94,8 @@ def draw_marks(
     image: NDArray[np.generic], marks: ImageMarks, *, width: int = 320
 ) -> NDArray[np.uint8]:
     """An RGB uint8 copy of ``image`` (gray or BGR) ``width`` px wide with ``marks`` drawn: each
-    LED circled and labelled with its id in its colour, the tracker's windows outlined, and a
+    LED circled and labelled with its id in its colour, each rejected candidate a grey cross,
+    the tracker's windows outlined, and a
     LOCK / NO LOCK banner when ``marks.lock`` is set."""
     img = np.asarray(image)
     if img.dtype != np.uint8:
@@ -102,6 +110,9 @@ def draw_marks(
         p0 = (int(round(x0 * scale)), int(round(y0 * scale)))
         p1 = (int(round(x1 * scale)), int(round(y1 * scale)))
         cv2.rectangle(rgb, p0, p1, WINDOW_RGB, 1, lineType=cv2.LINE_AA)
+    for u, v in marks.rejected_px:  # a grey cross: seen, not an LED of the lock
+        c = (int(round(u * scale)), int(round(v * scale)))
+        cv2.drawMarker(rgb, c, REJECTED_RGB, cv2.MARKER_TILTED_CROSS, 9, 1, cv2.LINE_AA)
     for m in marks.leds:
         c = (int(round(m.u_px * scale)), int(round(m.v_px * scale)))
         color = led_color(m.led_id)

@@ -54,7 +54,14 @@ from numpy.typing import NDArray
 
 from app.geometry.calibration import StereoCalibration
 from app.sim.frames import euler_to_matrix
-from app.streams.annotations import WINDOW_RGB, Rect, Side, image_marks, led_color
+from app.streams.annotations import (
+    REJECTED_RGB,
+    WINDOW_RGB,
+    Rect,
+    Side,
+    image_marks,
+    led_color,
+)
 from app.vision.result import PoseResult
 
 if TYPE_CHECKING:
@@ -656,6 +663,18 @@ def _annotations(tick: McapTick, side: Side, ts: fm.Timestamp) -> fm.ImageAnnota
                 font_size=14.0,
                 text_color=c,
                 background_color=Color(r=0.0, g=0.0, b=0.0, a=0.5),
+            )
+        )
+    if marks.rejected_px:
+        grey = colour(REJECTED_RGB)
+        points.append(
+            PointsAnnotation(
+                timestamp=ts,
+                type=PointsAnnotationType.Points,
+                points=[Point2(x=float(u), y=float(v)) for u, v in marks.rejected_px],
+                outline_color=grey,
+                fill_color=grey,
+                thickness=3.0,
             )
         )
     for x0, y0, x1, y1 in marks.windows_px:

@@ -65,13 +65,33 @@ from app.vision.preprocess import (
     frame_summary,
     validate_image,
 )
-from app.vision.result import LedResult, PoseResult, StageTimings
+from app.vision.result import MAX_REJECTED_SHOWN, LedResult, PoseResult, StageTimings
 from app.vision.types import Blob, FeatureSet, Match, RejectedBlob
 
 OUR_WINDOW_FACTOR = 8.0
 PAPER_WINDOW_FACTOR = 80.0
 
 __all__ = ["ImageError", "NavigationPipeline", "PipelineConfig", "PipelineTrace"]
+
+
+def rejected_candidates(
+    feats: FeatureSet, used_px: list[tuple[float, float]]
+) -> list[tuple[float, float]]:
+    """The candidates of one image that are not among the reported LEDs (px): blobs that were
+    gated out (eq. 11's area/shape gate), not matched, or refused (appearance, ring), at most
+    :data:`MAX_REJECTED_SHOWN` — what the operators' page marks as rejected."""
+    pts = [b.centroid_px for b in feats.blobs] + [r.centroid_px for r in feats.rejected]
+    if not pts:
+        return []
+    used = np.asarray(used_px, dtype=np.float64).reshape(-1, 2)
+    out: list[tuple[float, float]] = []
+    for u, v in pts:
+        if used.size and float(np.min(np.abs(used - (u, v)).sum(axis=1))) < 1e-6:
+            continue  # a reported LED (its centroid is this blob's)
+        out.append((float(u), float(v)))
+        if len(out) >= MAX_REJECTED_SHOWN:
+            break
+    return out
 
 
 def check_pair(
@@ -273,6 +293,10 @@ class NavigationPipeline:
         self.trace.thresholds = (thr_l, thr_r)
         self.trace.backgrounds = (stats_l, stats_r)
         result = self._solve(feats_l, feats_r, (stats_l[0], stats_r[0]))
+        result.rejected_left_px = rejected_candidates(feats_l, [led.left_px for led in result.leds])
+        result.rejected_right_px = rejected_candidates(
+            feats_r, [led.right_px for led in result.leds]
+        )
         if not result.lock:
             self._age_track()
         self._stage_ms["total"] = (time.perf_counter() - t_start) * 1e3

@@ -48,6 +48,9 @@ class DrogueResult(BaseModel):
     fit_dof: int | None = Field(default=None, description="degrees of freedom of fit_chi2")
 
 
+MAX_REJECTED_SHOWN = 64  # rejected candidates reported per image (in the blobs' order)
+
+
 class StageTimings(BaseModel):
     preprocess: float = 0.0
     extract: float = 0.0
@@ -64,4 +67,13 @@ class PoseResult(BaseModel):
     reason: str | None = None
     leds: list[LedResult] = Field(default_factory=list)
     drogue: DrogueResult | None = None
+    rejected_left_px: list[tuple[float, float]] = Field(
+        default_factory=list,
+        description="full-frame acquisition: the candidate blobs of the left image (px) that "
+        "are not among the reported LEDs (gated out, unmatched or refused), at most "
+        "MAX_REJECTED_SHOWN; empty on tracked frames",
+    )
+    rejected_right_px: list[tuple[float, float]] = Field(
+        default_factory=list, description="the same for the right image (px)"
+    )
     timing_ms: StageTimings = Field(default_factory=StageTimings)

@@ -30,9 +30,9 @@ def camera_image(
     ] = "live",
 ) -> Response:
     """The newest image of ``side`` (downscaled JPEG) with each matched LED circled and
-    labelled with its id, the tracker's windows where the frame has them and the lock banner.
-    Headers: ``X-Seq`` (the telemetry record it belongs to), ``X-Led-Ids`` (ids drawn),
-    ``X-Lock`` (1/0)."""
+    labelled with its id, each rejected candidate a grey cross, the tracker's windows where the
+    frame has them and the lock banner. Headers: ``X-Seq`` (the telemetry record it belongs
+    to), ``X-Led-Ids`` (ids drawn), ``X-Lock`` (1/0), ``X-Rejected`` (crosses drawn)."""
     img = state.camera_view.image(source, side)
     if img is None:
         raise HTTPException(status.HTTP_404_NOT_FOUND, f"no {source} {side} image yet")
@@ -44,5 +44,6 @@ def camera_image(
             "X-Seq": str(img.seq),
             "X-Led-Ids": ",".join(str(i) for i in img.led_ids),
             "X-Lock": "1" if img.lock else "0",
+            "X-Rejected": str(img.rejected),
         },
     )
