@@ -83,15 +83,12 @@ def rejected_candidates(
     pts = [b.centroid_px for b in feats.blobs] + [r.centroid_px for r in feats.rejected]
     if not pts:
         return []
-    used = np.asarray(used_px, dtype=np.float64).reshape(-1, 2)
-    out: list[tuple[float, float]] = []
-    for u, v in pts:
-        if used.size and float(np.min(np.abs(used - (u, v)).sum(axis=1))) < 1e-6:
-            continue  # a reported LED (its centroid is this blob's)
-        out.append((float(u), float(v)))
-        if len(out) >= MAX_REJECTED_SHOWN:
-            break
-    return out
+    p = np.asarray(pts, dtype=np.float64)
+    if used_px:  # drop the reported LEDs (their centroids are these blobs')
+        used = np.asarray(used_px, dtype=np.float64)
+        d = np.abs(p[:, None, :] - used[None, :, :]).sum(axis=2).min(axis=1)
+        p = p[d >= 1e-6]
+    return [(float(u), float(v)) for u, v in p[:MAX_REJECTED_SHOWN]]
 
 
 def check_pair(
