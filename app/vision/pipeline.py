@@ -81,14 +81,14 @@ def rejected_candidates(
     gated out (eq. 11's area/shape gate), not matched, or refused (appearance, ring), at most
     :data:`MAX_REJECTED_SHOWN` — what the operators' page marks as rejected."""
     pts = [b.centroid_px for b in feats.blobs] + [r.centroid_px for r in feats.rejected]
-    if not pts:
-        return []
+    if not pts or (len(pts) <= len(used_px) and set(pts) <= set(used_px)):
+        return []  # nothing, or every candidate is a reported LED (a clean frame)
     p = np.asarray(pts, dtype=np.float64)
     if used_px:  # drop the reported LEDs (their centroids are these blobs')
         used = np.asarray(used_px, dtype=np.float64)
         d = np.abs(p[:, None, :] - used[None, :, :]).sum(axis=2).min(axis=1)
         p = p[d >= 1e-6]
-    return [(float(u), float(v)) for u, v in p[:MAX_REJECTED_SHOWN]]
+    return [(u, v) for u, v in p[:MAX_REJECTED_SHOWN].tolist()]
 
 
 def check_pair(
