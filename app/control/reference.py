@@ -107,10 +107,11 @@ class ReferenceGenerator:
                 rest = max(self.gap_cmd - c.standoff_gap_m, 0.0)
                 speed = min(c.closure_speed_mps, max(rest / c.standoff_slowdown_s, 0.15))
                 step = min(speed * dt, rest)
+                self.gap_cmd -= step
+                gap_rate = -step / dt
             else:
-                step = c.closure_speed_mps * dt
-            self.gap_cmd -= step
-            gap_rate = -step / dt
+                self.gap_cmd -= c.closure_speed_mps * dt
+                gap_rate = -c.closure_speed_mps
         if self.phase in ("approach", "final"):
             self.phase = "final" if self.gap_cmd <= c.final_gap_m else "approach"
         ref = np.asarray(drogue_pos, float) - np.array([self.gap_cmd, 0.0, 0.0])
