@@ -65,6 +65,35 @@ def test_plant_guidance_defaults_and_overrides():
         )
     )
     assert (own.smoothing_s, own.swing_abort) == (0.0, False)
+    # issue 21 follow-up: the A-4's bow-wave and closure feed-forward, swing lead, margin
+    assert (jsb.bow_ff, jsb.closure_ff, jsb.swing_lead, jsb.abort_margin) == (True, True, 1.0, 3.0)
+    assert (lin.bow_ff, lin.closure_ff, lin.swing_lead, lin.abort_margin) == (False, False, 0, 1.5)
+    assert not jsb.timed and jsb.guidance.cfg.standoff_gap_m is None
+    off = DockingSimulation(
+        DockingConfig(
+            plant="jsbsim", vision=False, bow_feedforward=False, swing_lead=0.0, abort_margin=1.5
+        )
+    )
+    assert (off.bow_ff, off.swing_lead, off.abort_margin) == (False, 0.0, 1.5)
+
+
+def test_a4_bow_wave_feedforward_aims_where_the_drogue_is_pushed():
+    """Calm air, truth measurements: with the feed-forward the probe meets the drogue where
+    the bow wave has pushed it (≈ 0.2 m out and up); without it the probe arrives where the
+    drogue was."""
+    misses = {}
+    for ff in (True, False):
+        sim = DockingSimulation(
+            DockingConfig(
+                plant="jsbsim", turbulence="none", vision=False, seed=1, bow_feedforward=ff
+            )
+        )
+        out = sim.run()
+        assert out.captured
+        misses[ff] = out.miss_distance_m
+        pushed = float(np.linalg.norm(sim.drogue.d[1:]))
+    assert misses[True] < 0.05 < misses[False]
+    assert pushed > 0.1
 
 
 def test_one_break_away_counts_one_abort_until_the_gap_is_open_again():
@@ -81,3 +110,20 @@ def test_one_break_away_counts_one_abort_until_the_gap_is_open_again():
     assert not sim.captured
     sim.break_away()
     assert sim.aborts == 2
+
+
+def test_a4_timed_closure_holds_at_the_standoff_then_commits_and_captures():
+    """The timed closure (an option on the A-4, not its default): calm air, truth
+    measurements — the reference stops at the standoff, the swing prediction (no swing)
+    commits, and the probe captures."""
+    sim = DockingSimulation(
+        DockingConfig(plant="jsbsim", turbulence="none", vision=False, seed=1, timed_closure=True)
+    )
+    held = committed = False
+    while not sim.done:
+        sim.step()
+        held = held or sim.guidance.holding
+        committed = committed or sim.guidance.committed
+    assert held and committed
+    out = sim.outcome()
+    assert out.captured and out.aborts == 0 and out.miss_distance_m < 0.1

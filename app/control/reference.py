@@ -29,6 +29,11 @@ class GuidanceConfig:
     backoff_speed_mps: float = 1.5
     push_in_m: float = 0.3
     push_in_time_s: float = 2.0
+    # timed closure: the gap closes to this standoff (m) and holds there until the guidance
+    # commits (``update(..., commit=True)``), then closes to contact without stopping;
+    # None: no standoff
+    standoff_gap_m: float | None = None
+    standoff_slowdown_s: float = 0.8
 
 
 class ReferenceGenerator:
@@ -42,10 +47,23 @@ class ReferenceGenerator:
         self.contact_point: FloatArray | None = None
         self.contact_time = 0.0
         self.backoffs = 0
+        self.committed = False
+
+    @property
+    def holding(self) -> bool:
+        """At the standoff, waiting for the guidance's commit."""
+        s = self.cfg.standoff_gap_m
+        return (
+            s is not None
+            and not self.committed
+            and self.phase in ("approach", "final")
+            and self.gap_cmd <= s
+        )
 
     def start_backoff(self) -> None:
         self.phase = "backoff"
         self.backoffs += 1
+        self.committed = False
 
     def mark_contact(self, tip_m: FloatArray) -> None:
         self.phase = "contact"
@@ -53,9 +71,15 @@ class ReferenceGenerator:
         self.contact_time = 0.0
 
     def update(
-        self, dt: float, drogue_pos: FloatArray, drogue_vel: FloatArray, lock: bool
+        self,
+        dt: float,
+        drogue_pos: FloatArray,
+        drogue_vel: FloatArray,
+        lock: bool,
+        commit: bool = True,
     ) -> tuple[FloatArray, FloatArray]:
-        """Advance one tick; return probe-tip reference position (m) and velocity (m/s)."""
+        """Advance one tick; return probe-tip reference position (m) and velocity (m/s).
+        ``commit``: at the standoff (``standoff_gap_m``), close now (else hold the gap)."""
         c = self.cfg
         if self.phase in ("contact", "station_keeping"):
             assert self.contact_point is not None
@@ -72,9 +96,22 @@ class ReferenceGenerator:
                 gap_rate = c.backoff_speed_mps
             elif lock:
                 self.phase = "approach"
+        elif self.holding and not (commit and lock):
+            pass  # hold at the standoff until the guidance commits
         elif self.gap_cmd > -c.overshoot_m and lock:  # close only while the drogue is tracked
-            self.gap_cmd -= c.closure_speed_mps * dt
-            gap_rate = -c.closure_speed_mps
+            if self.holding:
+                self.committed = True
+            if c.standoff_gap_m is not None and not self.committed:
+                # slow down into the standoff: the closure speed, or the remaining distance
+                # over the deceleration's time constant (a receiver cannot stop at once)
+                rest = max(self.gap_cmd - c.standoff_gap_m, 0.0)
+                speed = min(c.closure_speed_mps, max(rest / c.standoff_slowdown_s, 0.15))
+                step = min(speed * dt, rest)
+                self.gap_cmd -= step
+                gap_rate = -step / dt
+            else:
+                self.gap_cmd -= c.closure_speed_mps * dt
+                gap_rate = -c.closure_speed_mps
         if self.phase in ("approach", "final"):
             self.phase = "final" if self.gap_cmd <= c.final_gap_m else "approach"
         ref = np.asarray(drogue_pos, float) - np.array([self.gap_cmd, 0.0, 0.0])

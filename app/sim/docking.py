@@ -38,16 +38,18 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field, replace
 from functools import lru_cache
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
 
 from app.control.abort import AlphaBetaTracker, predicted_miss_m, should_abort
+from app.control.bow_wave import BowWaveModel, bow_force_n
 from app.control.design import (
     A4_WEIGHTS,
     AEROSONDE_WEIGHTS,
     ControllerDesign,
+    closure_feedforward,
     design_controller,
 )
 from app.control.drogue_filter import DrogueFilter
@@ -97,17 +99,43 @@ JSBSIM_RESERVE_FUEL_LBS = 300.0
 SEARCH_GAP_M = 5.0  # closest gap flown on the a-priori drogue position before acquisition
 DISPARITY_PER_EXTRA_PX = 0.02  # ring-fit tolerance (disparity σ) per px of calibration doubt
 GUST_HISTORY_TICKS = 64
-# guidance per plant: (reference smoothing s, swing-model break-away). The Aerosonde design
-# model follows the drogue's swing (its modes are 10–30× faster); the A-4 cannot (lateral
-# position bandwidth ≈ 0.5 rad/s against a 1.6 rad/s swing at ζ ≈ 0.08): it holds the swing's
-# mean and judges each approach by where the swing will be (truth-measurement runs with the
-# A4_WEIGHTS gains, captures: chasing the swing light 1 / 8; smoothing 8 s light 10 / 12,
-# moderate 3 / 12; with the swing-model break-away light 15 / 16, moderate 10 / 16; the
-# smoothing scaled by the swing's size: calm 12 / 12, light 16 / 16, moderate 10 / 16)
-PLANT_GUIDANCE = {"linear": (0.0, False), "jsbsim": (8.0, True)}
+
+
+# guidance per plant. The Aerosonde design model follows the drogue's swing (its modes are
+# 10–30× faster); the A-4 cannot (lateral position bandwidth ≈ 0.5 rad/s against a 1.6 rad/s
+# swing at ζ ≈ 0.08): it holds the swing's mean and judges each approach by where the swing
+# will be (truth-measurement runs with the first A4_WEIGHTS gains, captures: chasing the swing
+# light 1 / 8; smoothing 8 s light 10 / 12, moderate 3 / 12; with the swing-model break-away
+# light 15 / 16, moderate 10 / 16). Issue 21 follow-up (truth measurements, moderate, seeds
+# 20–59): break-away margin 1.5 → 3.0 (the A-4 cannot stop inside the last metre: a break-away
+# there rarely avoids the crossing and costs an abort) 32 / 40; leading the probe to the swing
+# predicted at the arrival inside 3 m 37 / 40; the timed closure (hold at a standoff, commit
+# by the swing's predicted phase) measured no better (12 / 20 against 12 / 20 at margin 1.5,
+# 15 / 20 against 19 / 20 at 3.0: the fore-aft loop's lag makes the commit's horizon ≈ 2.3 s)
+class PlantGuidance(NamedTuple):
+    """The guidance a plant flies by default (each overridable in :class:`DockingConfig`)."""
+
+    smoothing_s: float  # reference smoothing (s; 0: chase the drogue)
+    swing_abort: bool  # break-away judged by the swing model
+    bow_feedforward: bool  # aim where the bow wave will push the drogue
+    timed_closure: bool  # hold at a standoff, commit by the swing's predicted phase
+    closure_feedforward: bool  # the closure's steady state and commands fed forward
+    abort_margin: float  # break away when the predicted miss exceeds this × capture radius
+    swing_lead: float  # lead the probe to this fraction of the swing predicted at the arrival
+
+
+PLANT_GUIDANCE = {
+    "linear": PlantGuidance(0.0, False, False, False, False, 1.5, 0.0),
+    "jsbsim": PlantGuidance(8.0, True, True, False, True, 3.0, 1.0),
+}
 REARM_GAP_M = 1.5
+# timed closure (the A-4): from the hold at the standoff the probe arrives after gap / closure
+# speed plus this lag of the fore-aft loop (s; measured, calm air); the probe's lateral error
+# to its reference decays with TIP_RETURN_S (s; the lateral loop's ≈ 0.5 rad/s)
+COMMIT_LAG_S = 1.0
+TIP_RETURN_S = 2.0
 SWING_VAR_S = 4.0  # s, averaging of the drogue swing's mean square (≈ one swing period)
-SWING_FULL_SMOOTHING_M = 0.1  # m RMS of the swing from which the full smoothing applies  # gap (m) the probe must open after a break-away before another counts  # gusts kept for the receiver's delay (gap / V: ≤ 0.6 s at 50 Hz)
+SWING_FULL_SMOOTHING_M = 0.1  # m RMS of the swing from which the full smoothing applies
 
 
 @dataclass(frozen=True)
@@ -178,7 +206,7 @@ class DockingConfig:
     # break away in the last metre when the predicted miss exceeds abort_margin × capture
     # radius: 1.5 (was 1.0) — the prediction extrapolates noisy velocities, and under the
     # imperfections 1.0 broke away from approaches that would have captured (issue 13)
-    abort_margin: float = 1.5
+    abort_margin: float | None = None  # None: the plant's (PLANT_GUIDANCE; linear 1.5)
     # "full": render whole frames; "windows": render only the tracker's windows while it
     # tracks (bit-identical there; full frames to acquire) — the fast closed loop
     render_mode: str = "full"
@@ -201,6 +229,19 @@ class DockingConfig:
     # (app.control.drogue_swing; needs reference_smoothing_s > 0) instead of a straight-line
     # extrapolation of the relative velocity, which a swinging drogue makes large
     swing_model_abort: bool | None = None  # None: the plant's (PLANT_GUIDANCE)
+    # aim where the bow wave will have pushed the drogue at the arrival (app.control.bow_wave,
+    # the model's nominal force; needs reference_smoothing_s > 0): None — the plant's
+    bow_feedforward: bool | None = None
+    # timed closure (needs reference_smoothing_s > 0): hold at ``standoff_gap_m`` and commit to
+    # the final closure when the drogue's predicted position at the arrival (swing + bow wave)
+    # is within ``commit_radius_m`` of the probe's; None — the plant's (PLANT_GUIDANCE)
+    timed_closure: bool | None = None
+    # lead the probe, inside ``swing_lead_gap_m``, to this fraction of the drogue's swing
+    # predicted for the arrival (app.control.drogue_swing): None — the plant's
+    swing_lead: float | None = None
+    swing_lead_gap_m: float = 3.0
+    standoff_gap_m: float = 1.5
+    commit_radius_m: float = 0.12
 
     def jsbsim_condition(self, fuel_lbs: float | None = None) -> JsbsimCondition:
         """The A-4's condition (``fuel_lbs`` None: the aircraft file's load)."""
@@ -372,11 +413,17 @@ class DockingSimulation:
         self.trim = self.plant_design.trim
         self.airframe = self.plant_design.airframe
         self.airspeed = float(self.models.model.airspeed_mps)  # the tanker's speed (m/s)
-        smooth, swing = PLANT_GUIDANCE[config.plant]
+        smooth, swing, bow_ff, timed, closure_ff, margin, lead = PLANT_GUIDANCE[config.plant]
         self.smoothing_s = (
             smooth if config.reference_smoothing_s is None else float(config.reference_smoothing_s)
         )
         self.swing_abort = swing if config.swing_model_abort is None else config.swing_model_abort
+        self.bow_ff = bow_ff if config.bow_feedforward is None else config.bow_feedforward
+        self.timed = timed if config.timed_closure is None else config.timed_closure
+        self.closure_ff = closure_ff
+        self.swing_lead = lead if config.swing_lead is None else float(config.swing_lead)
+        self.abort_margin = margin if config.abort_margin is None else float(config.abort_margin)
+        self._closure_ff = closure_feedforward(self.models.model)
         self._calibration = calibration
         self._camera: StereoCameraSensor | None = None
         if config.vision:
@@ -505,8 +552,14 @@ class DockingSimulation:
         self.u_applied = np.zeros(4)
         self.filter = DrogueFilter(history=self._latency_ticks + 1, hold_after_s=cfg.coast_limit_s)
         self.tip_tracker = AlphaBetaTracker(self.dt)
+        # the guidance's bow-wave model: the nominal force (not this run's draw)
+        self.bow_model = BowWaveModel(replace(self.drogue.params, bow_force_n=cfg.bow_wave_force_n))
         self.guidance = ReferenceGenerator(
-            GuidanceConfig(closure_speed_mps=cfg.closure_speed_mps), cfg.start_gap_m
+            GuidanceConfig(
+                closure_speed_mps=cfg.closure_speed_mps,
+                standoff_gap_m=cfg.standoff_gap_m if self.timed else None,
+            ),
+            cfg.start_gap_m,
         )
         if self._imperfect:
             self._settle_on_plant_trim()
@@ -704,17 +757,22 @@ class DockingSimulation:
         d_vel = self.filter.velocity if self.filter.initialised else np.zeros(3)
         if not self._armed and float((d_hat - tip_hat)[0]) > REARM_GAP_M:
             self._armed = True
+        bow_at = np.zeros(2)  # the bow wave's push on the drogue at the arrival (feed-forward)
+        if self.bow_ff:
+            d_hat, d_vel, bow_at = self._bow_split(
+                x_hat, np.asarray(d_hat, float), np.asarray(d_vel, float), tip_hat, g.phase
+            )
         if g.phase in ("approach", "final"):
             rel = d_hat - tip_hat
             if self.swing_abort and self._swing_mean is not None:
                 # where the drogue's swing about its mean will be at the plane
                 miss_pred = self._swing_miss(
-                    d_hat, d_vel, self._swing_mean, tip_hat, tip_vel_hat, float(rel[0])
+                    d_hat, d_vel, self._swing_mean, tip_hat, tip_vel_hat, float(rel[0]), bow_at
                 )
             else:
                 miss_pred = predicted_miss_m(rel, d_vel - tip_vel_hat)
             reason = should_abort(
-                float(rel[0]), miss_pred, cfg.capture_radius_m, not lock, margin=cfg.abort_margin
+                float(rel[0]), miss_pred, cfg.capture_radius_m, not lock, margin=self.abort_margin
             )
             if (
                 reason is None
@@ -731,19 +789,50 @@ class DockingSimulation:
         # on the drogue's a-priori rest position to the search gap, where the ring is larger
         # and its depth error ∝ Z² smaller, then hold there until it is acquired
         searching = not self.filter.ever_initialised and g.gap_cmd > SEARCH_GAP_M
+        d_raw, d_vel_raw = np.asarray(d_hat, float), np.asarray(d_vel, float)
         if self.smoothing_s > 0:
             d_hat, d_vel = self._smoothed_reference(
                 np.asarray(d_hat, float), np.asarray(d_vel, float)
             )
-        ref, ref_vel = g.update(dt, d_hat, d_vel, lock or searching)
+        mean_ref = np.asarray(d_hat, float).copy()  # the reference without the bow wave's push
+        if (
+            self.swing_lead > 0
+            and self._swing_mean is not None
+            and g.phase in ("approach", "final")
+            and float((d_raw - tip_hat)[0]) < cfg.swing_lead_gap_m
+        ):
+            # lead the probe to where the swing will have the drogue at the arrival
+            p = self.drogue.params
+            horizon = max(float((d_raw - tip_hat)[0]), 0.0) / cfg.closure_speed_mps
+            lead = predict_swing_offset(
+                (d_raw - self._swing_mean)[1:],
+                d_vel_raw[1:],
+                p.omega_rad_s,
+                p.damping_ratio,
+                horizon,
+            )
+            d_hat = np.asarray(d_hat, float).copy()
+            d_hat[1:] += self.swing_lead * lead
+        if self.bow_ff:
+            d_hat = np.asarray(d_hat, float).copy()
+            d_hat[1:] += bow_at
+        commit = True
+        if self.timed and g.holding and self._swing_mean is not None:
+            commit = self._commit_now(d_raw, d_vel_raw, tip_hat, mean_ref, np.asarray(d_hat))
+        ref, ref_vel = g.update(dt, d_hat, d_vel, lock or searching, commit)
         # 4. control (eq. 20)
         x_ref = np.zeros(12)
         x_ref[9:12] = ref - m.tip0_b
         # flight-path feed-forward: ẏ ≈ V ψ + v, ż ≈ −V θ + w at trim
-        x_ref[0] = ref_vel[0]
+        if self.closure_ff:  # the closure's steady state and commands (closure_feedforward)
+            x_ref += self._closure_ff[0] * ref_vel[0]
+        else:
+            x_ref[0] = ref_vel[0]
         x_ref[8] = ref_vel[1] / self.airspeed
-        x_ref[7] = -ref_vel[2] / self.airspeed
+        x_ref[7] += -ref_vel[2] / self.airspeed
         u_cmd = self.lqr.control(x_hat, x_ref, ref - m.tip0_b)
+        if self.closure_ff:
+            u_cmd = u_cmd + self._closure_ff[1] * ref_vel[0]
         self.u_applied = self.act.apply(u_cmd)  # servo positions (what the observer is told)
         self.lqr.lag_step(self.u_applied)
         self.max_sat = max(self.max_sat, self.act.saturation())
@@ -858,18 +947,85 @@ class DockingSimulation:
         tip: FloatArray,
         tip_vel: FloatArray,
         gap_m: float,
+        bow_at: FloatArray | None = None,
     ) -> float:
         """Radial miss (m) predicted at the arrival (``gap_m`` over the closure speed): the
-        drogue's swing about its mean (:func:`~app.control.drogue_swing.predict_swing_offset`)
-        against the probe tip carried by its own velocity."""
+        drogue's swing about its mean (:func:`~app.control.drogue_swing.predict_swing_offset`),
+        plus the bow wave's push forecast for then (``bow_at``, y z), against the probe tip
+        carried by its own velocity."""
         cfg = self.config
         p = self.drogue.params
         horizon = max(gap_m, 0.0) / cfg.closure_speed_mps
         swing = predict_swing_offset(
             (drogue - mean)[1:], drogue_vel[1:], p.omega_rad_s, p.damping_ratio, horizon
         )
+        if bow_at is not None:
+            swing = swing + bow_at
         tip_at = tip[1:] + tip_vel[1:] * horizon
         return float(np.linalg.norm(mean[1:] + swing - tip_at))
+
+    def _bow_split(
+        self,
+        x_hat: FloatArray,
+        drogue: FloatArray,
+        drogue_vel: FloatArray,
+        tip: FloatArray,
+        phase: str,
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """The drogue estimate without the bow wave's modelled push (position, velocity) and
+        that push forecast at the arrival (y, z; m): :class:`~app.control.bow_wave.BowWaveModel`
+        driven by the estimated nose, the nose closing at the closure speed while approaching."""
+        r_tb = self._rot(x_hat)
+        nose = x_hat[9:12] + r_tb @ self.r_nose_b
+        axis = r_tb[:, 0]
+        bow = self.bow_model
+        force = (
+            bow_force_n(bow.params, drogue, nose, axis)
+            if self.filter.ever_initialised
+            else np.zeros(3)
+        )
+        bow.step(self.dt, force)
+        q, qv = drogue.copy(), drogue_vel.copy()
+        q[1:] -= bow.d
+        qv[1:] -= bow.v
+        closing = phase in ("approach", "final")
+        closure = self.config.closure_speed_mps if closing else 0.0
+        gap = max(float((drogue - tip) @ axis), 0.0)
+        horizon = gap / self.config.closure_speed_mps if closing else 0.0
+        # the force's direction at the arrival: the drogue on the probe tip
+        at = tip - nose
+        perp = at - float(at @ axis) * axis + np.array([0.0, 0.0, -bow.params.bow_up_bias_m])
+        direction = perp / np.linalg.norm(perp)
+        nose_gap = float((drogue - nose) @ axis)
+        return q, qv, bow.forecast(horizon, nose_gap, closure, direction[1:])
+
+    def _commit_now(
+        self,
+        drogue: FloatArray,
+        drogue_vel: FloatArray,
+        tip: FloatArray,
+        mean_ref: FloatArray,
+        ref: FloatArray,
+    ) -> bool:
+        """At the standoff: commit to the final closure now? Yes when the drogue's swing about
+        its mean predicted for the arrival (:func:`~app.control.drogue_swing.predict_swing_offset`)
+        lies within ``commit_radius_m`` of where the probe will be — on its reference (the
+        swing's smoothed mean ``mean_ref``; both sides carry the same bow-wave push) plus its
+        present error to the reference ``ref``, decaying with the lateral loop's time constant.
+        The arrival: the gap at the closure speed plus the fore-aft loop's lag from the hold
+        (``COMMIT_LAG_S``). ``drogue``, ``drogue_vel``: the estimate without the modelled bow
+        wave's push where the feed-forward is on."""
+        cfg = self.config
+        p = self.drogue.params
+        mean = self._swing_mean
+        assert mean is not None
+        gap = max(float((drogue - tip)[0]), 0.0)
+        horizon = gap / cfg.closure_speed_mps + COMMIT_LAG_S
+        at = mean[1:] + predict_swing_offset(
+            (drogue - mean)[1:], drogue_vel[1:], p.omega_rad_s, p.damping_ratio, horizon
+        )
+        tip_at = mean_ref[1:] + (tip - ref)[1:] * math.exp(-horizon / TIP_RETURN_S)
+        return bool(np.linalg.norm(at - tip_at) < cfg.commit_radius_m)
 
     def break_away(self) -> None:
         """Break away: one abort per break-away — none is counted again until the probe has
