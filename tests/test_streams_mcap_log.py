@@ -6,6 +6,9 @@ file is one line and exit 2, a truncated one replays up to its last complete chu
 from __future__ import annotations
 
 import json
+import os
+import subprocess
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -137,3 +140,33 @@ def test_serve_refuses_a_corrupt_mcap_source_in_one_line(
     err = capsys.readouterr().err
     assert err.startswith("aar-dock serve: --source:") and err.count("\n") == 1
     assert "Traceback" not in err
+
+
+def test_loggers_left_open_are_finished_at_interpreter_exit(tmp_path: Path) -> None:
+    """A process that leaves an MCAP writer and a live Foxglove server open exits cleanly
+    (status 0, no Fatal Python error from foxglove-sdk's native threads) and the MCAP is
+    finished: its summary (statistics) is written, readable by the ``mcap`` reader."""
+    root = Path(__file__).resolve().parents[1]
+    out = tmp_path / "open.mcap"
+    script = f"""
+from app.server.schemas import TickRecord
+from app.streams.foxglove_live import FoxgloveLive
+from app.streams.mcap_log import McapLogWriter
+schema = TickRecord.model_json_schema()
+w = McapLogWriter({str(out)!r}, calibration=None, telemetry_schema=schema)
+live = FoxgloveLive(host="127.0.0.1", port=0, calibration=None, telemetry_schema=schema)
+print("left open")
+"""
+    proc = subprocess.run(
+        [sys.executable, "-c", script],
+        cwd=root,
+        env={**os.environ, "PYTHONPATH": str(root)},
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert "Fatal Python error" not in proc.stderr
+    with out.open("rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None and summary.statistics is not None

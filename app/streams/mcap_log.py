@@ -36,11 +36,13 @@ by a streaming reader (:func:`iter_messages`), and the recording's JSONL rebuild
 
 from __future__ import annotations
 
+import atexit
 import json
 import logging
 import queue
 import threading
 import time
+import weakref
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -295,6 +297,23 @@ class RawPair:
 
 _Item = tuple[McapTick, EncodedPair | RawPair | None]
 
+# Every logger not closed yet: closed at interpreter exit (atexit, registered with the first
+# logger, so it runs before the exit handlers registered earlier). foxglove-sdk's native
+# threads (its writer and WebSocket server) must be finished while Python can still answer
+# them: a logger left open until finalization aborted the interpreter (a Fatal Python error
+# after a whole test session had passed).
+_OPEN: weakref.WeakSet[FoxgloveLogger] = weakref.WeakSet()
+_exit_hook: list[bool] = []
+
+
+def close_open_loggers() -> None:
+    """Close every logger still open (the atexit hook; also for tests and shutdowns)."""
+    for logger in list(_OPEN):
+        try:
+            logger.close()
+        except Exception:  # pragma: no cover - at exit nothing can act on it
+            log.exception("closing %s at exit failed", logger.stats.path)
+
 
 class FoxgloveLogger:
     """The channels of the module's table on one foxglove ``Context``, fed ticks and pairs.
@@ -364,6 +383,10 @@ class FoxgloveLogger:
         )
         self._lock = threading.Lock()
         self._closed = False
+        _OPEN.add(self)
+        if not _exit_hook:
+            _exit_hook.append(True)
+            atexit.register(close_open_loggers)
         self._queue: queue.Queue[_Item | None] | None = None
         self._thread: threading.Thread | None = None
         if threaded:
@@ -388,6 +411,7 @@ class FoxgloveLogger:
             if self._closed:
                 return self.stats
             self._closed = True
+        _OPEN.discard(self)
         if self._queue is not None and self._thread is not None:
             self._queue.put(None)
             self._thread.join(timeout=120.0)
