@@ -11,25 +11,16 @@ from __future__ import annotations
 
 from typing import Any
 
+from app.server import mcap_recording
 from app.server.schemas import TickRecord
-from app.sim.docking import DockingConfig
-from app.sim.rig_mount import camera_mount
 from app.streams.landing_target import RigMount, landing_target
 from app.streams.mavlink_link import LinkStats, MavlinkLink
 
 
 def default_mount(plant: str) -> RigMount:
     """The rig's mount on ``plant``'s airframe as the simulation flies it (documented default)."""
-    m = camera_mount(DockingConfig(plant=plant))
-    return RigMount(
-        camera_body_m=(float(m.camera_b[0]), float(m.camera_b[1]), float(m.camera_b[2])),
-        r_bc=m.r_bc,
-        probe_tip_body_m=(
-            float(m.probe_tip_b[0]),
-            float(m.probe_tip_b[1]),
-            float(m.probe_tip_b[2]),
-        ),
-    )
+    m = mcap_recording.default_mount(plant)
+    return RigMount.on_airframe(m.r_bc, m.camera_b, m.probe_tip_b)
 
 
 def exposure_time_s(record: TickRecord) -> float:

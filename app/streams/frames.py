@@ -131,3 +131,23 @@ def ensure_gray_or_bgr(image: NDArray[np.generic]) -> Image:
     if img.ndim not in (2, 3):
         raise SourceError(f"unsupported image shape {img.shape}")
     return img
+
+
+class RecordedPairs:
+    """A source of stored pairs in order (a frame recording, an MCAP log): subclasses give
+    ``spec``, ``stats`` and :meth:`read_next` (``None`` at the end); :meth:`read` is the
+    source interface (``EndOfStream`` at the end, each pair counted)."""
+
+    kind: SourceKind = "video"
+    spec: str
+    stats: SourceStats
+
+    def read_next(self) -> StereoFrame | None:
+        raise NotImplementedError
+
+    def read(self, timeout_s: float | None = None) -> StereoFrame | None:
+        frame = self.read_next()
+        if frame is None:
+            raise EndOfStream(self.spec)
+        self.stats.delivered(frame)
+        return frame

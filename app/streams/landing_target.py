@@ -68,6 +68,20 @@ class RigMount:
         object.__setattr__(self, "r_bc", r)
 
     @classmethod
+    def on_airframe(
+        cls, r_bc: FloatArray, camera_b: FloatArray, probe_tip_b: FloatArray
+    ) -> RigMount:
+        """The mount of a rig at ``camera_b`` with axes ``r_bc`` and a probe at
+        ``probe_tip_b`` (body frame, m: e.g. :func:`app.sim.rig_mount.camera_mount`'s)."""
+        cam = np.asarray(camera_b, dtype=float)
+        tip = np.asarray(probe_tip_b, dtype=float)
+        return cls(
+            camera_body_m=(float(cam[0]), float(cam[1]), float(cam[2])),
+            r_bc=np.asarray(r_bc, dtype=float),
+            probe_tip_body_m=(float(tip[0]), float(tip[1]), float(tip[2])),
+        )
+
+    @classmethod
     def forward_looking(cls) -> RigMount:
         """The camera's optical axis along body +x, image right along body +y, at the body
         origin, no probe: positions relative to the left camera (the mount when none is given)."""

@@ -18,9 +18,8 @@ import numpy as np
 
 from app.geometry.calibration import CalibrationError, StereoCalibration
 from app.streams.frames import (
-    EndOfStream,
+    RecordedPairs,
     SourceError,
-    SourceKind,
     SourceStats,
     StereoFrame,
     ensure_gray_or_bgr,
@@ -61,11 +60,9 @@ def _decode(data: bytes, what: str) -> np.ndarray:
     return ensure_gray_or_bgr(img)
 
 
-class McapRecordingSource:
+class McapRecordingSource(RecordedPairs):
     """The pairs of an MCAP log in order (``read_next``/``restart``/``close``, as
     :class:`~app.streams.recording.FrameRecordingSource`)."""
-
-    kind: SourceKind = "video"
 
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
@@ -119,13 +116,6 @@ class McapRecordingSource:
         except StopIteration:
             self._it = None
             return None
-
-    def read(self, timeout_s: float | None = None) -> StereoFrame | None:
-        frame = self.read_next()
-        if frame is None:
-            raise EndOfStream(self.spec)
-        self.stats.delivered(frame)
-        return frame
 
     def restart(self) -> None:
         self._it = self._pairs()

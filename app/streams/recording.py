@@ -33,9 +33,8 @@ import cv2
 import numpy as np
 
 from app.streams.frames import (
-    EndOfStream,
+    RecordedPairs,
     SourceError,
-    SourceKind,
     SourceStats,
     StereoFrame,
     ensure_gray_or_bgr,
@@ -268,10 +267,8 @@ def recording_calibration(directory: str | Path) -> Any:
     return exact_calibration(data)
 
 
-class FrameRecordingSource:
+class FrameRecordingSource(RecordedPairs):
     """A frame recording as a source (``video:DIR``): the stored pairs with their times."""
-
-    kind: SourceKind = "video"
 
     def __init__(self, directory: str | Path) -> None:
         self.directory = Path(directory)
@@ -304,13 +301,6 @@ class FrameRecordingSource:
             t_right_s=e.get("t_right_s"),
             exposure_ms=e.get("exposure_ms"),
         )
-        return frame
-
-    def read(self, timeout_s: float | None = None) -> StereoFrame | None:
-        frame = self.read_next()
-        if frame is None:
-            raise EndOfStream(self.spec)
-        self.stats.delivered(frame)
         return frame
 
     def restart(self) -> None:

@@ -100,27 +100,26 @@ def recording(rec_id: str, state: StateDep) -> RecordingMeta:
     return info
 
 
-@router.get("/recordings/{rec_id}/telemetry.jsonl", responses={404: {"model": Message}})
-def recording_telemetry(rec_id: str, state: StateDep) -> FileResponse:
-    path, why = state.recorder.locate(rec_id, "telemetry")
+def _download(state: StateDep, rec_id: str, kind: str, media_type: str) -> FileResponse:
+    """One of a recording's files (``kind`` as :meth:`Recorder.locate` names it), or 404."""
+    path, why = state.recorder.locate(rec_id, kind)
     if path is None:
         raise HTTPException(status.HTTP_404_NOT_FOUND, why)
-    return FileResponse(path, media_type="application/x-ndjson", filename=path.name)
+    return FileResponse(path, media_type=media_type, filename=path.name)
+
+
+@router.get("/recordings/{rec_id}/telemetry.jsonl", responses={404: {"model": Message}})
+def recording_telemetry(rec_id: str, state: StateDep) -> FileResponse:
+    return _download(state, rec_id, "telemetry", "application/x-ndjson")
 
 
 @router.get("/recordings/{rec_id}/scene.viser", responses={404: {"model": Message}})
 def recording_scene(rec_id: str, state: StateDep) -> FileResponse:
     """The ``.viser`` file; replay it at ``/viser-client/?playbackPath=<this URL>``."""
-    path, why = state.recorder.locate(rec_id, "scene")
-    if path is None:
-        raise HTTPException(status.HTTP_404_NOT_FOUND, why)
-    return FileResponse(path, media_type="application/octet-stream", filename=path.name)
+    return _download(state, rec_id, "scene", "application/octet-stream")
 
 
 @router.get("/recordings/{rec_id}/recording.mcap", responses={404: {"model": Message}})
 def recording_mcap(rec_id: str, state: StateDep) -> FileResponse:
     """The recording's MCAP log: open it in Foxglove (docs/ecosystem.md)."""
-    path, why = state.recorder.locate(rec_id, "mcap")
-    if path is None:
-        raise HTTPException(status.HTTP_404_NOT_FOUND, why)
-    return FileResponse(path, media_type="application/octet-stream", filename=path.name)
+    return _download(state, rec_id, "mcap", "application/octet-stream")
