@@ -89,3 +89,34 @@ def test_landing_targets_follow_the_telemetry(tmp_path: Path) -> None:
     assert dark and hist
     assert not any(h["lock"] for h in hist[-10:])
     assert all(m.position_valid == 0 and m.distance == 0.0 for m in dark)
+
+
+def test_a_dead_mavlink_heartbeat_turns_healthz_degraded(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """healthz lists the MAVLink output: ok while it beats; degraded, naming it, once its
+    heartbeat thread has died (here: pymavlink's heartbeat_send raising)."""
+    port = _free_udp_port()
+    settings = Settings(  # type: ignore[call-arg]
+        viser_enabled=False,
+        recordings_dir=tmp_path / "rec",
+        sim_autostart=False,
+        mavlink=f"udpout:127.0.0.1:{port}",
+    )
+    with TestClient(create_app(settings)) as c:
+        h = c.get("/api/v1/healthz").json()
+        assert {"name": "mavlink", "status": "ok", "reason": None} in h["components"]
+
+        def broken(*args, **kwargs):  # noqa: ANN002, ANN003
+            raise RuntimeError("encoder bug")
+
+        monkeypatch.setattr(mavutil.mavlink.MAVLink, "heartbeat_send", broken)
+        deadline = time.monotonic() + 5
+        while time.monotonic() < deadline:
+            h = c.get("/api/v1/healthz").json()
+            if h["status"] != "ok":
+                break
+            time.sleep(0.2)
+        comp = next(x for x in h["components"] if x["name"] == "mavlink")
+        assert h["status"] == "degraded" and comp["status"] == "degraded"
+        assert "heartbeat thread stopped" in comp["reason"]

@@ -45,5 +45,9 @@ class MavlinkOutput:
         pose = record.pose if record.lock else None
         self.link.send(landing_target(pose, max(0.0, exposure_time_s(record)), self.mount))
 
+    def health(self) -> str | None:
+        """Why the MAVLink output is not working (None: it is)."""
+        return self.link.health()
+
     def close(self) -> None:
         self.link.close()

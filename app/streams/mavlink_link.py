@@ -78,6 +78,7 @@ class MavlinkLink:
             url, source_system=system_id, source_component=component_id, dialect="common"
         )
         self._stop = threading.Event()
+        self._failing: str | None = None  # the last send's error while sends keep failing
         self._last_log = 0.0
         self._thread = threading.Thread(target=self._beat, name="mavlink-heartbeat", daemon=True)
         self._thread.start()
@@ -87,9 +88,19 @@ class MavlinkLink:
         """2 for MAVLink 2 frames (the protocol this link speaks)."""
         return 2 if float(self._conn.WIRE_PROTOCOL_VERSION) >= 2.0 else 1
 
+    def health(self) -> str | None:
+        """Why the link is not working (None: it is): its heartbeat thread ended, or sends
+        keep failing (the reason of the last one)."""
+        if not self._stop.is_set() and not self._thread.is_alive():
+            return "the heartbeat thread stopped"
+        if self._failing is not None:
+            return f"sending fails: {self._failing}"
+        return None
+
     def _failed(self, what: str, exc: OSError) -> None:
         self.stats.send_errors += 1
         self.stats.last_error = f"{what}: {exc}"
+        self._failing = self.stats.last_error
         now = time.monotonic()
         if now - self._last_log > 10.0:  # once per interval, not per message
             self._last_log = now
@@ -103,6 +114,7 @@ class MavlinkLink:
                         MAV_TYPE_ONBOARD_CONTROLLER, MAV_AUTOPILOT_INVALID, 0, 0, MAV_STATE_ACTIVE
                     )
                 self.stats.heartbeats += 1
+                self._failing = None
             except OSError as exc:
                 self._failed("HEARTBEAT", exc)
             self._stop.wait(self._period_s)
@@ -129,6 +141,7 @@ class MavlinkLink:
                 )
             self.stats.targets += 1
             self.stats.targets_valid += target.position_valid
+            self._failing = None
         except OSError as exc:
             self._failed("LANDING_TARGET", exc)
 

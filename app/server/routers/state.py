@@ -68,6 +68,11 @@ def healthz(state: StateDep) -> Health:
                 name=f"stream:{stream.source}", status=stream.status, reason=stream.reason
             )
         )
+    if state.mavlink is not None:
+        why = state.mavlink.health()
+        components.append(
+            HealthComponent(name="mavlink", status="degraded" if why else "ok", reason=why)
+        )
     degraded = any(c.status != "ok" for c in components)
     return Health(
         status="degraded" if degraded else "ok",
