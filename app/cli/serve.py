@@ -184,7 +184,7 @@ def run(args: argparse.Namespace) -> int:
         # the largest message of any route (push); each connection gets its route's limit
         ws_max_size=settings.push_limit_bytes + 4096,
         # no per-message compression: deflating every telemetry message once per client was
-        # the web process's largest user of the GIL with 50 clients (bench_load, issue 10)
+        # the web process's largest user of the GIL with 50 clients (benchmarks/bench_load.py)
         ws_per_message_deflate=False,
         timeout_keep_alive=max(1, round(settings.keep_alive_s)),
         h11_max_incomplete_event_size=MAX_HEADER_BYTES,

@@ -11,7 +11,7 @@ import it; the plants live in :mod:`app.sim`.
 Two weight sets:
 
 * :data:`AEROSONDE_WEIGHTS` — the 11 kg Aerosonde design model of :mod:`app.sim.receiver`
-  (the linear plant; the weights of issue 13's robustness search, unchanged);
+  (the linear plant; weights from a robustness search over the plant spread);
 * :data:`A4_WEIGHTS` — the A-4 on JSBSim (:mod:`app.sim.jsbsim_plant`), normalised commands.
 """
 
@@ -48,8 +48,8 @@ class DesignWeights:
     meas_sigma: tuple[float, ...] = (0.002, 0.002, 0.002, 0.002, 0.002, 0.002, 0.01, 0.01, 0.01)
 
 
-# Issue 13 follow-up, on the Aerosonde design model: chosen for robustness over the plant
-# spread, not per run — every plant in 100 draws of the `standard` distribution (design seeds
+# On the Aerosonde design model: chosen for robustness over the plant spread, not per run —
+# every plant in 100 draws of the `standard` distribution (design seeds
 # 100000–100099, never the campaign's) keeps ≥ 2 ticks (40 ms) of extra input-delay margin with
 # the 30 ms actuator lag, the nominal loop ≥ 3 ticks with up to 100 ms of lag
 # (app.control.margins, tests); among those, the tightest tracking in truth-measurement runs (a
@@ -57,7 +57,8 @@ class DesignWeights:
 # roll damping), lateral position and its integral ×4, vertical ×2.6 (the bow wave lifts the
 # drogue in the last metre), rudder R ×4. The observer's model uncertainty ×1000 over the first
 # tuning (1e-2): the side velocity v is not measured, and an observer that trusted the design
-# model's v̂ fed a wrong sideslip to the LQR when the flown aircraft was ±20 % off.
+# model's v̂ fed a wrong sideslip to the LQR when the flown aircraft was ±20 % off. The search
+# and its figures: docs/control.md.
 AEROSONDE_WEIGHTS = DesignWeights(
     q_state=(2.0, 20.0, 2.0, 0.1, 0.1, 8.0, 2.0, 9.0, 9.0, 5.0, 2600.0, 1550.0),
     q_int=(3.0, 1300.0, 775.0),
@@ -75,20 +76,20 @@ AEROSONDE_WEIGHTS = DesignWeights(
 # commands 0.25–0.27 of their travel); docs/models.md. Tolerances (m/s, rad/s, rad, m; commands
 # normalised): u v w 2.22, p q r 0.243, φ 0.567, θ 0.407, ψ 0.227, x 0.325, y z 0.119;
 # integrals x 0.596, y z 0.209 m·s; throttle 0.0079, aileron 0.0348, elevator 0.0468, rudder
-# 0.0188. Issue 21 follow-up, measured in truth-measurement campaigns (moderate, seeds 20–59):
-# the fore-aft loop stiffened (x 0.158 m, throttle 0.05 — the heavily penalised throttle took
-# 1.3 m of lag on the closure and overshot a stop by 1.5 m) and y z ×2.5 in Q (0.075 m,
-# integrals 0.132 m·s): 37 → 36–39 / 40 captures, the tip closer to its reference in the last
-# metre; ×3 asked for more than a tenth of the elevator's travel for a 0.1 m error (test).
+# 0.0188. Then, from truth-measurement campaigns, the fore-aft loop stiffened (x 0.158 m,
+# throttle 0.05: a heavily penalised throttle lags the closure and overshoots a stop) and y z
+# ×2.5 in Q (0.075 m, integrals 0.132 m·s: the tip closer to its reference in the last metre;
+# ×3 asks for more than a tenth of the elevator's travel for a 0.1 m error, which a test
+# refuses). The campaigns behind each step: docs/control.md.
 A4_WEIGHTS = DesignWeights(
     q_state=(0.2029, 0.2029, 0.2029, 16.89, 16.89, 16.89, 3.106, 6.034, 19.42, 40.0, 178.0, 178.0),
     q_int=(2.816, 57.4, 57.4),
     r=(400.0, 825.7, 456.6, 2829.0),
     error_clip=(np.inf,) * 9 + (0.6, 0.6, 0.6),
     # u v w are not measured: with the Aerosonde's 10 (m/s)² per tick the observer took them
-    # from the differentiated position fixes (σ 1 cm at 50 Hz) and the noise flew the tip —
-    # calm air, truth measurements, no bow wave: miss p95 11.3 cm; 10⁻² on u v w (the FDM is
-    # the design model's own nonlinear aircraft, at most lighter): 2.4 cm (issue 21 follow-up)
+    # from the differentiated position fixes (σ 1 cm at 50 Hz) and that noise flew the tip;
+    # 10⁻² on u v w trusts the design model, which is the FDM's own nonlinear aircraft
+    # linearised (at most lighter). Calm-air misses before and after: docs/control.md
     observer_model_q=(0.01,) * 3 + (10.0,) * 3 + (0.0,) * 6,
 )
 

@@ -1,5 +1,5 @@
 """Stability margins of the docking loop's inner loop: observer (eq. 19) + LQR with integral
-action (eq. 20) on a plant with actuator lag and input delay (issue 13).
+action (eq. 20) on a plant with actuator lag and input delay.
 
 :func:`closed_loop_matrix` builds the linear closed-loop transition of exactly the loop the
 simulation runs each tick (clips and rate limits left out: the small-signal loop):

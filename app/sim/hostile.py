@@ -36,7 +36,7 @@ class HostileCase:
     ring: LedRing = field(default_factory=LedRing)
     config: PipelineConfig = field(default_factory=PipelineConfig)
     leds_present: bool = True  # False: any lock is wrong
-    min_lock_rate: float = 0.0  # asserted by the tests (the issue's targets)
+    min_lock_rate: float = 0.0  # asserted by the tests (docs/integrity.md)
 
 
 @dataclass
@@ -115,7 +115,7 @@ def _fixed(settings: RenderSettings) -> Callable[[int], RenderSettings]:
 
 
 def hostile_cases() -> list[HostileCase]:
-    """The hostile set of issue 8 (see the module docstring of each renderer extra)."""
+    """The hostile set (see the module docstring of each renderer extra)."""
     cases: list[HostileCase] = []
     for g in (0, 10, 30, 50, 80):
         cases.append(

@@ -1,4 +1,4 @@
-"""Flight imperfections of the docking loop (issue 13): seeded, documented, off by default.
+"""Flight imperfections of the docking loop: seeded, documented, off by default.
 
 :class:`Imperfections` holds the parameters (presets ``none`` / ``standard`` / ``harsh``,
 :data:`PRESETS`); :func:`draw` turns them into one run's concrete values

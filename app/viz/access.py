@@ -252,14 +252,18 @@ def install_gate(server: Any, policy: AccessPolicy, gui_filter: GuiFilter | None
     if ws is None or not all(hasattr(ws, a) for a in needed):
         log.error("viser internals changed: no Origin check and no message gate on the 3-D port")
         return False
-    # server-scoped handlers (shared GUI, share-URL tunnel, scene interaction)
-    ws._handle_incoming_message = _gated(ws._handle_incoming_message, policy, None)
+    # server-scoped handlers (shared GUI, share-URL tunnel, scene interaction). viser has no
+    # public hook in front of its message handlers: the gate wraps the internal one (checked
+    # above; the service refuses to trust the port without it), the one private access in app/
+    handler = ws._handle_incoming_message  # noqa: SLF001 - viser internals, see above
+    ws._handle_incoming_message = _gated(handler, policy, None)  # noqa: SLF001
 
     async def on_connect(conn: Any) -> None:
         client_id = int(conn.client_id)
         # client-scoped handlers (the client's own panel, camera): gate before viser reads
         # the first message of this connection (the consumer starts after this callback)
-        conn._handle_incoming_message = _gated(conn._handle_incoming_message, policy, gui_filter)
+        handler = conn._handle_incoming_message  # noqa: SLF001 - viser internals, see above
+        conn._handle_incoming_message = _gated(handler, policy, gui_filter)  # noqa: SLF001
         raw, headers = _handshake_headers(ws, client_id)
         if headers is None:
             log.error("viser: no handshake headers for client %s; Origin not checked", client_id)
