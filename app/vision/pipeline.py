@@ -61,10 +61,9 @@ from app.vision.preprocess import (
     ThresholdMode,
     choose_threshold,
     detection_image,
-    frame_levels,
-    frame_summary,
     validate_image,
 )
+from app.vision.preprocess_kernels import frame_levels, frame_summary
 from app.vision.result import MAX_REJECTED_SHOWN, LedResult, PoseResult, StageTimings
 from app.vision.track_memory import TrackMemory
 from app.vision.types import Blob, FeatureSet, Match, RejectedBlob

@@ -78,16 +78,8 @@ from app.vision.error_bound import (
 from app.vision.features import gate_array
 from app.vision.ihwt import SAMPLES_PER_SUBSQUARE, describe
 from app.vision.ihwt import window_side_px as ihwt_window_side_px
-from app.vision.local_centroid import (
-    OUT_X0,
-    OUT_X1,
-    OUT_Y0,
-    OUT_Y1,
-    box_table,
-    local_blob,
-    local_centroids,
-    window_pad_px,
-)
+from app.vision.local_centroid import box_table, local_blob, window_pad_px
+from app.vision.local_centroid_kernels import OUT_X0, OUT_X1, OUT_Y0, OUT_Y1, local_centroids
 from app.vision.matching import epipolar_distances
 from app.vision.pipeline import (
     NavigationPipeline,
