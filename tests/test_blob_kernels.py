@@ -264,7 +264,7 @@ def _numpy_grow_and_merge(boxes, width, height, ksize):  # type: ignore[no-untyp
 def test_compiled_box_merge_equals_the_numpy_formulation() -> None:
     """Acquisition boxes grown and merged by the compiled loop equal the numpy formulation,
     order included, on random sets of up to 60 boxes (many overlapping, at the borders)."""
-    from app.vision.blob_kernels import grow_and_merge_boxes
+    from app.vision.bright_region_kernels import grow_and_merge_boxes
 
     rng = np.random.default_rng(0)
     merged_some = False

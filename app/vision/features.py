@@ -7,11 +7,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from app.vision.blob_kernels import (
-    detect_in_boxes,
-    extract_in_mask,
-    hot_tile_boxes,
-)
+from app.vision.blob_kernels import detect_in_boxes, extract_in_mask
+from app.vision.bright_region_kernels import hot_tile_boxes
 from app.vision.local_centroid import LocalCentroidConfig, box_table, local_blob
 from app.vision.local_centroid_kernels import local_centroids
 from app.vision.preprocess import U8Image
