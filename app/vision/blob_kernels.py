@@ -6,6 +6,9 @@ is a handful of small array operations per LED; from Python each costs a call's 
 one compiled loop per frame (numba, cached on disk after the first call). The results are the
 same numbers: integer weights are summed exactly in float64, so the centroids equal OpenCV
 ``moments`` on the same weights bit for bit when the background level is an integer.
+
+The boxes the acquisition searches (the bright tiles, grown and merged) come from
+:mod:`app.vision.bright_region_kernels`.
 """
 
 from __future__ import annotations
