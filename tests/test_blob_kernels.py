@@ -158,7 +158,13 @@ def test_warmup_compiles_everything_frames_need() -> None:
     from app.sim.paths import load_default_calibration
     from app.sim.stereo_render import RenderSettings, render_pair
     from app.sim.warmup import compile_kernels
-    from app.vision import appearance, blob_kernels, ihwt, matching, preprocess
+    from app.vision import (
+        appearance_kernels,
+        blob_kernels,
+        ihwt_kernels,
+        matching_kernels,
+        preprocess_kernels,
+    )
     from app.vision.pipeline import NavigationPipeline
     from app.vision.tracking import StereoTracker
 
@@ -166,19 +172,19 @@ def test_warmup_compiles_everything_frames_need() -> None:
         blob_kernels.extract_in_mask,
         blob_kernels.window_blobs,
         blob_kernels.detect_in_boxes,
-        preprocess.frame_summary,
-        preprocess.frame_levels,
-        ihwt._describe_kernel,
+        preprocess_kernels.frame_summary,
+        preprocess_kernels.frame_levels,
+        ihwt_kernels.describe_kernel,
         triangulation._linear_kernel,
         triangulation._refine_kernel,
-        ring._ring_measures,
+        ring.ring_measures_kernel,
         ring.seed_kernel,
         ring.refine_kernel,
         ring.radius_only_kernel,
-        matching._epipolar_kernel,
-        matching._descriptor_kernel,
-        matching._gated_cost,
-        appearance._appearance_kernel,
+        matching_kernels.epipolar_kernel,
+        matching_kernels.descriptor_kernel,
+        matching_kernels.gated_cost,
+        appearance_kernels.appearance_kernel,
     ]
     compile_kernels()
     prepared = {loop.__name__: len(loop.signatures) for loop in loops}
@@ -258,7 +264,7 @@ def _numpy_grow_and_merge(boxes, width, height, ksize):  # type: ignore[no-untyp
 def test_compiled_box_merge_equals_the_numpy_formulation() -> None:
     """Acquisition boxes grown and merged by the compiled loop equal the numpy formulation,
     order included, on random sets of up to 60 boxes (many overlapping, at the borders)."""
-    from app.vision.blob_kernels import grow_and_merge_boxes
+    from app.vision.bright_region_kernels import grow_and_merge_boxes
 
     rng = np.random.default_rng(0)
     merged_some = False

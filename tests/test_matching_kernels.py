@@ -16,6 +16,7 @@ from app.sim.led_ring import stereo_center_x_mm, tilted_normal
 from app.sim.stereo_render import RenderSettings, render_pair
 from app.vision import ihwt
 from app.vision.appearance import AppearanceConfig, BlobTable, appearance_ok, appearance_reasons
+from app.vision.ihwt_kernels import describe_kernel
 from app.vision.matching import (
     descriptor_distances,
     epipolar_distances,
@@ -297,7 +298,7 @@ def test_describe_windows_follow_the_scalar_rule() -> None:
     for factor, min_w in ((8.0, 16), (80.0, 16), (3.0, 5)):
         windows = np.array([ihwt.window_side_px(b.area_px, factor, min_w) for b in blobs])
         centers = np.array([b.centroid_px for b in blobs])
-        ref = ihwt._describe_kernel(img, centers, windows)
+        ref = describe_kernel(img, centers, windows)
         assert np.array_equal(ihwt.describe(img, blobs, factor, min_w), ref)
     assert math.isclose(ihwt.window_side_px(0, 8.0, 16), 16.0)
 

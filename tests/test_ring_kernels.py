@@ -2,7 +2,7 @@
 
 ``seed_kernel`` (chord-compatible pairs → triples → circumcircles → radius → slot check →
 ordered seeds) and ``refine_kernel`` / ``hypothesis_kernel`` (plane + circle fit, slot offset,
-slot assignment, iterated) must give what ``_seeds_reference`` and ``_fit_hypothesis`` give, on
+slot assignment, iterated) must give what ``seeds_reference`` and ``fit_hypothesis`` (``tests/support/ring_reference.py``) give, on
 hostile point sets: clutter around a ring, two rings, 3-LED rings, near-collinear and repeated
 points, 60 candidates, repeated LEDs, other LED counts and depth-noise models.
 """
@@ -15,7 +15,15 @@ import numpy as np
 import pytest
 
 from app.geometry import ring
+from app.geometry.circle_fit import Circle3D
 from app.geometry.ring import RingFit, RingParams, RingPrior, find_ring
+from app.geometry.ring import search as ring_search
+from tests.support.ring_reference import (
+    fit_hypothesis,
+    hypotheses_reference,
+    radius_only_count,
+    seeds_reference,
+)
 
 
 def _ring_points(
@@ -93,8 +101,8 @@ def test_compiled_seeds_equal_the_numpy_formulation() -> None:
     slot residuals), same sums of squared residuals."""
     seeded = rejected = 0
     for name, p, params in SETS:
-        triples, seeds, keys = ring.seed_kernel(p, ring._ring_consts(params))
-        ref_triples, ref_seeds, ref_keys = ring._seeds_reference(p, params)
+        triples, seeds, keys = ring.seed_kernel(p, ring.ring_consts(params))
+        ref_triples, ref_seeds, ref_keys = seeds_reference(p, params)
         assert np.array_equal(triples, ref_triples), name
         assert sorted(seeds.tolist()) == sorted(ref_seeds.tolist()), name
         assert np.allclose(keys, ref_keys, rtol=0.0, atol=1e-9), name
@@ -108,7 +116,7 @@ def test_compiled_seeds_equal_the_numpy_formulation() -> None:
     assert seeded >= len(SETS) // 2 and rejected >= len(SETS) // 2
 
 
-def _same_hypothesis(got: ring._Hypothesis, ref: ring._Hypothesis) -> None:
+def _same_hypothesis(got: ring.RingHypothesis, ref: ring.RingHypothesis) -> None:
     assert got.members.tolist() == ref.members.tolist()
     assert got.slots.tolist() == ref.slots.tolist()
     assert got.extra_on_ring == ref.extra_on_ring
@@ -125,26 +133,26 @@ def _same_hypothesis(got: ring._Hypothesis, ref: ring._Hypothesis) -> None:
 
 
 def test_compiled_refinement_equals_fit_hypothesis_on_every_seed() -> None:
-    """Each seed refined by ``hypothesis_kernel`` gives ``_fit_hypothesis``'s hypothesis (or
+    """Each seed refined by ``hypothesis_kernel`` gives ``fit_hypothesis``'s hypothesis (or
     none where it gives none), covered seeds included."""
     found = refused = 0
     for name, p, params in SETS:
-        consts = ring._ring_consts(params)
+        consts = ring.ring_consts(params)
         triples, seeds, _ = ring.seed_kernel(p, consts)
         for t in seeds[:60]:
             ok, members, slots, resid, dist, info = ring.hypothesis_kernel(p, triples[t], consts)
-            ref = ring._fit_hypothesis(p, triples[t], params)
+            ref = fit_hypothesis(p, triples[t], params)
             assert ok == (ref is not None), name
             if ref is None:
                 refused += 1
                 continue
             found += 1
-            got = ring._Hypothesis(
+            got = ring.RingHypothesis(
                 members=members,
                 points=p[members],
                 slots=slots,
                 resid_deg=resid,
-                circle=ring.Circle3D(info[0:3], info[3:6], info[6], info[7], info[8]),
+                circle=Circle3D(info[0:3], info[3:6], info[6], info[7], info[8]),
                 offset_deg=info[10],
                 cost=info[11],
                 angle_tol=info[12],
@@ -161,10 +169,10 @@ def test_compiled_hypothesis_loop_equals_the_python_loop() -> None:
     once), as the Python loop finds them."""
     several = 0
     for name, p, params in SETS:
-        consts = ring._ring_consts(params)
+        consts = ring.ring_consts(params)
         triples, seeds, _ = ring.seed_kernel(p, consts)
-        got = ring._hypotheses(p, triples, seeds, params, consts)
-        ref = ring._hypotheses_reference(p, triples, seeds, params)
+        got = ring.refined_hypotheses(p, triples, seeds, params, consts)
+        ref = hypotheses_reference(p, triples, seeds, params)
         assert len(got) == len(ref), name
         for g, r in zip(got, ref, strict=True):
             _same_hypothesis(g, r)
@@ -200,13 +208,13 @@ def test_find_ring_gives_what_the_reference_formulation_gives(
         names += ("max_angle_tol_deg", "depth_sigma_per_mm", "max_view_angle_deg")
         values = dict(zip(names, consts.tolist(), strict=True))
         values["led_count"] = int(values["led_count"])
-        return ring._seeds_reference(p, RingParams(**values))  # type: ignore[arg-type]
+        return seeds_reference(p, RingParams(**values))  # type: ignore[arg-type]
 
-    monkeypatch.setattr(ring, "seed_kernel", seeds_ref)
+    monkeypatch.setattr(ring_search, "seed_kernel", seeds_ref)
     monkeypatch.setattr(
-        ring,
-        "_hypotheses",
-        lambda p, t, s, params, consts: ring._hypotheses_reference(p, t, s, params),
+        ring_search,
+        "refined_hypotheses",
+        lambda p, t, s, params, consts: hypotheses_reference(p, t, s, params),
     )
     reference = []
     for pts, params, prior in cases:
@@ -223,8 +231,8 @@ def test_degenerate_candidates() -> None:
     line = np.outer(np.linspace(0.0, 600.0, 12), [1.0, 0.5, 0.2]) + [0.0, 0.0, 3000.0]
     same = np.tile([10.0, 20.0, 3000.0], (6, 1))
     for p in (np.ascontiguousarray(line), same):
-        triples, seeds, _ = ring.seed_kernel(p, ring._ring_consts(loose))
-        ref_triples, ref_seeds, _ = ring._seeds_reference(p, loose)
+        triples, seeds, _ = ring.seed_kernel(p, ring.ring_consts(loose))
+        ref_triples, ref_seeds, _ = seeds_reference(p, loose)
         assert np.array_equal(triples, ref_triples) and len(seeds) == len(ref_seeds) == 0
         assert not isinstance(find_ring(p, loose), RingFit)
         if p is not same:
@@ -236,10 +244,10 @@ def test_compiled_radius_only_count_equals_the_numpy_formulation() -> None:
     ignored) with every triple (≤ 30 points) or the chord-compatible ones (more)."""
     counts = []
     for name, p, params in SETS:
-        consts = ring._ring_consts(params)
+        consts = ring.ring_consts(params)
         triples = ring.seed_kernel(p, consts)[0]
         got = ring.radius_only_kernel(p, triples, consts)
-        assert got == ring._radius_only_count(p, params, triples), name
+        assert got == radius_only_count(p, params, triples), name
         counts.append((len(p) <= 30, got))
     assert {small for small, _ in counts} == {True, False}  # both kinds of triples
     assert len({got for _, got in counts}) >= 3

@@ -326,7 +326,7 @@ def test_prior_gates_grow_with_the_depth_noise(calib) -> None:  # type: ignore[n
     """At docking range the gates are the defaults; far out they follow 6σ_Z."""
     from app.geometry.ring import RingPrior
 
-    params = NavigationPipeline(calib)._ring_params()
+    params = NavigationPipeline(calib).ring_params
     near = RingPrior.at_range(np.array([0.0, 0.0, 1000.0]), np.array([0.0, 0.0, -1.0]), params)
     assert (near.gate_mm, near.gate_deg) == (30.0, 15.0)
     far = RingPrior.at_range(np.array([0.0, 0.0, 12000.0]), np.array([0.0, 0.0, -1.0]), params)

@@ -46,9 +46,10 @@ def test_with_local_centroids_keeps_every_other_field():
 
 def test_ring_median_from_counts_equals_numpy_median():
     """The background ring's median from a 256-bin count equals ``np.median`` of the ring
-    (the reference, :func:`_ring_median`): odd and even counts, clipped at every image edge,
+    (the reference, ``tests/support/local_centroid_reference.py``): odd and even counts, clipped at every image edge,
     constant and two-valued rings; the counts are left zero for the next blob."""
-    from app.vision.local_centroid import _ring_median, _ring_median_counts
+    from app.vision.local_centroid_kernels import ring_median_counts
+    from tests.support.local_centroid_reference import ring_median
 
     rng = np.random.default_rng(4)
     counts = np.zeros(256, np.int64)
@@ -62,9 +63,9 @@ def test_ring_median_from_counts_equals_numpy_median():
         for _ in range(200):
             x0, y0 = int(rng.integers(-3, 50)), int(rng.integers(-3, 40))
             x1, y1 = x0 + int(rng.integers(1, 20)), y0 + int(rng.integers(1, 20))
-            want = _ring_median(img, x0, y0, x1, y1)
-            got = _ring_median_counts(img, x0, y0, x1, y1, counts)
+            want = ring_median(img, x0, y0, x1, y1)
+            got = ring_median_counts(img, x0, y0, x1, y1, counts)
             assert got == want or (np.isnan(got) and np.isnan(want))
             assert not counts.any()
     # a window covering the whole image: no ring pixel, NaN
-    assert np.isnan(_ring_median_counts(images[0], 0, 0, 50, 40, counts))
+    assert np.isnan(ring_median_counts(images[0], 0, 0, 50, 40, counts))

@@ -252,11 +252,13 @@ def test_frame_summary_statistics_equal_the_separate_passes(case: str) -> None:
         BACKGROUND_COL_STEP,
         BACKGROUND_ROW_STEP,
         background_from_histogram,
+        noise_from_histogram,
+        noise_sigma,
+    )
+    from app.vision.preprocess_kernels import (
         difference_histogram,
         frame_levels,
         frame_summary,
-        noise_from_histogram,
-        noise_sigma,
         subsampled_histogram,
     )
 

@@ -7,13 +7,12 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from app.vision.blob_kernels import (
-    detect_in_boxes,
-    extract_in_mask,
-    hot_tile_boxes,
-)
-from app.vision.local_centroid import LocalCentroidConfig, box_table, local_blob, local_centroids
-from app.vision.preprocess import U8Image, frame_summary
+from app.vision.blob_kernels import detect_in_boxes, extract_in_mask
+from app.vision.bright_region_kernels import hot_tile_boxes
+from app.vision.local_centroid import LocalCentroidConfig, box_table, local_blob
+from app.vision.local_centroid_kernels import local_centroids
+from app.vision.preprocess import U8Image
+from app.vision.preprocess_kernels import frame_summary
 from app.vision.types import Blob, RejectedBlob
 
 MAX_REJECTED_REPORTED = 100
@@ -143,7 +142,7 @@ BAND_ROWS = 16  # rows per band of :func:`band_maxima` (the tile side of :func:`
 def band_maxima(gray: U8Image) -> np.ndarray:
     """Maximum of each column over bands of ``BAND_ROWS`` rows: (ceil(H / 16), W) uint8, one
     compiled pass over the image (its overall max is eq. 10's peak;
-    :func:`app.vision.preprocess.frame_summary`, which also gives the background's histogram
+    :func:`app.vision.preprocess_kernels.frame_summary`, which also gives the background's histogram
     in the same pass)."""
     return np.asarray(frame_summary(gray, BAND_ROWS, 0, 1)[0])
 

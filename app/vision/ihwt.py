@@ -16,16 +16,13 @@ from typing import Any
 
 import cv2
 import numpy as np
-from numba import njit
 from numpy.typing import NDArray
 
+from app.vision.ihwt_kernels import DESCRIPTOR_SIZE, SAMPLES_PER_SUBSQUARE, describe_kernel
 from app.vision.preprocess import U8Image
 from app.vision.types import Blob
 
 FloatArray = NDArray[np.float64]
-
-DESCRIPTOR_SIZE = 64
-SAMPLES_PER_SUBSQUARE = 5
 
 
 def integral_image(gray: U8Image) -> FloatArray:
@@ -94,64 +91,6 @@ def describe_points(ii: NDArray[Any], centers_px: FloatArray, windows_px: FloatA
     return np.asarray(np.where(norm > 0, desc / np.where(norm > 0, norm, 1.0), desc))
 
 
-@njit(cache=True, nogil=True)
-def _describe_kernel(
-    gray: np.ndarray, centers: np.ndarray, windows: np.ndarray
-) -> np.ndarray:  # pragma: no cover - compiled
-    """:func:`describe_points` computed from the image itself: per point, eq. 12's integral
-    image over the few px its Haar templates reach only, then eq. 13's box sums (the sums are
-    exact integers: the same descriptor as on the full frame's integral image)."""
-    h, w = gray.shape
-    n = 4 * SAMPLES_PER_SUBSQUARE
-    s = SAMPLES_PER_SUBSQUARE
-    out = np.zeros((centers.shape[0], DESCRIPTOR_SIZE))
-    xs = np.empty((3, n), np.int64)  # clipped corner columns: minus, centre, plus
-    ys = np.empty((3, n), np.int64)
-    for p in range(centers.shape[0]):
-        win = windows[p]
-        step = win / n
-        half = max(1, int(np.floor(step + 0.5)))
-        cu = np.floor(centers[p, 0] + 0.5)
-        cv = np.floor(centers[p, 1] + 0.5)
-        for k in range(n):
-            off = np.floor((k + 0.5) * step - win / 2.0 + 0.5)
-            x, y = int(cu + off), int(cv + off)
-            xs[0, k], xs[1, k], xs[2, k] = x - half, x, x + half
-            ys[0, k], ys[1, k], ys[2, k] = y - half, y, y + half
-        for k in range(n):
-            for d in range(3):
-                xs[d, k] = min(max(xs[d, k], 0), w)
-                ys[d, k] = min(max(ys[d, k], 0), h)
-        x_lo, x_hi, y_lo, y_hi = xs[0, 0], xs[2, n - 1], ys[0, 0], ys[2, n - 1]
-        # eq. 12 over [x_lo, x_hi) × [y_lo, y_hi), leading zero row and column
-        ii = np.zeros((y_hi - y_lo + 1, x_hi - x_lo + 1), np.int64)
-        for r in range(y_hi - y_lo):
-            acc = 0
-            for c in range(x_hi - x_lo):
-                acc += gray[y_lo + r, x_lo + c]
-                ii[r + 1, c + 1] = ii[r, c + 1] + acc
-        desc = np.zeros(DESCRIPTOR_SIZE)
-        for j in range(n):
-            rm, rc, rp = ys[0, j] - y_lo, ys[1, j] - y_lo, ys[2, j] - y_lo
-            for i in range(n):
-                qm, qc, qp = xs[0, i] - x_lo, xs[1, i] - x_lo, xs[2, i] - x_lo
-                mm, mc, mp = ii[rm, qm], ii[rm, qc], ii[rm, qp]
-                cm, cp = ii[rc, qm], ii[rc, qp]
-                pm, pc, pp = ii[rp, qm], ii[rp, qc], ii[rp, qp]
-                dx = (mc + pp - mp - pc) - (mm + pc - mc - pm)  # eq. 13: right − left
-                dy = (cm + pp - cp - pm) - (mm + cp - mp - cm)  # bottom − top
-                base = ((j // s) * 4 + i // s) * 4
-                desc[base] += dx
-                desc[base + 1] += abs(dx)
-                desc[base + 2] += dy
-                desc[base + 3] += abs(dy)
-        norm = np.sqrt(np.sum(desc * desc))
-        if norm > 0:
-            desc /= norm
-        out[p] = desc
-    return out
-
-
 def describe_point(ii: FloatArray, center_px: tuple[float, float], window_px: float) -> FloatArray:
     """The 64-D IHWT descriptor of one feature point (unit length, or zeros if flat)."""
     return describe_points(ii, np.array([center_px]), np.array([window_px]))[0]
@@ -167,7 +106,7 @@ def describe(
     """IHWT descriptors of all blobs: (N, 64) array (rows aligned with ``blobs``).
 
     Without ``ii``, each point's integral image covers only its own templates (compiled,
-    :func:`_describe_kernel`); the result is the same as :func:`describe_points` on the full
+    :func:`~app.vision.ihwt_kernels.describe_kernel`); the result is the same as :func:`describe_points` on the full
     frame's integral image ``ii`` (eq. 12), which is used when given.
     """
     if not blobs:
@@ -179,4 +118,4 @@ def describe(
     centers = np.array([b.centroid_px for b in blobs], dtype=np.float64)
     if ii is not None:
         return describe_points(ii, centers, windows)
-    return np.asarray(_describe_kernel(gray, centers, windows))
+    return np.asarray(describe_kernel(gray, centers, windows))

@@ -10,10 +10,11 @@
   (assignment leftovers) are dropped (mutual consistency). A pair that violates the epipolar
   gate is never matched.
 
-The per-candidate work runs in compiled loops (descriptor distances in numpy's summation
-order, the gate and its cost), so that the results equal the numpy formulations to the bit
-(``tests/test_matching_kernels.py`` keeps those as the reference); ``*_indices`` give the
-matches as index arrays, :class:`MatchArrays` / :class:`~app.vision.types.Match` as records.
+The per-candidate work runs in compiled loops (:mod:`app.vision.matching_kernels`: descriptor
+distances in numpy's summation order, the gate and its cost), so that the results equal the
+numpy formulations to the bit (``tests/test_matching_kernels.py`` keeps those as the
+reference); ``*_indices`` give the matches as index arrays, :class:`MatchArrays` /
+:class:`~app.vision.types.Match` as records.
 """
 
 from __future__ import annotations
@@ -22,58 +23,20 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
 from numpy.typing import NDArray
 from scipy.optimize import linear_sum_assignment
 
 from app.geometry.calibration import FloatArray
+from app.vision.matching_kernels import (
+    DISJOINT_COST_MAX,
+    descriptor_kernel,
+    epipolar_kernel,
+    gated_cost,
+)
 from app.vision.types import Match
 
 _BIG = 1e6
-_DISJOINT_COST_MAX = 1e3  # a pair's cost bound for the disjoint-gate shortcut (≪ _BIG)
 _PAIRWISE_BLOCK = 128  # numpy's pairwise-summation block (rows up to this are one block)
-
-
-@njit(cache=True, nogil=True)
-def _descriptor_kernel(a: np.ndarray, b: np.ndarray) -> np.ndarray:  # pragma: no cover
-    """Eq. 14 for every pair, summed as numpy sums a row (pairwise: eight running partial sums
-    combined as a tree, then the remainder), so that the distances are numpy's to the bit.
-    The partial sums run over all right descriptors at once (vectorised)."""
-    nl, nr, d = a.shape[0], b.shape[0], a.shape[1]
-    out = np.empty((nl, nr))
-    if d < 8:
-        for i in range(nl):
-            for j in range(nr):
-                s = 0.0
-                for k in range(d):
-                    t = a[i, k] - b[j, k]
-                    s += t * t
-                out[i, j] = np.sqrt(s)
-        return out
-    bt = np.ascontiguousarray(b.T)  # (d, NR)
-    acc = np.empty((8, nr))  # the eight partial sums of every right descriptor
-    head = d - d % 8
-    for i in range(nl):
-        for k in range(8):
-            aik, bk, ak = a[i, k], bt[k], acc[k]
-            for j in range(nr):
-                t = aik - bk[j]
-                ak[j] = t * t
-        for k0 in range(8, head, 8):
-            for k in range(8):
-                aik, bk, ak = a[i, k0 + k], bt[k0 + k], acc[k]
-                for j in range(nr):
-                    t = aik - bk[j]
-                    ak[j] += t * t
-        for j in range(nr):
-            s = ((acc[0, j] + acc[1, j]) + (acc[2, j] + acc[3, j])) + (
-                (acc[4, j] + acc[5, j]) + (acc[6, j] + acc[7, j])
-            )
-            for k in range(head, d):
-                t = a[i, k] - bt[k, j]
-                s += t * t
-            out[i, j] = np.sqrt(s)
-    return out
 
 
 def descriptor_distances(desc_left: FloatArray, desc_right: FloatArray) -> FloatArray:
@@ -86,27 +49,7 @@ def descriptor_distances(desc_left: FloatArray, desc_right: FloatArray) -> Float
     if a.shape[1] > _PAIRWISE_BLOCK:  # numpy splits longer rows recursively
         diff = a[:, None, :] - b[None, :, :]
         return np.asarray(np.sqrt(np.sum(diff * diff, axis=-1)))
-    return np.asarray(_descriptor_kernel(a, b))
-
-
-@njit(cache=True, nogil=True)
-def _epipolar_kernel(
-    F: np.ndarray, xl: np.ndarray, xr: np.ndarray
-) -> np.ndarray:  # pragma: no cover
-    out = np.empty((xl.shape[0], xr.shape[0]))
-    lr = np.empty((xl.shape[0], 3))  # epipolar lines in the right image, F·x_l
-    for i in range(xl.shape[0]):
-        for k in range(3):
-            lr[i, k] = F[k, 0] * xl[i, 0] + F[k, 1] * xl[i, 1] + F[k, 2]
-    for j in range(xr.shape[0]):
-        ll = np.empty(3)  # the epipolar line in the left image, Fᵀ·x_r
-        for k in range(3):
-            ll[k] = F[0, k] * xr[j, 0] + F[1, k] * xr[j, 1] + F[2, k]
-        inv_l = 1.0 / np.hypot(ll[0], ll[1])
-        for i in range(xl.shape[0]):
-            alg = lr[i, 0] * xr[j, 0] + lr[i, 1] * xr[j, 1] + lr[i, 2]  # x_rᵀ F x_l
-            out[i, j] = 0.5 * abs(alg) * (1.0 / np.hypot(lr[i, 0], lr[i, 1]) + inv_l)
-    return out
+    return np.asarray(descriptor_kernel(a, b))
 
 
 def epipolar_distances(F: FloatArray, x_left: FloatArray, x_right: FloatArray) -> FloatArray:
@@ -118,7 +61,7 @@ def epipolar_distances(F: FloatArray, x_left: FloatArray, x_right: FloatArray) -
     fm = np.array(F, dtype=np.float64)  # a writable copy whatever F was (one compiled type)
     xl = np.ascontiguousarray(np.asarray(x_left, dtype=np.float64).reshape(-1, 2))
     xr = np.ascontiguousarray(np.asarray(x_right, dtype=np.float64).reshape(-1, 2))
-    return np.asarray(_epipolar_kernel(fm, xl, xr))
+    return np.asarray(epipolar_kernel(fm, xl, xr))
 
 
 IntArray = NDArray[np.int64]
@@ -178,42 +121,6 @@ def match_min_distance(desc_dist: FloatArray, epi: FloatArray) -> list[Match]:
     return matches_from_indices(*match_min_distance_indices(desc_dist), desc_dist, epi)
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
-def _gated_cost(
-    desc_dist: np.ndarray,
-    epi: np.ndarray,
-    depth: np.ndarray,
-    tol_px: float,
-    z_lo: float,
-    z_hi: float,
-    big: float,
-) -> tuple[np.ndarray, np.ndarray, bool]:  # pragma: no cover - compiled
-    """The epipolar/depth gate and the cost ``desc + epi / tol`` inside it (``big`` outside),
-    and whether the gated pairs are disjoint (no two share a row or a column) with finite
-    costs below ``_DISJOINT_COST_MAX``."""
-    nl, nr = desc_dist.shape
-    gate = np.empty((nl, nr), np.bool_)
-    cost = np.empty((nl, nr))
-    col_count = np.zeros(nr, np.int64)
-    disjoint = True
-    for i in range(nl):
-        row_count = 0
-        for j in range(nr):
-            z = depth[i, j]
-            g = epi[i, j] <= tol_px and z >= z_lo and z <= z_hi and np.isfinite(z)
-            gate[i, j] = g
-            if g:
-                c = desc_dist[i, j] + epi[i, j] / tol_px
-                cost[i, j] = c
-                row_count += 1
-                col_count[j] += 1
-                if row_count > 1 or col_count[j] > 1 or not c < _DISJOINT_COST_MAX:
-                    disjoint = False
-            else:
-                cost[i, j] = big
-    return gate, cost, disjoint
-
-
 def _median(values: list[float]) -> float:
     """``np.median`` of a few finite values (the middle one, or the mean of the two middle
     ones: the same float), without its overhead."""
@@ -223,11 +130,11 @@ def _median(values: list[float]) -> float:
 
 
 def _coherence_bounded(z_lo: float, z_hi: float, depth_coherence: float) -> bool:
-    """Whether the depth-coherence term stays below ``_DISJOINT_COST_MAX`` for any pair in
+    """Whether the depth-coherence term stays below ``DISJOINT_COST_MAX`` for any pair in
     the depth range (|log(z / z_ref)| ≤ log(z_hi / z_lo), z_ref being a gated depth)."""
     if not (0.0 < z_lo <= z_hi and depth_coherence > 0.0):
         return False
-    return math.log(z_hi / z_lo) / depth_coherence < _DISJOINT_COST_MAX
+    return math.log(z_hi / z_lo) / depth_coherence < DISJOINT_COST_MAX
 
 
 def _assign(cost: FloatArray, gate: np.ndarray) -> tuple[IntArray, IntArray]:
@@ -253,7 +160,7 @@ def match_epipolar_indices(
             "do not pair"
         )
     z_lo, z_hi = float(depth_range_mm[0]), float(depth_range_mm[1])
-    gate, cost, disjoint = _gated_cost(
+    gate, cost, disjoint = gated_cost(
         np.ascontiguousarray(desc_dist, dtype=np.float64),
         np.ascontiguousarray(epi, dtype=np.float64),
         np.ascontiguousarray(depth_mm, dtype=np.float64),

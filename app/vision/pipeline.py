@@ -61,11 +61,11 @@ from app.vision.preprocess import (
     ThresholdMode,
     choose_threshold,
     detection_image,
-    frame_levels,
-    frame_summary,
     validate_image,
 )
+from app.vision.preprocess_kernels import frame_levels, frame_summary
 from app.vision.result import MAX_REJECTED_SHOWN, LedResult, PoseResult, StageTimings
+from app.vision.track_memory import TrackMemory
 from app.vision.types import Blob, FeatureSet, Match, RejectedBlob
 
 OUR_WINDOW_FACTOR = 8.0
@@ -166,16 +166,6 @@ class PipelineTrace:
         return [] if self.match_arrays is None else self.match_arrays.records()
 
 
-@dataclass
-class _Track:
-    """The last lock: prior for the next frame's ids (roll continuity) and 3-LED integrity."""
-
-    center_mm: np.ndarray
-    normal: np.ndarray
-    roll_deg: float
-    age: int = 0
-
-
 class NavigationPipeline:
     """Holds the calibration, the configuration and the last lock (the track).
 
@@ -190,10 +180,10 @@ class NavigationPipeline:
         self.calibration = calibration
         self.config = config or PipelineConfig()
         self.trace = PipelineTrace()
-        self._F = calibration.fundamental
+        self.fundamental = calibration.fundamental  # F of the calibration (x_rᵀ F x_l = 0)
         fbar = 0.5 * (calibration.left.fx + calibration.right.fx)
         self._f_times_b = fbar * calibration.baseline_mm
-        self._track: _Track | None = None
+        self._track: TrackMemory | None = None
         w, h = calibration.image_size
         self._fov_tan = (w / calibration.left.fx, h / calibration.left.fy)
 
@@ -254,7 +244,20 @@ class NavigationPipeline:
         self._stage_ms["describe"] += (t3 - t2) * 1e3
         return FeatureSet(blobs=blobs, descriptors=desc, rejected=rejected), threshold, stats
 
-    def _ring_params(self) -> RingParams:
+    @property
+    def track(self) -> TrackMemory | None:
+        """The last lock (``None`` when there is none or it aged out)."""
+        return self._track
+
+    def continue_track(self, center_mm: np.ndarray, normal: np.ndarray, roll_deg: float) -> None:
+        """Make a lock found outside :meth:`process` (a tracked frame) the track: the prior
+        of the next frame's ids and 3-LED integrity, age 0."""
+        self._track = TrackMemory(center_mm, normal, roll_deg)
+
+    @property
+    def ring_params(self) -> RingParams:
+        """The ring the pipeline looks for and its tolerances (from the config; the depth
+        noise from the calibration's focal length and baseline)."""
         cfg = self.config
         return RingParams(
             radius_mm=cfg.ring_radius_mm,
@@ -372,7 +375,7 @@ class NavigationPipeline:
         xl = undistort_pixels(cal.left, feats_l.points_px)
         xr = undistort_pixels(cal.right, feats_r.points_px)
         ddist = descriptor_distances(feats_l.descriptors, feats_r.descriptors)
-        epi = epipolar_distances(self._F, xl, xr)
+        epi = epipolar_distances(self.fundamental, xl, xr)
         if cfg.matcher == "paper":
             li, ri = match_min_distance_indices(ddist)
         else:
@@ -420,7 +423,7 @@ class NavigationPipeline:
                 f"(size, stereo consistency, colour); need at least {cfg.min_leds}",
             )
         track = self._track
-        params = self._ring_params()
+        params = self.ring_params
         prior = None if track is None else RingPrior.at_range(track.center_mm, track.normal, params)
 
         def consistent(fit: RingFit) -> bool:
@@ -462,7 +465,7 @@ class NavigationPipeline:
         slot_angles = ring.offset_deg + spacing * np.array(ring.slots, dtype=np.float64)
         ids = led_ids_for_angles(slot_angles, roll, cfg.led_count, cfg.led_phase_deg)
         self.trace.roll_deg = roll
-        self._track = _Track(ring.circle.center.copy(), ring.circle.normal.copy(), roll)
+        self._track = TrackMemory(ring.circle.center.copy(), ring.circle.normal.copy(), roll)
         # the ring's LEDs in id order, their bound, then the records, built once with it
         order = sorted(zip(ring.indices, ids.tolist(), strict=True), key=lambda t: t[1])
         rows = [int(idx[k]) for k, _ in order]

@@ -78,22 +78,13 @@ from app.vision.error_bound import (
 from app.vision.features import gate_array
 from app.vision.ihwt import SAMPLES_PER_SUBSQUARE, describe
 from app.vision.ihwt import window_side_px as ihwt_window_side_px
-from app.vision.local_centroid import (
-    OUT_X0,
-    OUT_X1,
-    OUT_Y0,
-    OUT_Y1,
-    box_table,
-    local_blob,
-    local_centroids,
-    window_pad_px,
-)
+from app.vision.local_centroid import box_table, local_blob, window_pad_px
+from app.vision.local_centroid_kernels import OUT_X0, OUT_X1, OUT_Y0, OUT_Y1, local_centroids
 from app.vision.matching import epipolar_distances
 from app.vision.pipeline import (
     NavigationPipeline,
     PipelineConfig,
     PipelineTrace,
-    _Track,
     check_pair,
 )
 from app.vision.preprocess import (
@@ -199,7 +190,7 @@ class StereoTracker:
         self.stats = TrackerStats()
         # the windows next_windows() planned for the next update (reused there, not redone)
         self._planned: tuple[list[_Window], list[_Window]] | None = None
-        self._params: RingParams = self.pipeline._ring_params()
+        self._params: RingParams = self.pipeline.ring_params
         self._gate = gate_array(self.config.gate)
         # _support_half by blob radius (px): a few radii recur frame after frame
         self._support_cache: dict[float, float] = {}
@@ -277,7 +268,7 @@ class StereoTracker:
             self.stats.lost += 1
             return result
         trace = self.pipeline.trace
-        track = self.pipeline._track
+        track = self.pipeline.track
         assert trace.left is not None and trace.right is not None and track is not None
         radius_l = {b.centroid_px: equivalent_radius_px(b.area_px) for b in trace.left.blobs}
         radius_r = {b.centroid_px: equivalent_radius_px(b.area_px) for b in trace.right.blobs}
@@ -561,7 +552,7 @@ class StereoTracker:
         # --- epipolar gate and triangulation (as the pipeline)
         xl = undistort_pixels(cal.left, pl)
         xr = undistort_pixels(cal.right, pr)
-        epi = np.diagonal(epipolar_distances(self.pipeline._F, xl, xr))  # pairs i ↔ i
+        epi = np.diagonal(epipolar_distances(self.pipeline.fundamental, xl, xr))  # pairs i ↔ i
         if np.any(epi > cfg.epipolar_tol_px):
             raise _Fallback("a tracked LED pair left the epipolar gate")
         X0 = triangulate_linear(cal.P_left, cal.P_right, xl, xr)
@@ -598,7 +589,7 @@ class StereoTracker:
         if slot_ids != led_ids:
             raise _Fallback(f"slot ids {slot_ids} differ from the tracked ids {led_ids}")
         # the pipeline's track continues through tracked frames (ids after a fallback)
-        self.pipeline._track = _Track(circle.center.copy(), circle.normal.copy(), roll)
+        self.pipeline.continue_track(circle.center.copy(), circle.normal.copy(), roll)
         # --- state for the next frame
         pl_f, pr_f, X_f = pl.tolist(), pr.tolist(), X.tolist()
         leds: dict[int, _Led] = {}

@@ -1,0 +1,197 @@
+"""The ring search's Python driver: :func:`find_ring` (paper §5.2).
+
+Every candidate point is considered (no cap): the compiled seed search and refinement
+(:mod:`app.geometry.ring.kernels`) give the distinct ring hypotheses, each gets its
+a-contrario NFA (:mod:`app.geometry.ring.nfa`; tested only against a recent lock's
+neighbourhood when it agrees with that lock), and the best is locked only if it is
+distinctive, unambiguous and carries no extra points between its slots.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from app.geometry.calibration import FloatArray
+from app.geometry.circle_fit import Circle3D
+from app.geometry.ring.kernels import radius_only_kernel, refine_kernel, ring_consts, seed_kernel
+from app.geometry.ring.nfa import background_volume_mm3, log10_nfa, prior_volume_mm3
+from app.geometry.ring.params import (
+    RingFit,
+    RingHypothesis,
+    RingParams,
+    RingPrior,
+    RingRejection,
+    agrees_with_prior,
+)
+
+MAX_SEEDS = 20_000  # refinement budget; seeds are ordered by fit quality (never reached in tests)
+
+
+def refined_hypotheses(
+    p: FloatArray,
+    triples: np.ndarray,
+    seeds: np.ndarray,
+    params: RingParams,
+    consts: FloatArray,
+) -> list[RingHypothesis]:
+    """The distinct refined hypotheses of the seeds (:func:`refine_kernel`), NFA not yet set."""
+    members, slots, resid, dist, info = refine_kernel(p, triples, seeds, consts)
+    hyps = []
+    for h in range(len(members)):
+        m = int(np.count_nonzero(members[h] >= 0))
+        fit = info[h]
+        circle = Circle3D(
+            fit[0:3].copy(), fit[3:6].copy(), float(fit[6]), float(fit[7]), float(fit[8])
+        )
+        hyps.append(
+            RingHypothesis(
+                members=members[h, :m],
+                points=p[members[h, :m]],
+                slots=slots[h, :m],
+                resid_deg=resid[h, :m],
+                circle=circle,
+                offset_deg=float(fit[10]),
+                cost=float(fit[11]),
+                angle_tol=float(fit[12]),
+                inlier_tol=float(fit[13]),
+                extra_on_ring=int(fit[14]),
+                distance_mm=dist[h, :m],
+            )
+        )
+    return hyps
+
+
+def find_ring(
+    points: FloatArray,
+    params: RingParams,
+    prior: RingPrior | None = None,
+    consistent: Callable[[RingFit], bool] | None = None,
+) -> RingFit | RingRejection:
+    """Locate the LED ring among ``points`` (N×3, mm, left camera frame) with the integrity
+    tests of :mod:`app.geometry.ring`. ``prior``: a recent lock (for 3-LED hypotheses).
+
+    ``consistent``: whether a hypothesis' own residuals agree with the measurement noise (the
+    caller's χ² test, :mod:`app.vision.error_bound`). When hypotheses compete ("ambiguous"),
+    the one that alone passes it is taken: a ring of sun glints on polished bolts fits the
+    slots as well as the LEDs but its specular points triangulate off any circle by far more
+    than the centroid noise allows (χ² ≈ 270 for 6 dof against ≈ 1 for the LEDs on the
+    held-back optics set). With none or several passing, the frame stays ambiguous."""
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    index_map = np.flatnonzero(np.isfinite(pts).all(axis=1))
+    p = pts[index_map]
+    n, N = len(p), params.led_count
+    if n < params.min_leds:
+        return RingRejection(f"only {n} matched LED(s); need at least {params.min_leds}")
+    consts = ring_consts(params)
+    triples, seeds, _ = seed_kernel(p, consts)
+    hyps = refined_hypotheses(p, triples, seeds[:MAX_SEEDS], params, consts) if len(seeds) else []
+    if not hyps:
+        most = radius_only_kernel(p, triples, consts)
+        if most >= 4:
+            return RingRejection(
+                f"{most} points lie on a ring of radius {params.radius_mm:.0f} mm but not on "
+                f"{N} evenly spaced slots: check led_count (the ring may carry a different "
+                f"number of LEDs)"
+            )
+        return RingRejection(
+            f"no 3 matched points lie on evenly spaced slots of a ring of radius "
+            f"{params.radius_mm:.0f} mm ({n} candidate point(s))"
+        )
+    volume = background_volume_mm3(p, params)
+    near_prior = -1  # candidates in the prior's neighbourhood (counted when first needed)
+    for h in hyps:
+        h.log10_nfa = log10_nfa(n, volume, h.circle, h.points, h.resid_deg, params, h.distance_mm)
+        if prior is not None and agrees_with_prior(h.circle, prior):
+            # a hypothesis predicted by a recent lock is tested only against its neighbourhood
+            if near_prior < 0:
+                d = np.linalg.norm(p - prior.center_mm, axis=1)
+                near_prior = int(np.count_nonzero(d <= params.radius_mm + prior.gate_mm))
+            local = log10_nfa(
+                near_prior,
+                prior_volume_mm3(params, prior),
+                h.circle,
+                h.points,
+                h.resid_deg,
+                params,
+                h.distance_mm,
+            )
+            h.log10_nfa = min(h.log10_nfa, local)
+    hyps.sort(key=lambda h: (-len(h.members), h.cost))
+    best = hyps[0]
+    m = len(best.members)
+    limit = _nfa_limit(best, params, prior)
+    if best.log10_nfa > limit:
+        return RingRejection(
+            f"not distinctive: a {m}-LED ring fit is expected by chance "
+            f"(NFA 10^{best.log10_nfa:.1f} > 10^{limit:.1f}) among {n} candidate points"
+        )
+    best_set = set(best.members.tolist())
+    rivals = [
+        h
+        for h in hyps[1:]
+        if not set(h.members.tolist()) <= best_set
+        and h.log10_nfa <= params.log10_nfa_max
+        and (
+            len(h.members) == m
+            or (len(h.members) == m - 1 and h.log10_nfa <= best.log10_nfa + params.ambiguity_log10)
+        )
+    ]
+    if rivals:
+        passing = (
+            []
+            if consistent is None
+            else [h for h in [best, *rivals] if consistent(_ring_fit(h, index_map, n, len(hyps)))]
+        )
+        if len(passing) != 1:
+            noise = "" if consistent is None else f"; {len(passing)} consistent with the noise"
+            return RingRejection(
+                f"ambiguous: {len(rivals) + 1} ring hypotheses fit ({m} and "
+                f"{len(rivals[0].members)} LEDs, NFA 10^{best.log10_nfa:.1f} vs "
+                f"10^{rivals[0].log10_nfa:.1f}{noise})"
+            )
+        best = passing[0]
+        m = len(best.members)
+        limit = _nfa_limit(best, params, prior)
+        if best.log10_nfa > limit:
+            return RingRejection(
+                f"ambiguous: the one ring hypothesis consistent with the noise ({m} LEDs) is "
+                f"not distinctive (NFA 10^{best.log10_nfa:.1f} > 10^{limit:.1f})"
+            )
+    if best.extra_on_ring > params.max_extra_on_ring:
+        return RingRejection(
+            f"{best.extra_on_ring} points lie on the ring between its {N} LED slots: check "
+            f"led_count (the ring may carry a different number of LEDs)"
+        )
+    if m < params.min_leds:
+        return RingRejection(
+            f"only {m} point(s) fit an evenly spaced ring of radius {params.radius_mm:.0f} mm; "
+            f"need at least {params.min_leds}"
+        )
+    return _ring_fit(best, index_map, n, len(hyps))
+
+
+def _nfa_limit(h: RingHypothesis, params: RingParams, prior: RingPrior | None) -> float:
+    """The largest log10 NFA a hypothesis may have to be locked: stricter with 3 LEDs unless a
+    recent lock predicts it."""
+    limit = params.log10_nfa_max
+    if len(h.members) == 3 and not (prior is not None and agrees_with_prior(h.circle, prior)):
+        limit -= params.three_led_log10_margin
+    return limit
+
+
+def _ring_fit(
+    h: RingHypothesis, index_map: np.ndarray, candidates: int, hypotheses: int
+) -> RingFit:
+    """A hypothesis as a :class:`RingFit` (indices into the caller's points)."""
+    return RingFit(
+        circle=h.circle,
+        indices=tuple(index_map[h.members].tolist()),
+        slots=tuple(h.slots.tolist()),
+        offset_deg=h.offset_deg,
+        residual_deg=tuple(h.resid_deg.tolist()),
+        log10_nfa=h.log10_nfa,
+        candidates=candidates,
+        hypotheses=hypotheses,
+    )

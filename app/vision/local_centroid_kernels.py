@@ -1,0 +1,220 @@
+"""The local-support centroid's compiled loops (numba, cached on disk).
+
+:func:`local_centroids` measures every blob again on its own terms (local background from
+the median of a one-pixel ring around its window, support relative to its own peak, the
+weighted mean and its noise): the algorithm is described in :mod:`app.vision.local_centroid`,
+which holds its configuration (``LocalCentroidConfig.params()`` gives ``params``' order) and
+turns the output rows into blobs.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+# columns of :func:`local_centroids`' output
+OUT_U, OUT_V, OUT_SIGMA_U, OUT_SIGMA_V, OUT_BACKGROUND, OUT_LEVEL, OUT_SATURATED, OUT_AREA = range(
+    8
+)
+OUT_X0, OUT_Y0, OUT_X1, OUT_Y1 = range(8, 12)  # the pixels read (the background ring included)
+OUT_COLUMNS = 12
+# (support fraction at least, window pad multiple) tried in turn until the support is bounded:
+# a wider window for an LED that the threshold cut down to its core, then higher levels for
+# an LED next to something brighter than its own low level (a sunlit rim, the canopy)
+ATTEMPTS = np.array([[0.0, 1], [0.0, 2], [0.35, 1], [0.5, 1], [0.5, 2], [0.5, 4]], np.float64)
+
+
+@njit(cache=True, nogil=True)
+def _pad(w: int, h: int) -> int:  # pragma: no cover - compiled
+    return max(3, (max(w, h) + 1) // 2)
+
+
+@njit(cache=True, nogil=True)
+def ring_median_counts(
+    gray: np.ndarray, x0: int, y0: int, x1: int, y1: int, counts: np.ndarray
+) -> float:  # pragma: no cover - compiled
+    """The median of the pixels on the one-pixel border just outside [x0, x1) × [y0, y1),
+    clipped to the image (NaN when none is inside), from a 256-bin count of the border's values (uint8 ``gray``; the
+    same number: the middle value, or the mean of the two middle ones, exact for integers).
+    ``counts``: (256,) int64 scratch, all zero on entry and on return."""
+    h, w = gray.shape
+    n = 0
+    for y in (y0 - 1, y1):
+        if 0 <= y < h:
+            row = gray[y]
+            for x in range(max(0, x0 - 1), min(w, x1 + 1)):
+                counts[row[x]] += 1
+                n += 1
+    for x in (x0 - 1, x1):
+        if 0 <= x < w:
+            for y in range(max(0, y0), min(h, y1)):
+                counts[gray[y, x]] += 1
+                n += 1
+    if n == 0:
+        return np.nan
+    # the values of rank (n − 1) // 2 and n // 2 (0-based), then clear the counts
+    lo = hi = -1
+    cum = 0
+    for v in range(256):
+        c = counts[v]
+        if c == 0:
+            continue
+        counts[v] = 0
+        if lo < 0 and cum + c > (n - 1) // 2:
+            lo = v
+        if hi < 0 and cum + c > n // 2:
+            hi = v
+        cum += c
+    return 0.5 * (lo + hi) if lo != hi else float(lo)
+
+
+@njit(cache=True, nogil=True)
+def _measure(
+    gray: np.ndarray,
+    bx: int,
+    by: int,
+    bw: int,
+    bh: int,
+    pad: int,
+    params: np.ndarray,
+    out: np.ndarray,
+    seen_buf: np.ndarray,
+    stack: np.ndarray,
+    counts: np.ndarray,
+) -> bool:  # pragma: no cover - compiled
+    """The local centroid of one blob box in a window grown by ``pad`` px into ``out`` (a row
+    of ``OUT_COLUMNS``); False when the support reaches the window's edge. ``seen_buf`` and
+    ``stack``: scratch of at least the window's pixel count (bool; int64, 2 rows), ``counts``:
+    (256,) int64 zeros (:func:`ring_median_counts`)."""
+    frac, sat, read_sigma, shot_k, floor_px = params[0], params[1], params[2], params[3], params[4]
+    height, width = gray.shape
+    x0, y0 = max(0, bx - pad), max(0, by - pad)
+    x1, y1 = min(width, bx + bw + pad), min(height, by + bh + pad)
+    out[OUT_X0], out[OUT_Y0], out[OUT_X1], out[OUT_Y1] = x0 - 1, y0 - 1, x1 + 1, y1 + 1
+    bg = ring_median_counts(gray, x0, y0, x1, y1, counts)
+    # the peak on the blob's own box
+    peak = -1.0
+    px = py = 0
+    for y in range(by, by + bh):
+        for x in range(bx, bx + bw):
+            if gray[y, x] > peak:
+                peak = float(gray[y, x])
+                px, py = x, y
+    out[OUT_BACKGROUND] = bg
+    if not (peak - bg >= 2.0):
+        return True  # no contrast: nothing to grow for
+    top = sat if peak >= sat else peak
+    level = bg + frac * (top - bg)
+    wbase = level if params[5] > 0 else bg
+    # 8-connected flood fill from the peak over pixels ≥ level, inside the window
+    ww, wh = x1 - x0, y1 - y0
+    # seen[j + 1, i + 1]: window pixel (j, i) taken; a border of True keeps the fill inside
+    seen = seen_buf[: (ww + 2) * (wh + 2)].reshape(wh + 2, ww + 2)
+    seen[:] = False
+    seen[0, :] = True
+    seen[wh + 1, :] = True
+    seen[:, 0] = True
+    seen[:, ww + 1] = True
+    # a pixel value g (an integer) is ≥ level ⇔ g ≥ ⌈level⌉
+    ilevel = int(math.ceil(level))
+    sp = 0
+    stack[0, sp] = py - y0
+    stack[1, sp] = px - x0
+    sp += 1
+    seen[py - y0 + 1, px - x0 + 1] = True
+    edge = False
+    sw = swu = swv = 0.0
+    count = 0
+    n_sat = 0
+    # the support's box (window px): the noise sum below reads only its rows and columns
+    j_lo, j_hi, i_lo, i_hi = wh, -1, ww, -1
+    while sp > 0:
+        sp -= 1
+        j, i = stack[0, sp], stack[1, sp]
+        j_lo, j_hi = min(j_lo, j), max(j_hi, j)
+        i_lo, i_hi = min(i_lo, i), max(i_hi, i)
+        g = float(gray[y0 + j, x0 + i])
+        wgt = g - wbase
+        sw += wgt
+        swu += wgt * (x0 + i)
+        swv += wgt * (y0 + j)
+        count += 1
+        if g >= sat:
+            n_sat += 1
+        if i == 0 or j == 0 or i == ww - 1 or j == wh - 1:
+            edge = True
+        for dj in (-1, 0, 1):
+            for di in (-1, 0, 1):
+                jj, ii = j + dj, i + di
+                if not seen[jj + 1, ii + 1]:
+                    if gray[y0 + jj, x0 + ii] >= ilevel:
+                        seen[jj + 1, ii + 1] = True
+                        stack[0, sp] = jj
+                        stack[1, sp] = ii
+                        sp += 1
+    out[OUT_LEVEL] = level
+    out[OUT_SATURATED] = n_sat
+    out[OUT_AREA] = count
+    if edge:
+        return False
+    if sw <= 0.0:
+        return True
+    cu, cv = swu / sw, swv / sw
+    # first-order noise of the weighted mean (the level held fixed)
+    vu = vv = 0.0
+    for j in range(j_lo, j_hi + 1):  # (in raster order, as over the whole window)
+        for i in range(i_lo, i_hi + 1):
+            if seen[j + 1, i + 1]:
+                g = float(gray[y0 + j, x0 + i])
+                if g >= sat:
+                    continue
+                var = read_sigma * read_sigma + shot_k * max(g - bg, 0.0)
+                du, dv = x0 + i - cu, y0 + j - cv
+                vu += var * du * du
+                vv += var * dv * dv
+    out[OUT_U] = cu
+    out[OUT_V] = cv
+    out[OUT_SIGMA_U] = np.sqrt(vu / (sw * sw) + floor_px * floor_px)
+    out[OUT_SIGMA_V] = np.sqrt(vv / (sw * sw) + floor_px * floor_px)
+    return True
+
+
+@njit(cache=True, nogil=True)
+def local_centroids(
+    gray: np.ndarray, boxes: np.ndarray, params: np.ndarray
+) -> np.ndarray:  # pragma: no cover - compiled
+    """For each (x, y, w, h) row of ``boxes`` (a blob's bounding box, image px) the local
+    centroid (module docstring): rows of ``OUT_COLUMNS`` (u, v, σ_u, σ_v px, local background
+    DN, support level DN, saturated pixels, support area px, the pixels read: x0, y0, x1, y1
+    half-open); u, v NaN when not measured. A support that reaches its window's edge is
+    measured again as ``ATTEMPTS`` lists (wider windows, higher levels) before it is given
+    up."""
+    n = boxes.shape[0]
+    out = np.full((n, OUT_COLUMNS), np.nan)
+    params = params.copy()
+    frac0 = params[0]
+    # scratch for the largest window an attempt may read
+    grow = 0
+    for a in range(ATTEMPTS.shape[0]):
+        grow = max(grow, int(ATTEMPTS[a, 1]))
+    big = 0
+    for k in range(n):
+        bw, bh = boxes[k, 2], boxes[k, 3]
+        pad = _pad(bw, bh) * grow
+        big = max(big, (bw + 2 * pad + 2) * (bh + 2 * pad + 2))
+    seen = np.empty(big, np.bool_)
+    stack = np.empty((2, big), np.int64)
+    counts = np.zeros(256, np.int64)
+    for k in range(n):
+        bx, by, bw, bh = boxes[k, 0], boxes[k, 1], boxes[k, 2], boxes[k, 3]
+        pad = _pad(bw, bh)
+        for a in range(ATTEMPTS.shape[0]):
+            out[k, :] = np.nan
+            params[0] = max(frac0, ATTEMPTS[a, 0])
+            grown = pad * int(ATTEMPTS[a, 1])
+            if _measure(gray, bx, by, bw, bh, grown, params, out[k], seen, stack, counts):
+                break
+    params[0] = frac0
+    return out
