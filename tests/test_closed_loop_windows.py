@@ -91,7 +91,7 @@ def test_closed_loop_windows_equals_full_render() -> None:
         np.testing.assert_allclose(a.probe_tip_m, b.probe_tip_m, atol=1e-9)
     assert full_sim.outcome() == win_sim.outcome()
     assert full_sim.outcome().captured
-    cam = win_sim._camera
+    cam = win_sim.camera
     assert cam is not None
     assert tracked > 0.5 * len(win)
     # full frames only to acquire (or when tracking fell back); every other frame windowed

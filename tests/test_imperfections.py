@@ -221,7 +221,7 @@ def test_navigation_calibration_is_perturbed_and_the_renderer_keeps_the_true_one
     sim = DockingSimulation(
         DockingConfig(seed=5, imperfections=STANDARD, max_time_s=0.1), calibration=calib
     )
-    cam = sim._camera
+    cam = sim.camera
     assert cam is not None
     assert cam.render_calibration is calib and cam.tracker.calibration is cam.nav_calibration
     np.testing.assert_allclose(cam.nav_calibration.R, nav.R)

@@ -351,7 +351,7 @@ def test_frames_of_an_abandoned_recording_are_recovered_and_replayable(tmp_path:
         right = np.full((16, 20), 100 + i, np.uint8)
         images.append((left, right))
         rec.on_tick(_record(i), SimpleNamespace(left_image=left, right_image=right))
-    writer = rec._frames
+    writer = rec.frame_writer
     deadline = time.monotonic() + 10
     while writer.pairs < 6 and time.monotonic() < deadline:  # the writer thread catches up
         time.sleep(0.01)

@@ -1,4 +1,4 @@
-"""MCAP logs of offline runs and their replay (app/streams/mcap_log.py, mcap_source.py):
+"""MCAP logs of offline runs and their replay (app/streams/mcap_log/, mcap_source.py):
 ``track --mcap`` then ``track --left OUT.mcap`` gives the same poses; the images read back
 with the ``mcap`` reader and Foxglove's protobuf schemas are the pixels tracked; a corrupt
 file is one line and exit 2, a truncated one replays up to its last complete chunk."""

@@ -45,8 +45,8 @@ def run_one(config: DockingConfig, seed: int) -> dict[str, Any]:
     row: dict[str, Any] = {"seed": int(seed), **asdict(out)}
     row["sim_time_s"] = sim.t
     row["wall_time_s"] = time.perf_counter() - t0
-    row["frames_dropped"] = sim._channel.dropped
-    row["frames_duplicated"] = sim._channel.duplicated
+    row["frames_dropped"] = sim.frame_channel.dropped
+    row["frames_duplicated"] = sim.frame_channel.duplicated
     return row
 
 

@@ -1,60 +1,14 @@
-"""Record a run: JSONL telemetry (one tick record a line), a ``.viser`` scene file and, on
-request, the raw stereo frames (``<id>.frames``, :mod:`app.streams.recording`).
-
-Layout of one recording ``<id>`` (``rec-YYYYmmdd-HHMMSS-xxxxxx``) in the recordings directory:
-
-``<id>.json``
-    Metadata (:class:`RecordingMeta`), always replaced atomically (temp file + ``os.replace``).
-    Written at start with ``status="recording"`` and the limits; rewritten at stop with
-    ``status="complete"`` (``stop_reason`` says why: ``stopped``, ``reached 5 s``, ...), or at
-    recovery with ``status="interrupted"``.
-``<id>.jsonl``
-    Telemetry, one :class:`TickRecord` a line. Each line is flushed to the OS as it is written
-    (a killed process loses at most the record being written); ``os.fsync`` runs every
-    ``FSYNC_PERIOD_S`` (an OS crash or power loss loses at most that much). While a recording is
-    active its process holds an ``flock`` on this file, so recovery never touches a recording that
-    is live in another process.
-``<id>.viser``
-    The scene, from viser's scene serializer (``server.get_scene_serializer()``,
-    ``insert_sleep(dt)`` after each scene update, ``serialize()`` on stop). The serializer keeps
-    everything in memory, so this file only exists after a clean stop; a crash loses it (the
-    recovered metadata says so: ``scene_file: null``, ``scene_note``). Replay offline: viser's
-    client with ``?playbackPath=<url of the .viser file>`` (served at ``/viser-client/``).
-
-``<id>.mcap``
-    The same run as one MCAP log for Foxglove (:mod:`app.server.mcap_recording`,
-    docs/ecosystem.md): telemetry, /tf, pose, scene, annotations and, with frames, the very PNG
-    bytes of ``<id>.frames``; written by a thread of its own, chunked and flushed every second,
-    so a kill leaves it readable up to its last complete chunk; recovery rebuilds a complete one
-    from the JSONL and the frames (``mcap_note`` says so).
-
-``<id>.frames/`` (``POST /recording/start?frames=true``)
-    Lossless PNG pairs, per-pair times and the calibration used, written by a thread of its
-    own (a pair it cannot keep up with is dropped and counted, never blocking the tick
-    thread); every pair is on disk before its index line, so a crash keeps all complete pairs.
-    ``aar-dock track --left <id>.frames`` and ``serve --source video:<id>.frames`` replay it.
-
-A failing disk (``ENOSPC``, ``EACCES``, the directory removed): the first write error stops
-the recording, ``status="failed"`` with the error as ``stop_reason``; the telemetry is cut back
-to its last complete record and stays downloadable. Metadata that cannot be written is kept in
-memory (listed, served) and written by the next start or stop. A start that cannot write
-raises :class:`RecordingError` (507 for a full disk, 503 otherwise); a frame recording starts
-only with ``min_free_mb`` free (507 otherwise).
-
-Recovery: a :class:`Recorder` created over a directory recovers the recordings a crash left
-behind (metadata still ``recording`` and no live owner, or a JSONL without metadata): it drops a
-torn last line, counts the records, and writes ``status="interrupted"`` metadata, so they are
-listed and downloadable. Bounds: a recording stops after ``max_s`` (a watchdog thread, ticks or
-not) or once it holds ``max_mb`` MB.
-"""
+r"""The recorder: one active recording at a time — its start (telemetry, scene serializer, MCAP
+log, frame writer), the tick-loop subscriber that appends each record, the limits (``max_s``,
+``max_mb``, the frames' own bound, the free-space floor) enforced by a watchdog thread that also
+``fsync``\ s periodically, the stop that finishes the files (never raising for a failing disk),
+and listing and locating the recordings. The layout and crash-safety guarantees of a recording:
+:mod:`app.server.recording`."""
 
 from __future__ import annotations
 
-import errno
-import json
 import logging
 import os
-import re
 import shutil
 import threading
 import time
@@ -62,65 +16,26 @@ import uuid
 import weakref
 from collections.abc import Callable
 from pathlib import Path
-from typing import IO, Any, Literal, Protocol
+from typing import IO, TYPE_CHECKING, Any, Literal, Protocol
 
-from app.server.schemas import RecordingInfo, TickRecord
+from app.server.recording.disk import free_mb, try_lock, write_all, write_atomic
+from app.server.recording.meta import (
+    ID_RE,
+    RecordingError,
+    RecordingMeta,
+    meta_path,
+    storage_error,
+    write_meta,
+)
+from app.server.recording.recovery import recover_recordings
+from app.server.schemas import TickRecord
 
-try:  # POSIX advisory locks: which recordings are live in some process
-    import fcntl
-except ImportError:  # pragma: no cover - Windows
-    fcntl = None  # type: ignore[assignment]
+if TYPE_CHECKING:
+    from app.sim.rig_mount import CameraMount
+    from app.streams.recording import FrameRecordingWriter
 
 log = logging.getLogger(__name__)
-ID_RE = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
 FSYNC_PERIOD_S = 0.5
-SCENE_LOST_NOTE = "lost in a crash; telemetry complete"
-INTERRUPTED_REASON = "interrupted: the server ended without stopping the recording (crash/kill)"
-
-RecordingStatus = Literal["recording", "complete", "interrupted", "failed"]
-NO_SPACE = frozenset({errno.ENOSPC, errno.EDQUOT})
-
-
-class RecordingError(RuntimeError):
-    """A recording that cannot start: HTTP status (409, 503, 507) and the reason."""
-
-    def __init__(self, status: int, detail: str) -> None:
-        super().__init__(detail)
-        self.status = status
-        self.detail = detail
-
-
-def storage_error(what: str, exc: OSError) -> RecordingError:
-    """507 for a full disk (or quota), 503 for any other write error, with the reason."""
-    code = 507 if exc.errno in NO_SPACE else 503
-    return RecordingError(code, f"{what}: {exc.strerror or exc} (AAR_RECORDINGS_DIR)")
-
-
-def free_mb(directory: Path) -> float | None:
-    """Free space (MB) of the file system holding ``directory``; None if it cannot be read."""
-    try:
-        return shutil.disk_usage(directory).free / 1e6
-    except OSError:
-        return None
-
-
-class RecordingMeta(RecordingInfo):
-    """The metadata file and the API's answer (``RecordingInfo`` plus the crash-safety fields)."""
-
-    status: RecordingStatus = "complete"  # files written before these fields were clean stops
-    max_s: float | None = None
-    max_mb: float | None = None
-    last_record_wall: float | None = None  # ``wall_time`` of the last record on disk
-    scene_note: str | None = None  # why there is no scene file, when there is none
-    recovered_wall: float | None = None  # when an interrupted recording was recovered
-    recovery_note: str | None = None
-    frames_dir: str | None = None  # raw stereo frames (app.streams.recording), if recorded
-    frame_pairs: int = 0
-    frames_bytes: int = 0
-    frames_dropped: int = 0  # pairs the frame writer could not keep up with
-    mcap_file: str | None = None  # the MCAP log of the run (docs/ecosystem.md)
-    mcap_bytes: int = 0
-    mcap_note: str | None = None  # why the MCAP log is missing or was rebuilt
 
 
 class SceneSerializer(Protocol):
@@ -129,71 +44,13 @@ class SceneSerializer(Protocol):
     def serialize(self) -> bytes: ...
 
 
-def _try_lock(fh: IO[bytes]) -> bool:
-    """Non-blocking exclusive ``flock``; released when the file is closed or the process dies."""
-    if fcntl is None:  # pragma: no cover
-        return True
-    try:
-        fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except OSError:
-        return False
-    return True
-
-
-def _fsync_dir(directory: Path) -> None:
-    try:
-        fd = os.open(directory, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
-    finally:
-        os.close(fd)
-
-
-def _write_atomic(path: Path, data: bytes) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    try:
-        with open(tmp, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)  # a torn temp file must not hold the space it took
-        raise
-    _fsync_dir(path.parent)
-
-
-def _write_all(fh: IO[bytes], data: bytes) -> None:
-    """Unbuffered file: all of ``data`` or ``OSError`` (a short write is retried)."""
-    view = memoryview(data)
-    while view:
-        n = fh.write(view)
-        if not n:
-            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
-        view = view[n:]
-
-
-def _wall_time(line: bytes | None) -> float | None:
-    if line is None:
-        return None
-    try:
-        value = json.loads(line).get("wall_time")
-    except (ValueError, AttributeError):
-        return None
-    return float(value) if isinstance(value, int | float) else None
-
-
 def _watchdog(ref: weakref.ReferenceType[Recorder], rec_id: str, wake: threading.Event) -> None:
     """Per-recording thread: time/size bounds and periodic fsync. Holds the recorder weakly."""
     while True:
         rec = ref()
         if rec is None:
             return
-        wait = rec._watch(rec_id)
+        wait = rec.watch(rec_id)
         del rec
         if wait is None:
             return
@@ -237,12 +94,12 @@ class Recorder:
         self._wake: threading.Event | None = None
         self._last_sync = 0.0
         self._dirty = False
-        self._frames: Any = None  # app.streams.recording.FrameRecordingWriter
+        self._frames: FrameRecordingWriter | None = None
         self._accept_frame: Callable[[Any], bool] | None = None
         self.mcap = mcap  # also write <id>.mcap (app.server.mcap_recording)
         self.mcap_plant = mcap_plant  # the airframe whose rig mount /tf uses (None: default)
         self._mcap: Any = None  # app.server.mcap_recording.RecordingMcap
-        self._mount: Any = None
+        self._mount: CameraMount | None = None
         self.recovered: list[RecordingMeta] = self.recover() if recover else []
 
     @property
@@ -251,11 +108,13 @@ class Recorder:
         metadata is written)."""
         return self._info or self._finishing
 
-    def _meta_path(self, rec_id: str) -> Path:
-        return self.directory / f"{rec_id}.json"
+    @property
+    def frame_writer(self) -> FrameRecordingWriter | None:
+        """The active recording's frame writer (None: no recording, or one without frames)."""
+        return self._frames
 
     def _write_meta(self, info: RecordingMeta) -> None:
-        _write_atomic(self._meta_path(info.id), info.model_dump_json(indent=2).encode())
+        write_meta(self.directory, info)
 
     # ---- recording -------------------------------------------------------------------
     def start(
@@ -285,7 +144,7 @@ class Recorder:
                 fh = tele.open("xb", buffering=0)  # one write per record, short writes seen
             except OSError as exc:
                 raise storage_error("cannot write to the recordings directory", exc) from None
-            _try_lock(fh)
+            try_lock(fh)
             serializer = None
             scene_file = None
             if self.scene_serializer_factory is not None:
@@ -373,7 +232,7 @@ class Recorder:
                 return
             line = record.model_dump_json().encode() + b"\n"
             try:
-                _write_all(fh, line)  # unbuffered: in the OS's hands, survives a kill
+                write_all(fh, line)  # unbuffered: in the OS's hands, survives a kill
             except (OSError, ValueError) as exc:
                 self._fail(info, f"write failed: {exc}")
                 return
@@ -416,11 +275,9 @@ class Recorder:
         if not self.mcap:
             return None
         try:
-            from app.server.mcap_recording import RecordingMcap, default_mount
+            from app.server.mcap_recording import RecordingMcap
 
-            if self._mount is None:
-                self._mount = default_mount(self.mcap_plant)
-            return RecordingMcap(self.directory / f"{rec_id}.mcap", calibration, self._mount)
+            return RecordingMcap(self.directory / f"{rec_id}.mcap", calibration, self._rig_mount())
         except Exception:
             log.exception("recording %s: the MCAP log could not be opened", rec_id)
             return None
@@ -460,7 +317,7 @@ class Recorder:
         if self._wake is not None:
             self._wake.set()
 
-    def _watch(self, rec_id: str) -> float | None:
+    def watch(self, rec_id: str) -> float | None:
         """One watchdog step: stop at a bound, fsync when due; seconds to the next step or None."""
         with self._lock:
             info = self._info
@@ -565,7 +422,7 @@ class Recorder:
                 else:
                     try:
                         data = ser.serialize()
-                        _write_atomic(self.directory / info.scene_file, data)
+                        write_atomic(self.directory / info.scene_file, data)
                         update["scene_bytes"] = len(data)
                     except Exception as exc:
                         log.exception("scene serialization failed")
@@ -609,131 +466,18 @@ class Recorder:
 
     # ---- recovery --------------------------------------------------------------------
     def recover(self) -> list[RecordingMeta]:
-        """Mark the recordings a crash left behind as ``interrupted``; returns them."""
-        if not self.directory.is_dir():
-            return []
-        out: list[RecordingMeta] = []
-        for tele in sorted(self.directory.glob("rec-*.jsonl")):
-            rec_id = tele.stem
-            if not ID_RE.match(rec_id) or (self._info is not None and self._info.id == rec_id):
-                continue
-            meta_path = self._meta_path(rec_id)
-            prior: RecordingMeta | None = None
-            if meta_path.is_file():
-                try:
-                    prior = RecordingMeta.model_validate_json(meta_path.read_bytes())
-                except Exception:
-                    log.warning("unreadable recording metadata %s: rebuilding it", meta_path)
-                if prior is not None and prior.status != "recording":
-                    continue
-            try:
-                rec = self._recover_one(tele, prior)
-            except Exception:
-                log.exception("could not recover recording %s", rec_id)
-                continue
-            if rec is not None:
-                log.warning("recovered interrupted recording %s: %d records", rec.id, rec.ticks)
-                out.append(rec)
-        return out
+        """Mark the recordings a crash left behind as ``interrupted``; returns them
+        (:func:`app.server.recording.recovery.recover_recordings`)."""
+        live = None if self._info is None else self._info.id
+        return recover_recordings(self.directory, live, self._rig_mount)
 
-    def _recover_one(self, tele: Path, prior: RecordingMeta | None) -> RecordingMeta | None:
-        rec_id = tele.stem
-        with tele.open("r+b") as fh:
-            if not _try_lock(fh):
-                return None  # live in another process
-            count, good, first, last = 0, 0, None, None
-            for line in fh:
-                if not line.endswith(b"\n"):
-                    break  # torn last record
-                try:
-                    json.loads(line)
-                except ValueError:
-                    break  # garbage tail (e.g. a power loss before the fsync)
-                count += 1
-                good += len(line)
-                if first is None:
-                    first = line
-                last = line
-            size = fh.seek(0, os.SEEK_END)
-            notes: list[str] = []
-            if size > good:
-                fh.truncate(good)
-                fh.flush()
-                os.fsync(fh.fileno())
-                notes.append(f"dropped an incomplete last record ({size - good} bytes)")
-            if prior is None:
-                notes.append("metadata was missing: rebuilt from the telemetry")
-            mtime = tele.stat().st_mtime
-            last_wall = _wall_time(last)
-            scene_name = f"{rec_id}.viser"
-            for tmp in (f".{rec_id}.viser.tmp", f".{rec_id}.json.tmp"):
-                (self.directory / tmp).unlink(missing_ok=True)
-            scene_path = self.directory / scene_name
-            scene_ok = scene_path.is_file()  # written atomically: complete if present
-            frames_path = self.directory / f"{rec_id}.frames"
-            frame_pairs = 0
-            if (frames_path / "frames.jsonl").is_file():
-                from app.streams.recording import read_index
+    def _rig_mount(self) -> CameraMount:
+        """The rig mount the MCAP logs' /tf uses (the airframe's ``mcap_plant``; made once)."""
+        if self._mount is None:
+            from app.server.mcap_recording import default_mount
 
-                frame_pairs = len(read_index(frames_path))  # complete pairs only
-            mcap_file, mcap_note = self._recover_mcap(rec_id, tele, frames_path)
-            started = prior.started_wall if prior is not None else _wall_time(first)
-            meta = RecordingMeta(
-                id=rec_id,
-                started_wall=started if started is not None else mtime,
-                stopped_wall=last_wall if last_wall is not None else mtime,
-                ticks=count,
-                active=False,
-                telemetry_file=tele.name,
-                scene_file=scene_name if scene_ok else None,
-                telemetry_bytes=good,
-                scene_bytes=scene_path.stat().st_size if scene_ok else 0,
-                stop_reason=INTERRUPTED_REASON,
-                status="interrupted",
-                max_s=prior.max_s if prior is not None else None,
-                max_mb=prior.max_mb if prior is not None else None,
-                last_record_wall=last_wall,
-                scene_note=None if scene_ok else SCENE_LOST_NOTE,
-                recovered_wall=time.time(),
-                recovery_note="; ".join(notes) or None,
-                frames_dir=frames_path.name if frame_pairs or frames_path.is_dir() else None,
-                frame_pairs=frame_pairs,
-                mcap_file=mcap_file,
-                mcap_bytes=0 if mcap_file is None else (self.directory / mcap_file).stat().st_size,
-                mcap_note=mcap_note,
-            )
-            self._write_meta(meta)  # while still holding the lock
-        return meta
-
-    def _recover_mcap(self, rec_id: str, tele: Path, frames: Path) -> tuple[str | None, str | None]:
-        """An MCAP log cut by the crash is rebuilt, complete, from the (already truncated)
-        telemetry and the complete frame pairs; the cut one is kept if that fails."""
-        path = self.directory / f"{rec_id}.mcap"
-        if not path.is_file():
-            return None, None
-        from app.streams.mcap_log import export_recording, is_complete
-
-        if is_complete(path):
-            return path.name, None
-        try:
-            from app.server.mcap_recording import default_mount, telemetry_schema
-            from app.streams.recording import recording_calibration
-
-            calib = recording_calibration(frames) if frames.is_dir() else None
-            if self._mount is None:
-                self._mount = default_mount(self.mcap_plant)
-            export_recording(
-                tele,
-                path,
-                telemetry_schema=telemetry_schema(),
-                frames_dir=frames if frames.is_dir() else None,
-                calibration=calib,
-                mount=self._mount,
-            )
-        except Exception as exc:
-            log.exception("recording %s: the MCAP log could not be rebuilt", rec_id)
-            return path.name, f"cut by the crash (readable up to its last chunk); rebuild: {exc}"
-        return path.name, "rebuilt from the telemetry and frames after the crash"
+            self._mount = default_mount(self.mcap_plant)
+        return self._mount
 
     # ---- reading ---------------------------------------------------------------------
     def list(self) -> list[RecordingMeta]:
@@ -758,7 +502,7 @@ class Recorder:
         for live in (self._info, self._finishing, self._unsaved.get(rec_id)):
             if live is not None and live.id == rec_id:
                 return live.model_copy()
-        meta = self._meta_path(rec_id)
+        meta = meta_path(self.directory, rec_id)
         if not meta.is_file():
             return None
         try:
@@ -792,7 +536,3 @@ class Recorder:
 
     def file_path(self, rec_id: str, kind: str) -> Path | None:
         return self.locate(rec_id, "telemetry" if kind == "telemetry" else "scene")[0]
-
-
-def read_jsonl(path: Path) -> list[dict[str, Any]]:
-    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]

@@ -1,0 +1,100 @@
+"""What a docking run produces: :class:`DockingTick` (one tick, tanker frame), the run's
+:class:`DockingOutcome` and :class:`TickLog`, a compact per-tick history for plots."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from app.sim.receiver import INPUT_NAMES, STATE_NAMES
+from app.sim.stereo_render import Rect
+from app.vision.result import PoseResult
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass
+class DockingTick:
+    """Everything one tick produced (tanker frame, m/rad/s unless stated)."""
+
+    t_s: float
+    phase: str
+    drogue_truth_m: FloatArray
+    drogue_normal: FloatArray
+    drogue_measured_m: FloatArray | None
+    drogue_estimate_m: FloatArray
+    probe_tip_m: FloatArray
+    uav_state: FloatArray  # 12, absolute: trim + perturbation, position in the tanker frame
+    reference_m: FloatArray
+    control: FloatArray  # 4, deviation from trim (throttle fraction, rad, rad, rad)
+    lock: bool
+    lock_reason: str | None
+    pose: PoseResult | None  # camera frame, mm
+    left_image: NDArray[np.uint8] | None
+    right_image: NDArray[np.uint8] | None
+    led_truth_cam_mm: FloatArray | None
+    captured: bool
+    miss_m: float | None  # radial miss at a plane crossing this tick
+    rel_position_m: FloatArray  # drogue minus probe tip
+    uav_state_names: tuple[str, ...] = STATE_NAMES
+    control_names: tuple[str, ...] = INPUT_NAMES
+    # unused since the tracker (images are always full-size); kept for compatibility
+    image_offsets_px: tuple[tuple[int, int], tuple[int, int]] | None = None
+    # render_mode="windows": the rectangles (x0, y0, x1, y1) rendered in the left/right image
+    # (pixels elsewhere are 0); None for a full render
+    image_windows_px: tuple[list[Rect], list[Rect]] | None = None
+    # the camera frame this tick: "ok", "drop", "duplicate" (imperfections) or None (no frame)
+    frame_status: str | None = None
+    # exposure time (s) of the drogue measurement fused this tick (latency: earlier than t_s)
+    measurement_exposure_t_s: float | None = None
+    # the left camera's true pose in the tanker frame (R_TC, origin m) when this tick's frame
+    # was taken (before the dynamics step): the 3-D view draws the cameras from it, whatever
+    # the airframe's mounting
+    camera_pose_T: tuple[FloatArray, FloatArray] | None = None
+
+
+@dataclass
+class DockingOutcome:
+    captured: bool
+    miss_distance_m: float  # radial miss at the capture (or last) crossing; NaN if never crossed
+    closure_speed_mps: float  # at that crossing; NaN if never crossed
+    time_to_capture_s: float  # NaN if not captured
+    aborts: int
+    max_control_saturation: float  # max over the run of |δ − δ_trim| / travel (0..1)
+
+    def to_dict(self) -> dict[str, Any]:
+        def f(v: float) -> float | None:
+            return float(v) if math.isfinite(v) else None
+
+        return {
+            "captured": bool(self.captured),
+            "miss_distance_m": f(self.miss_distance_m),
+            "closure_speed_mps": f(self.closure_speed_mps),
+            "time_to_capture_s": f(self.time_to_capture_s),
+            "aborts": int(self.aborts),
+            "max_control_saturation": float(self.max_control_saturation),
+        }
+
+
+@dataclass
+class TickLog:
+    """Compact per-tick history for plots (optional helper)."""
+
+    t: list[float] = field(default_factory=list)
+    rel: list[FloatArray] = field(default_factory=list)
+    ref_rel: list[FloatArray] = field(default_factory=list)
+    att: list[FloatArray] = field(default_factory=list)
+    ctrl: list[FloatArray] = field(default_factory=list)
+    phase: list[str] = field(default_factory=list)
+
+    def add(self, tick: DockingTick) -> None:
+        self.t.append(tick.t_s)
+        self.rel.append(tick.probe_tip_m - tick.drogue_truth_m)
+        self.ref_rel.append(tick.reference_m - tick.drogue_truth_m)
+        self.att.append(tick.uav_state[6:9].copy())
+        self.ctrl.append(tick.control.copy())
+        self.phase.append(tick.phase)

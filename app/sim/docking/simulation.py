@@ -1,0 +1,560 @@
+"""Closed-loop probe-and-drogue docking (paper §6, Fig. 13, Algorithm 3) as an explicit step function.
+
+Frames and units
+----------------
+* **Tanker frame** (the simulation's inertial frame; every ``*_m`` quantity here): origin at the
+  hose exit on the tanker, moving with the tanker in steady straight-and-level flight at the trim
+  airspeed; x forward, y right, z down; metres, radians, seconds. The drogue trails behind and below
+  the origin; the receiver approaches from behind (more negative x).
+* **Body frame** of the receiver: x nose, y right wing, z down; Euler angles (φ, θ, ψ), 3-2-1.
+  Probe tip at ``probe_tip_body_m``; the stereo rig's left camera at ``camera_body_m`` on the nose
+  beside and behind the probe, toed in to look at a point ``camera_aim_ahead_m`` ahead of the tip.
+* **Camera frame** (measurement frame of the navigation core, :class:`PoseResult`): left camera,
+  x right, y down, z forward, **millimetres**. Conversion m ↔ mm happens only in
+  :mod:`app.sim.docking.vision`.
+
+One tick (default 50 Hz):
+
+1. own-state sensors (INS-like: p, q, r, φ, θ, ψ, x, y, z with noise) → state observer (eq. 19);
+2. if a camera frame is due (:mod:`app.sim.docking.vision`): render the LED ring at the true
+   drogue pose (:func:`app.sim.stereo_render.render_pair`), run :class:`NavigationPipeline`, convert
+   the fitted drogue centre to the tanker frame with the *estimated* own pose; drogue Kalman filter (gated);
+   with ``vision=False`` the true drogue centre is the measurement (ablation);
+3. reference generation (:mod:`app.control.reference`, the swing model of
+   :mod:`app.sim.docking.guidance`) and breakaway checks (:mod:`app.control.abort`);
+4. LQR with integral action (eq. 20) → rate/position-limited actuators;
+5. propagate receiver (linear model, ZOH), Dryden gusts and hose–drogue (bow wave included);
+6. capture check: at the instant the probe tip crosses the drogue plane, capture if the radial
+   miss is below ``capture_radius_m`` and the closure speed lies in 0.5–2 m/s.
+
+Field of view at close range: the cameras sit ``≈ 3 m`` behind the probe tip and are toed in
+towards it, so the whole 0.305 m ring stays in both images down to contact (≈ 240 px radius at
+3 m on the paper's f ≈ 2350 px rig); inside the last metre the filter still coasts through any
+missed frame (bounded by ``coast_limit_s``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+from numpy.typing import NDArray
+
+from app.control.abort import AlphaBetaTracker, predicted_miss_m, should_abort
+from app.control.bow_wave import BowWaveModel
+from app.control.design import closure_feedforward
+from app.control.drogue_filter import DrogueFilter
+from app.control.lqr import IntegralLqr
+from app.control.observer import StateObserver
+from app.control.reference import GuidanceConfig, ReferenceGenerator
+from app.geometry.calibration import StereoCalibration
+from app.sim.camera_sensor import StereoCameraSensor
+from app.sim.docking.config import PLANT_GUIDANCE, DockingConfig
+from app.sim.docking.guidance import SwingGuidance
+from app.sim.docking.plant_design import design_for, make_plant
+from app.sim.docking.results import DockingOutcome, DockingTick
+from app.sim.docking.vision import DrogueFrame, camera_sensor, drogue_in_tanker, take_frame
+from app.sim.frames import euler_to_matrix, look_at_camera
+from app.sim.hose_drogue import HoseDrogue, HoseDrogueParams
+from app.sim.imperfections import (
+    FrameChannel,
+    ImperfectionDraw,
+    InsErrors,
+    draw,
+    perturbed_calibration,
+    resolve,
+    wake_downwash,
+)
+from app.sim.paths import load_default_calibration
+from app.sim.plant import ReceiverPlant
+from app.sim.receiver import Actuators
+from app.sim.stereo_render import Rect
+from app.sim.turbulence import DrydenTurbulence
+
+FloatArray = NDArray[np.float64]
+SEARCH_GAP_M = 5.0  # closest gap flown on the a-priori drogue position before acquisition
+GUST_HISTORY_TICKS = 64
+REARM_GAP_M = 1.5  # gap (m) the probe must open before another break-away counts as an abort
+
+
+class DockingSimulation:
+    """Tick-by-tick closed-loop docking; no threads, all state on the instance."""
+
+    def __init__(self, config: DockingConfig, calibration: StereoCalibration | None = None) -> None:
+        config.validate()
+        self.config = config
+        self.dt = 1.0 / config.tick_hz
+        geo = config.geometry()
+        self.plant_design = design_for(config)
+        self.models = self.plant_design.design
+        self.trim = self.plant_design.trim
+        self.airframe = self.plant_design.airframe
+        self.airspeed = float(self.models.model.airspeed_mps)  # the tanker's speed (m/s)
+        smooth, swing, bow_ff, timed, closure_ff, margin, lead = PLANT_GUIDANCE[config.plant]
+        self.smoothing_s = (
+            smooth if config.reference_smoothing_s is None else float(config.reference_smoothing_s)
+        )
+        self.swing_abort = swing if config.swing_model_abort is None else config.swing_model_abort
+        self.bow_ff = bow_ff if config.bow_feedforward is None else config.bow_feedforward
+        self.timed = timed if config.timed_closure is None else config.timed_closure
+        self.closure_ff = closure_ff
+        self.swing_lead = lead if config.swing_lead is None else float(config.swing_lead)
+        self.abort_margin = margin if config.abort_margin is None else float(config.abort_margin)
+        self._closure_ff = closure_feedforward(self.models.model)
+        self._calibration = calibration
+        self._camera: StereoCameraSensor | None = None
+        if config.vision:
+            if self._calibration is None:
+                self._calibration = load_default_calibration()
+            self._camera = camera_sensor(config, self._calibration, self.effective_render_mode)
+        self.r_probe_b = np.asarray(geo.probe_tip_body_m, float)
+        self.r_nose_b = np.asarray(geo.nose_body_m, float)
+        self.r_cam_b = np.asarray(geo.camera_body_m, float)
+        aim = self.r_probe_b + np.array([config.camera_aim_ahead_m, 0.0, 0.0])
+        self.R_bc = look_at_camera(self.r_cam_b, aim)
+        self.reset()
+
+    # ------------------------------------------------------------------ set-up
+    @property
+    def plant(self) -> ReceiverPlant:
+        """The plant flown this run (:mod:`app.sim.plant`)."""
+        return self._plant
+
+    @property
+    def camera(self) -> StereoCameraSensor | None:
+        """The stereo camera in the loop (render + tracker; None with ``vision=False``)."""
+        return self._camera
+
+    @property
+    def frame_channel(self) -> FrameChannel:
+        """This run's camera frame channel (:class:`~app.sim.imperfections.FrameChannel`):
+        how many frames it dropped and duplicated."""
+        return self._channel
+
+    @property
+    def effective_render_mode(self) -> str:
+        """``render_mode``, or "windows" with the deprecated ``roi_tracking``."""
+        return "windows" if self.config.roi_tracking else self.config.render_mode
+
+    def reset(self, seed: int | None = None) -> None:
+        """Start a fresh run (same config; ``seed`` overrides the config's seed)."""
+        cfg = self.config
+        if seed is not None:
+            self.config = cfg = replace(cfg, seed=int(seed))
+        m = self.models
+        if self._camera is not None:
+            self._camera.reset()  # a new run: no lock, no LED history from the last
+        rng = np.random.default_rng([cfg.seed, 1])
+        self._rng_sensor = np.random.default_rng([cfg.seed, 2])
+        self._frame_seed = np.random.default_rng([cfg.seed, 3])
+        # imperfections: this run's values (own random streams; "none" changes nothing)
+        imp = self.imperfections = resolve(cfg.imperfections)
+        self.imp_draw: ImperfectionDraw = draw(imp, cfg.seed)
+        self._channel = FrameChannel(imp, cfg.seed)
+        self._imperfect = imp.active
+        self._ins = InsErrors(imp, self.imp_draw, cfg.seed, self.dt) if imp.active else None
+        self._latency_ticks = int(round(imp.latency_s / self.dt))
+        self._pending: list[tuple[int, int, FloatArray, FloatArray]] = []
+        # the last real frame (camera-frame drogue centre m, pose, images, LED truth)
+        self._last_cam: DrogueFrame | None = None
+        self._plant = make_plant(cfg, self.plant_design, imp, self.imp_draw, self.dt)
+        if self._camera is not None:
+            self._camera.set_nav_calibration(
+                perturbed_calibration(self._camera.render_calibration, imp, self.imp_draw)
+            )
+        # one flight condition for everything: the plant's trim (altitude, TAS, density)
+        trim = self.trim
+        self.turb = DrydenTurbulence(
+            cfg.turbulence, trim.tas_mps, self.dt, trim.altitude_ft * 0.3048, seed=cfg.seed
+        )
+        self.drogue = HoseDrogue(
+            HoseDrogueParams(
+                air_density=trim.air_density_kgm3,
+                airspeed_mps=trim.tas_mps,
+                drogue_radius_m=cfg.ring_radius_m,
+                bow_force_n=cfg.bow_wave_force_n * self.imp_draw.bow_scale,
+            )
+        )
+        # receiver at trim, probe tip start_gap behind the drogue's rest position (+ random offset)
+        offset = np.concatenate([[0.0], rng.normal(0.0, cfg.start_offset_sigma_m, 2)])
+        tip_start = self.drogue.eq_m - np.array([cfg.start_gap_m, 0.0, 0.0]) + offset
+        x0 = np.zeros(12)
+        x0[9:12] = tip_start - m.tip0_b
+        self.x = self._plant.reset(x0)
+        self.x_trim = m.model.x_trim.copy()
+        self.obs = StateObserver.__new__(StateObserver)
+        self.obs.ad, self.obs.bd, self.obs.c, self.obs.gain = m.ad, m.bd, m.c_meas, m.obs_gain
+        self.obs.reset(self.x)
+        self.lqr = IntegralLqr(
+            kp=m.lqr_kp,
+            ki=m.lqr_ki,
+            c=m.c_tip,
+            dt=self.dt,
+            error_clip=m.error_clip,
+            output_error_clip=0.3,
+            ke=m.lqr_ke,
+            design_lag_s=m.lqr_design_lag_s,
+        )
+        self.act = Actuators(
+            m.model.u_trim,
+            m.model.limits,
+            self.dt,
+            lag_s=imp.actuator_lag_s,
+            rate_scale=imp.actuator_rate_scale,
+        )
+        self.u_applied = np.zeros(4)
+        self.filter = DrogueFilter(history=self._latency_ticks + 1, hold_after_s=cfg.coast_limit_s)
+        self.tip_tracker = AlphaBetaTracker(self.dt)
+        # the guidance's bow-wave model: the nominal force (not this run's draw)
+        self.bow_model = BowWaveModel(replace(self.drogue.params, bow_force_n=cfg.bow_wave_force_n))
+        self.guidance = ReferenceGenerator(
+            GuidanceConfig(
+                closure_speed_mps=cfg.closure_speed_mps,
+                standoff_gap_m=cfg.standoff_gap_m if self.timed else None,
+            ),
+            cfg.start_gap_m,
+        )
+        if self._imperfect:
+            self._settle_on_plant_trim()
+        # the gusts the drogue met, newest last: the receiver meets them gap / V later
+        self._gust_history: list[FloatArray] = [np.zeros(3)] * GUST_HISTORY_TICKS
+        self.swing = SwingGuidance(
+            cfg, self.drogue.params, self.bow_model, self.smoothing_s, self.dt
+        )
+        self._armed = True  # a break-away now counts as an abort (see _abort)
+        self.t = 0.0
+        self.k = 0
+        self._camera_period = 1.0 / (cfg.camera_hz or cfg.tick_hz)
+        self._next_frame_t = 0.0
+        self.captured = False
+        self.capture_time = math.nan
+        self.miss = math.nan
+        self.closure = math.nan
+        self.aborts = 0
+        self.max_sat = 0.0
+        self._failed = False
+        self._last_lock = False
+        self._last_reason: str | None = "no frame yet"
+        self._image_windows: tuple[list[Rect], list[Rect]] | None = None
+        self._prev_tip = self.probe_tip()
+        self._prev_drogue = self.drogue.position_m.copy()
+        self._prev_normal = self.drogue.normal()
+
+    def _settle_on_plant_trim(self, seconds: float = 10.0) -> None:
+        """A perturbed aircraft does not fly level at the design trim: before the approach it
+        holds its start point under the design controller in the steady wake, without gusts
+        (true state fed back), until it sits at its own trim — integrators charged — as a
+        receiver would on the pre-contact position. Then the observer starts from there."""
+        x_ref = np.zeros(12)
+        x_ref[9:12] = self.x[9:12]
+        for _ in range(int(round(seconds / self.dt))):
+            self.lqr.lag_step(self.act.apply(self.lqr.control(self.x, x_ref, x_ref[9:12])))
+            air = wake_downwash(self.imp_draw, self.x[9:12])
+            self.x = self._plant.step(self.act.effective_dev(), air)
+        self.u_applied = self.act.position - self.act.trim
+        self.obs.reset(self.x)
+
+    # ------------------------------------------------------------------ geometry
+    def _rot(self, x: FloatArray) -> FloatArray:
+        return euler_to_matrix(x[6], self.x_trim[7] + x[7], x[8])
+
+    def probe_tip(self, x: FloatArray | None = None) -> FloatArray:
+        x = self.x if x is None else x
+        return np.asarray(x[9:12] + self._rot(x) @ self.r_probe_b)
+
+    def _camera_pose(self, x: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """(R_TC, camera origin in the tanker frame, m)."""
+        r_tb = self._rot(x)
+        return r_tb @ self.R_bc, x[9:12] + r_tb @ self.r_cam_b
+
+    # ------------------------------------------------------------------ sensing
+    def _camera_measurement(
+        self, x_hat: FloatArray, duplicate: bool = False
+    ) -> tuple[FloatArray | None, FloatArray | None, DrogueFrame]:
+        """Render + tracker (:mod:`app.sim.docking.vision`). Returns (z_T, R_T, the frame).
+
+        ``duplicate``: the camera delivers its previous frame again (an imperfection): the same
+        measurement, taken as new (converted with the current own-pose estimate)."""
+        assert self._camera is not None
+        if duplicate and self._last_cam is not None:
+            shot = self._last_cam
+        else:
+            r_tc, cam_t = self._camera_pose(self.x)
+            shot, self._image_windows = take_frame(
+                self._camera,
+                r_tc,
+                cam_t,
+                self.drogue.position_m,
+                self.drogue.normal(),
+                seed=int(self._frame_seed.integers(2**31)),
+            )
+            self._last_cam = shot
+        if shot.measurement_m is None:
+            return None, None, shot
+        r_tc_hat, cam_hat = self._camera_pose(x_hat)
+        z_t, r_t = drogue_in_tanker(
+            shot.measurement_m, r_tc_hat, cam_hat, self._camera.nav_calibration
+        )
+        return z_t, r_t, shot
+
+    def _own_measurement(self) -> FloatArray:
+        m = self.models
+        y = m.c_meas @ self.x
+        if self.config.ins_noise:
+            y = y + self._rng_sensor.normal(0.0, 1.0, len(y)) * m.meas_sigma
+        if self._ins is not None:
+            y = y + self._ins.error()
+        return np.asarray(y)
+
+    # ------------------------------------------------------------------ step
+    @property
+    def done(self) -> bool:
+        cfg = self.config
+        if self._failed or self.t >= cfg.max_time_s - 1e-9:
+            return True
+        return self.captured and self.t >= self.capture_time + cfg.station_keep_s - 1e-9
+
+    def step(self) -> DockingTick:
+        cfg, m = self.config, self.models
+        dt = self.dt
+        frame_pose = self._camera_pose(self.x)  # the pose this tick's frame is taken from
+        # 1. observer on own-state sensors (eq. 19), predicting with the deflection the design
+        # model believes acted (the servo position, or its modelled lag: lag-aware design)
+        x_hat = self.obs.update(self.lqr.e_hat, self._own_measurement()).copy()
+        # 2. drogue measurement
+        self.filter.predict(dt)
+        z_t = r_t = None
+        pose = left = right = leds = None
+        self._image_windows = None
+        frame_due = self.t + 1e-9 >= self._next_frame_t
+        status: str | None = None
+        if frame_due:
+            self._next_frame_t += self._camera_period
+            status = self._channel.next()
+            if status == "drop":
+                self._last_reason = "frame dropped"
+            elif cfg.vision:
+                z_t, r_t, shot = self._camera_measurement(x_hat, duplicate=status == "duplicate")
+                pose, left, right, leds = shot.pose, shot.left, shot.right, shot.led_truth_cam_mm
+                reason = None if pose is None else pose.reason
+                self._last_reason = None if z_t is not None else (reason or "no lock")
+            else:
+                z_t = self.drogue.position_m.copy()
+                if status == "duplicate" and self._last_cam is not None:
+                    z_t = np.asarray(self._last_cam.measurement_m)
+                self._last_cam = DrogueFrame(z_t.copy())
+                r_t = np.eye(3) * 1e-6
+                self._last_reason = None
+            if z_t is not None and r_t is not None:
+                # available latency later, stamped with this tick (the exposure)
+                self._pending.append((self.k + self._latency_ticks, self.k, z_t, r_t))
+        z_t = None
+        exposure_t: float | None = None
+        while self._pending and self._pending[0][0] <= self.k:
+            _, k_exp, z_arr, r_arr = self._pending.pop(0)
+            age = self.k - k_exp
+            if cfg.latency_compensation:
+                ok = self.filter.update_delayed(z_arr, r_arr, age)
+            else:
+                ok = self.filter.update(z_arr, r_arr)
+            z_t, exposure_t = z_arr, k_exp * dt
+            if not ok:
+                self._last_reason = "gated"
+        lock = self.filter.initialised and self.filter.coast_time_s <= cfg.coast_limit_s
+        lock_reason = None if lock else (self._last_reason or "coast limit")
+        # 3. guidance + breakaway
+        g = self.guidance
+        tip_hat = x_hat[9:12] + self._rot(x_hat) @ self.r_probe_b
+        tip_vel_hat = self.tip_tracker.update(tip_hat)
+        d_hat = self.filter.position if self.filter.initialised else self.drogue.eq_m
+        d_vel = self.filter.velocity if self.filter.initialised else np.zeros(3)
+        if not self._armed and float((d_hat - tip_hat)[0]) > REARM_GAP_M:
+            self._armed = True
+        bow_at = np.zeros(2)  # the bow wave's push on the drogue at the arrival (feed-forward)
+        if self.bow_ff:
+            r_hat = self._rot(x_hat)
+            d_hat, d_vel, bow_at = self.swing.bow_split(
+                x_hat[9:12] + r_hat @ self.r_nose_b,
+                r_hat[:, 0],
+                np.asarray(d_hat, float),
+                np.asarray(d_vel, float),
+                tip_hat,
+                g.phase,
+                self.filter.ever_initialised,
+            )
+        if g.phase in ("approach", "final"):
+            rel = d_hat - tip_hat
+            if self.swing_abort and self.swing.mean is not None:
+                # where the drogue's swing about its mean will be at the plane
+                miss_pred = self.swing.swing_miss(
+                    d_hat, d_vel, self.swing.mean, tip_hat, tip_vel_hat, float(rel[0]), bow_at
+                )
+            else:
+                miss_pred = predicted_miss_m(rel, d_vel - tip_vel_hat)
+            reason = should_abort(
+                float(rel[0]), miss_pred, cfg.capture_radius_m, not lock, margin=self.abort_margin
+            )
+            if (
+                reason is None
+                and not lock
+                and g.phase == "approach"
+                and not cfg.hold_gap_on_lost_lock
+            ):
+                reason = "lock_lost"
+            if not self.filter.ever_initialised:
+                reason = None  # never acquired: hold the gap (guidance) instead of aborting
+            if reason is not None:
+                self.break_away()
+        # never acquired (e.g. a calibration error too large for the ring fit at 13 m): close
+        # on the drogue's a-priori rest position to the search gap, where the ring is larger
+        # and its depth error ∝ Z² smaller, then hold there until it is acquired
+        searching = not self.filter.ever_initialised and g.gap_cmd > SEARCH_GAP_M
+        d_raw, d_vel_raw = np.asarray(d_hat, float), np.asarray(d_vel, float)
+        if self.smoothing_s > 0:
+            d_hat, d_vel = self.swing.smoothed_reference(
+                np.asarray(d_hat, float), np.asarray(d_vel, float)
+            )
+        mean_ref = np.asarray(d_hat, float).copy()  # the reference without the bow wave's push
+        if (
+            self.swing_lead > 0
+            and self.swing.mean is not None
+            and g.phase in ("approach", "final")
+            and float((d_raw - tip_hat)[0]) < cfg.swing_lead_gap_m
+        ):
+            # lead the probe to where the swing will have the drogue at the arrival
+            lead = self.swing.swing_lead(d_raw, d_vel_raw, self.swing.mean, tip_hat)
+            d_hat = np.asarray(d_hat, float).copy()
+            d_hat[1:] += self.swing_lead * lead
+        if self.bow_ff:
+            d_hat = np.asarray(d_hat, float).copy()
+            d_hat[1:] += bow_at
+        commit = True
+        if self.timed and g.holding and self.swing.mean is not None:
+            commit = self.swing.commit_now(d_raw, d_vel_raw, tip_hat, mean_ref, np.asarray(d_hat))
+        ref, ref_vel = g.update(dt, d_hat, d_vel, lock or searching, commit)
+        # 4. control (eq. 20)
+        x_ref = np.zeros(12)
+        x_ref[9:12] = ref - m.tip0_b
+        # flight-path feed-forward: ẏ ≈ V ψ + v, ż ≈ −V θ + w at trim
+        if self.closure_ff:  # the closure's steady state and commands (closure_feedforward)
+            x_ref += self._closure_ff[0] * ref_vel[0]
+        else:
+            x_ref[0] = ref_vel[0]
+        x_ref[8] = ref_vel[1] / self.airspeed
+        x_ref[7] += -ref_vel[2] / self.airspeed
+        u_cmd = self.lqr.control(x_hat, x_ref, ref - m.tip0_b)
+        if self.closure_ff:
+            u_cmd = u_cmd + self._closure_ff[1] * ref_vel[0]
+        self.u_applied = self.act.apply(u_cmd)  # servo positions (what the observer is told)
+        self.lqr.lag_step(self.u_applied)
+        self.max_sat = max(self.max_sat, self.act.saturation())
+        # 5. propagate plant (the design model, or the perturbed aircraft), gusts, drogue
+        # one frozen gust field: the drogue meets it now, the receiver's CG gap / V later
+        gust = self.turb.step()
+        self._gust_history.append(gust)
+        self._gust_history.pop(0)
+        gap_m = float(self.drogue.position_m[0] - self.x[9])
+        delay = int(round(max(gap_m, 1.0) / self.airspeed / dt))
+        gust_rec = self._gust_history[-1 - min(max(delay, 1), GUST_HISTORY_TICKS - 1)]
+        if self._imperfect:  # wake, lagged actuators, the perturbed plant
+            air = gust_rec + wake_downwash(self.imp_draw, self.x[9:12])
+            self.x = self._plant.step(self.act.effective_dev(), air)
+        else:
+            self.x = self._plant.step(self.u_applied, gust_rec)
+        self.t += dt
+        self.k += 1
+        tip = self.probe_tip()
+        if self.captured:
+            # probe and drogue are latched: the drogue rides on the probe tip
+            self.drogue.d = tip - self.drogue.eq_m
+            self.drogue.v = np.zeros(3)
+        else:
+            r_tb = self._rot(self.x)
+            nose = self.x[9:12] + r_tb @ self.r_nose_b
+            f_bow = self.drogue.bow_wave_force(nose, r_tb[:, 0])
+            self.drogue.step(dt, gust, f_bow)
+        # 6. capture check at the plane crossing
+        captured_now = False
+        miss_now: float | None = None
+        d_pos, n = self.drogue.position_m.copy(), self.drogue.normal()
+        if not self.captured:
+            s_prev = float(self._prev_normal @ (self._prev_tip - self._prev_drogue))
+            s_now = float(n @ (tip - d_pos))
+            if s_prev > 0.0 >= s_now:
+                lam = s_prev / (s_prev - s_now)
+                tip_c = self._prev_tip + lam * (tip - self._prev_tip)
+                d_c = self._prev_drogue + lam * (d_pos - self._prev_drogue)
+                n_c = n
+                rel_c = tip_c - d_c
+                radial = rel_c - (rel_c @ n_c) * n_c
+                miss_now = float(np.linalg.norm(radial))
+                closure = (s_prev - s_now) / dt
+                self.miss, self.closure = miss_now, closure
+                ok_speed = cfg.min_closure_mps <= closure <= cfg.max_closure_mps
+                if miss_now < cfg.capture_radius_m and ok_speed:
+                    self.captured = captured_now = True
+                    self.capture_time = self.t
+                    g.mark_contact(tip)
+                else:
+                    self.break_away()
+        self._prev_tip, self._prev_drogue, self._prev_normal = tip, d_pos, n
+        phase = "contact" if captured_now else g.phase
+        state_abs = self.x.copy()
+        state_abs[:9] += self.x_trim[:9]
+        return DockingTick(
+            t_s=self.t,
+            phase=phase,
+            drogue_truth_m=d_pos,
+            drogue_normal=n,
+            drogue_measured_m=None if z_t is None else np.asarray(z_t),
+            drogue_estimate_m=np.asarray(d_hat),
+            probe_tip_m=tip,
+            uav_state=state_abs,
+            reference_m=np.asarray(ref),
+            control=self.u_applied.copy(),
+            lock=bool(lock),
+            lock_reason=lock_reason,
+            pose=pose,
+            left_image=left,
+            right_image=right,
+            led_truth_cam_mm=leds,
+            captured=self.captured,
+            miss_m=miss_now,
+            rel_position_m=d_pos - tip,
+            image_windows_px=self._image_windows,
+            frame_status=status,
+            measurement_exposure_t_s=exposure_t,
+            camera_pose_T=frame_pose,
+        )
+
+    def break_away(self) -> None:
+        """Break away: one abort per break-away — none is counted again until the probe has
+        actually opened the gap past ``REARM_GAP_M`` (a receiver slower than its backoff
+        reference is still close for a while; that is the same break-away)."""
+        if not self._armed:
+            self.guidance.start_backoff()
+            return
+        self._armed = False
+        self.aborts += 1
+        self.guidance.start_backoff()
+        if self.aborts > self.config.max_aborts:
+            self._failed = True
+
+    def outcome(self) -> DockingOutcome:
+        return DockingOutcome(
+            captured=self.captured,
+            miss_distance_m=self.miss,
+            closure_speed_mps=self.closure,
+            time_to_capture_s=self.capture_time,
+            aborts=self.aborts,
+            max_control_saturation=self.max_sat,
+        )
+
+    def run(self, max_ticks: int | None = None) -> DockingOutcome:
+        """Step until done (or ``max_ticks``); return the outcome."""
+        n = 0
+        while not self.done and (max_ticks is None or n < max_ticks):
+            self.step()
+            n += 1
+        return self.outcome()
