@@ -153,7 +153,7 @@ def test_warmup_compiles_everything_frames_need() -> None:
     """Gray, colour, H×W×1 and strided inputs, full frames and tracked windows all reach the
     compiled loops with argument types ``app.sim.warmup`` has already compiled: nothing is
     compiled after it (no compile pause in the middle of a stream)."""
-    from app.geometry import ring, triangulation
+    from app.geometry import ring, triangulation_kernels
     from app.sim.led_ring import stereo_center_x_mm, tilted_normal
     from app.sim.paths import load_default_calibration
     from app.sim.stereo_render import RenderSettings, render_pair
@@ -169,8 +169,8 @@ def test_warmup_compiles_everything_frames_need() -> None:
         preprocess.frame_summary,
         preprocess.frame_levels,
         ihwt._describe_kernel,
-        triangulation._linear_kernel,
-        triangulation._refine_kernel,
+        triangulation_kernels.linear_kernel,
+        triangulation_kernels.refine_kernel,
         ring._ring_measures,
         ring.seed_kernel,
         ring.refine_kernel,
