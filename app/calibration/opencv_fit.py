@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Literal
 
 import cv2
 import numpy as np
@@ -32,7 +32,7 @@ TERM = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 200, 1e-10)
 TERM_FOLD = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-8)
 
 
-def board_pose(rvec: Any, tvec: Any) -> tuple[FloatArray, FloatArray]:
+def board_pose(rvec: FloatArray, tvec: FloatArray) -> tuple[FloatArray, FloatArray]:
     """(R 3×3, t 3 mm) of a board pose from OpenCV's rotation and translation vectors."""
     R, _ = cv2.Rodrigues(np.asarray(rvec, dtype=np.float64).reshape(3, 1))
     return np.asarray(R, dtype=np.float64), np.asarray(tvec, dtype=np.float64).ravel()
