@@ -2,7 +2,7 @@
 
 Plain OpenCV = classic ``findChessboardCorners`` + ``cornerSubPix`` (half-window 5) on every
 image, ``calibrateCamera`` × 2 and ``stereoCalibrate`` (k1, k2 model). ``aar-dock`` =
-:func:`app.geometry.stereo_calibrate.calibrate_checkerboard` (detector cascade, sub-pixel
+:func:`app.calibration.stereo_calibration.calibrate_checkerboard` (detector cascade, sub-pixel
 window sized to the squares, rig check, robust view dropping, held-out check, report).
 Images are decoded once beforehand (not timed). Sets: Bouguet's real stereo photographs
 (``../shared/data/real/bouguet_stereo``, 13 pairs 640×480, published reference) and the
@@ -30,13 +30,12 @@ from typing import Any
 import cv2
 import numpy as np
 
-from app.geometry.board_detect import Board, PairDetection, detect_corners_detail, match_orientation
+from app.calibration.board import Board
+from app.calibration.corners import detect_corners_detail
+from app.calibration.detection import PairDetection, match_orientation
+from app.calibration.opencv_fit import MODEL_FLAGS
+from app.calibration.stereo_calibration import calibrate_checkerboard, calibrate_from_detections
 from app.geometry.projection import project_camera
-from app.geometry.stereo_calibrate import (
-    MODEL_FLAGS,
-    calibrate_checkerboard,
-    calibrate_from_detections,
-)
 from app.sim.checkerboard_render import load_truth
 
 REPO = Path(__file__).resolve().parents[1]

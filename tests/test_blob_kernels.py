@@ -153,7 +153,7 @@ def test_warmup_compiles_everything_frames_need() -> None:
     """Gray, colour, H×W×1 and strided inputs, full frames and tracked windows all reach the
     compiled loops with argument types ``app.sim.warmup`` has already compiled: nothing is
     compiled after it (no compile pause in the middle of a stream)."""
-    from app.geometry import ring, triangulation
+    from app.geometry import ring, triangulation_kernels
     from app.sim.led_ring import stereo_center_x_mm, tilted_normal
     from app.sim.paths import load_default_calibration
     from app.sim.stereo_render import RenderSettings, render_pair
@@ -175,8 +175,8 @@ def test_warmup_compiles_everything_frames_need() -> None:
         preprocess_kernels.frame_summary,
         preprocess_kernels.frame_levels,
         ihwt_kernels.describe_kernel,
-        triangulation._linear_kernel,
-        triangulation._refine_kernel,
+        triangulation_kernels.linear_kernel,
+        triangulation_kernels.refine_kernel,
         ring.ring_measures_kernel,
         ring.seed_kernel,
         ring.refine_kernel,

@@ -14,11 +14,12 @@ import cv2
 import numpy as np
 import pytest
 
-from app.geometry.board_detect import Board, PairDetection, detect_pairs, pair_name
+from app.calibration.board import Board, pair_name
+from app.calibration.detection import PairDetection, detect_pairs
+from app.calibration.report_plot import write_report_png
+from app.calibration.stereo_calibration import calibrate_from_detections
 from app.geometry.calibration import StereoCalibration
-from app.geometry.calibration_report import write_report_png
 from app.geometry.projection import project_camera
-from app.geometry.stereo_calibrate import calibrate_from_detections
 from app.sim.checkerboard_render import load_truth, zero_skew
 
 REPO = Path(__file__).resolve().parents[1]
@@ -296,8 +297,8 @@ def test_skew_recovered_from_corners_of_the_paper_rig(sample, board, model):
 
 def test_skew_model_matches_the_projection_module():
     """The refinement's projection (eqs. 2 + 7) equals app.geometry.projection's, 5 terms + γ."""
+    from app.calibration.skew_refinement import _project_skew
     from app.geometry.calibration import CameraIntrinsics
-    from app.geometry.stereo_calibrate import _project_skew
 
     K = np.array([[2394.4, -4.5, 692.7], [0.0, 2394.0, 590.8], [0.0, 0.0, 1.0]])
     dist = np.array([0.07, -0.13, 1e-3, -2e-3, 0.05])

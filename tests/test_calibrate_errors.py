@@ -12,16 +12,10 @@ import cv2
 import numpy as np
 import pytest
 
+from app.calibration.board import Board, CheckerboardError, pair_name, parse_board
+from app.calibration.detection import PairDetection, check_image_sizes
+from app.calibration.stereo_calibration import calibrate_from_detections
 from app.cli.main import main
-from app.geometry.board_detect import (
-    Board,
-    CheckerboardError,
-    PairDetection,
-    check_image_sizes,
-    pair_name,
-    parse_board,
-)
-from app.geometry.stereo_calibrate import calibrate_from_detections
 
 REPO = Path(__file__).resolve().parents[1]
 SET_DIR = REPO / "sample_data" / "checkerboard"

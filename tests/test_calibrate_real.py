@@ -17,23 +17,15 @@ import cv2
 import numpy as np
 import pytest
 
+from app.calibration.board import Board, pair_name
+from app.calibration.corners import _find, detect_corners_detail
+from app.calibration.detection import detect_pairs
+from app.calibration.held_out import HELD_OUT_MAX_FOLDS, board_residuals_mm
+from app.calibration.opencv_fit import MODEL_FLAGS
+from app.calibration.rig_consistency import rig_check
+from app.calibration.stereo_calibration import calibrate_checkerboard, calibrate_from_detections
 from app.cli.main import main
-from app.geometry.board_detect import (
-    Board,
-    _find,
-    detect_corners_detail,
-    detect_pairs,
-    pair_name,
-)
 from app.geometry.projection import project_camera
-from app.geometry.stereo_calibrate import (
-    HELD_OUT_MAX_FOLDS,
-    MODEL_FLAGS,
-    board_residuals_mm,
-    calibrate_checkerboard,
-    calibrate_from_detections,
-    rig_check,
-)
 from app.sim.checkerboard_render import load_truth
 
 REPO = Path(__file__).resolve().parents[1]

@@ -7,7 +7,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from app.geometry.board_detect import detect_corners
+from app.calibration.corners import detect_corners
 from app.geometry.calibration import StereoCalibration
 from app.geometry.projection import project_camera
 from app.sim.checkerboard_render import (

@@ -23,7 +23,6 @@ from scipy import stats
 from app.geometry.calibration import CameraIntrinsics, StereoCalibration
 from app.geometry.circle_fit import Circle3D, FitError, fit_circle_3d
 from app.geometry.uncertainty import (
-    _largest_eigenvalue_sym3,
     eigen_protection_levels_mm,
     fit_consistency,
     led_protection_levels_mm,
@@ -32,6 +31,7 @@ from app.geometry.uncertainty import (
     protection_level_mm,
     ring_covariance,
 )
+from app.geometry.uncertainty_kernels import _largest_eigenvalue_sym3
 from tests.cv_render import project_cv, skew_free
 
 CALIB = StereoCalibration.load(Path(__file__).parents[1] / "sample_data" / "calibration.json")

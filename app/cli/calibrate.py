@@ -81,10 +81,10 @@ def _fail(message: str) -> int:
 def run(args: argparse.Namespace) -> int:
     import cv2
 
-    from app.geometry.board_detect import Board, CheckerboardError, pair_name, parse_board
+    from app.calibration.board import Board, CheckerboardError, pair_name, parse_board
+    from app.calibration.report_plot import write_report_png
+    from app.calibration.stereo_calibration import calibrate_checkerboard
     from app.geometry.calibration import CalibrationError
-    from app.geometry.calibration_report import write_report_png
-    from app.geometry.stereo_calibrate import calibrate_checkerboard
 
     left_files = sorted(Path(p) for p in glob.glob(args.left))
     right_files = sorted(Path(p) for p in glob.glob(args.right))

@@ -19,10 +19,10 @@ against Monte-Carlo runs of an independent OpenCV path.
 * :func:`fit_consistency` — χ² test of the lock's epipolar and circle residuals against the
   covariance (3N − 6 degrees of freedom for N LEDs).
 
-The per-point and per-node arithmetic runs in compiled loops (numba, cached on disk; ~13 s
-to compile on first use). :func:`lock_terms` gives a lock's covariances and χ² statistic in
-one compiled call (≈ 0.07 ms for 5 LEDs, the whole bound with its protection levels; the
-three separate functions cost ≈ 0.3 ms).
+The per-point and per-node arithmetic runs in the compiled loops of
+:mod:`app.geometry.uncertainty_kernels`. :func:`lock_terms` gives a lock's covariances and χ²
+statistic in one compiled call (≈ 0.07 ms for 5 LEDs, the whole bound with its protection
+levels; the three separate functions cost ≈ 0.3 ms).
 """
 
 from __future__ import annotations
@@ -33,181 +33,20 @@ from functools import lru_cache
 from typing import Literal
 
 import numpy as np
-from numba import njit
 from numpy.polynomial.legendre import leggauss
 from scipy.special import chdtrc, chdtri
 
 from app.geometry.calibration import FloatArray, StereoCalibration
-from app.geometry.circle_fit import Circle3D, FitError, plane_axes
+from app.geometry.circle_fit import Circle3D, FitError
+from app.geometry.uncertainty_kernels import (
+    chi2_kernel,
+    lock_kernel,
+    pl_kernel,
+    ring_terms,
+    stereo_kernel,
+)
 
-_MINOR_ROWS = np.array([[1, 2, 3], [0, 2, 3], [0, 1, 3], [0, 1, 2]])  # rows kept per minor
-
-
-# ---- stereo: per-point Jacobians, measurement covariance, gains -------------------------
-@njit(cache=True, nogil=True)
-def _distort(
-    dist: np.ndarray, x: float, y: float
-) -> tuple[float, float, float, float, float]:  # pragma: no cover - compiled
-    """Eq. 7 (OpenCV's k1, k2, p1, p2, k3) at normalised (x, y): (x_d, y_d, ∂x_d/∂x,
-    ∂x_d/∂y = ∂y_d/∂x, ∂y_d/∂y)."""
-    k1, k2, p1, p2, k3 = dist[0], dist[1], dist[2], dist[3], dist[4]
-    r2 = x * x + y * y
-    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-    dr = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2)  # d radial / d r²
-    xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
-    yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
-    jxx = radial + 2.0 * x * x * dr + 2.0 * p1 * y + 6.0 * p2 * x
-    jxy = 2.0 * x * y * dr + 2.0 * p1 * x + 2.0 * p2 * y
-    jyy = radial + 2.0 * y * y * dr + 6.0 * p1 * y + 2.0 * p2 * x
-    return xd, yd, jxx, jxy, jyy
-
-
-@njit(cache=True, nogil=True)
-def _camera_terms(
-    K: np.ndarray, dist: np.ndarray, P: np.ndarray, X: np.ndarray, px: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover - compiled
-    """One point in one camera: (J 2×3 = ∂(ideal px)/∂X (px/mm), D 2×2 = ∂(distorted px)/
-    ∂(ideal px) at the measured pixel, r 2 = measured pixel undistorted − projection of X)."""
-    h0 = P[0, 0] * X[0] + P[0, 1] * X[1] + P[0, 2] * X[2] + P[0, 3]
-    h1 = P[1, 0] * X[0] + P[1, 1] * X[1] + P[1, 2] * X[2] + P[1, 3]
-    w = P[2, 0] * X[0] + P[2, 1] * X[1] + P[2, 2] * X[2] + P[2, 3]
-    u, v = h0 / w, h1 / w
-    J = np.empty((2, 3))
-    for j in range(3):
-        J[0, j] = (P[0, j] - u * P[2, j]) / w
-        J[1, j] = (P[1, j] - v * P[2, j]) / w
-    fx, g, u0, fy, v0 = K[0, 0], K[0, 1], K[0, 2], K[1, 1], K[1, 2]
-    # undistort the measured pixel: K⁻¹ (eq. 2), then Newton on eq. 7 from X's projection
-    yt = (px[1] - v0) / fy
-    xt = (px[0] - u0 - g * yt) / fx
-    y = (v - v0) / fy
-    x = (u - u0 - g * y) / fx
-    for _ in range(20):
-        xd, yd, jxx, jxy, jyy = _distort(dist, x, y)
-        det = jxx * jyy - jxy * jxy
-        dx = (jyy * (xd - xt) - jxy * (yd - yt)) / det
-        dy = (jxx * (yd - yt) - jxy * (xd - xt)) / det
-        x -= dx
-        y -= dy
-        if abs(dx) + abs(dy) < 1e-15:
-            break
-    _, _, jxx, jxy, jyy = _distort(dist, x, y)
-    # D = K₂ · ∂(x_d, y_d)/∂(x, y) · K₂⁻¹ with K₂ = [[fx, γ], [0, fy]]
-    a00, a01 = fx * jxx + g * jxy, fx * jxy + g * jyy
-    a10, a11 = fy * jxy, fy * jyy
-    D = np.empty((2, 2))
-    D[0, 0] = a00 / fx
-    D[0, 1] = a01 / fy - a00 * g / (fx * fy)
-    D[1, 0] = a10 / fx
-    D[1, 1] = a11 / fy - a10 * g / (fx * fy)
-    r = np.empty(2)
-    r[0] = fx * x + g * y + u0 - u
-    r[1] = fy * y + v0 - v
-    return J, D, r
-
-
-@njit(cache=True, nogil=True)
-def _left_null(J: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
-    """Unit a (4) with aᵀJ = 0 for a 4×3 J: the signed 3×3 minors."""
-    a = np.empty(4)
-    for i in range(4):
-        r0, r1, r2 = _MINOR_ROWS[i, 0], _MINOR_ROWS[i, 1], _MINOR_ROWS[i, 2]
-        m = (
-            J[r0, 0] * (J[r1, 1] * J[r2, 2] - J[r1, 2] * J[r2, 1])
-            - J[r0, 1] * (J[r1, 0] * J[r2, 2] - J[r1, 2] * J[r2, 0])
-            + J[r0, 2] * (J[r1, 0] * J[r2, 1] - J[r1, 1] * J[r2, 0])
-        )
-        a[i] = m if i % 2 == 0 else -m
-    return a / np.sqrt(a @ a)
-
-
-@njit(cache=True, nogil=True)
-def _mm(a: np.ndarray, b: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
-    """a·b for small matrices (a loop beats a BLAS call at these sizes)."""
-    out = np.zeros((a.shape[0], b.shape[1]))
-    for i in range(a.shape[0]):
-        for k in range(a.shape[1]):
-            aik = a[i, k]
-            for j in range(b.shape[1]):
-                out[i, j] += aik * b[k, j]
-    return out
-
-
-@njit(cache=True, nogil=True)
-def _inv2(m: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
-    """Inverse of a 2×2 matrix."""
-    det = m[0, 0] * m[1, 1] - m[0, 1] * m[1, 0]
-    inv = np.empty((2, 2))
-    inv[0, 0], inv[0, 1] = m[1, 1] / det, -m[0, 1] / det
-    inv[1, 0], inv[1, 1] = -m[1, 0] / det, m[0, 0] / det
-    return inv
-
-
-@njit(cache=True, nogil=True)
-def _inv3(m: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
-    """Inverse of a 3×3 matrix (adjugate / determinant)."""
-    inv = np.empty((3, 3))
-    for i in range(3):
-        for j in range(3):
-            a, b = (j + 1) % 3, (j + 2) % 3
-            c, d = (i + 1) % 3, (i + 2) % 3
-            inv[i, j] = m[a, c] * m[b, d] - m[a, d] * m[b, c]
-    det = m[0, 0] * inv[0, 0] + m[0, 1] * inv[1, 0] + m[0, 2] * inv[2, 0]
-    return inv / det
-
-
-@njit(cache=True, nogil=True)
-def _stereo_kernel(
-    K_l: np.ndarray,
-    dist_l: np.ndarray,
-    P_l: np.ndarray,
-    K_r: np.ndarray,
-    dist_r: np.ndarray,
-    P_r: np.ndarray,
-    left_px: np.ndarray,
-    right_px: np.ndarray,
-    X: np.ndarray,
-    sigma_l: np.ndarray,
-    sigma_r: np.ndarray,
-    weighted: bool,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover
-    """Per point: (Σ_X 3×3 mm², gain B 3×4 with δX = B·δx, C 4×4 ideal-px covariance,
-    unit a 4 with aᵀJ = 0, epipolar residual e = aᵀ·residual px)."""
-    n = X.shape[0]
-    cov = np.empty((n, 3, 3))
-    gain = np.empty((n, 3, 4))
-    C = np.zeros((n, 4, 4))
-    null = np.empty((n, 4))
-    epi = np.empty(n)
-    J = np.empty((4, 3))
-    W = np.zeros((4, 4))
-    for p in range(n):
-        Jl, Dl, rl = _camera_terms(K_l, dist_l, P_l, X[p], left_px[p])
-        Jr, Dr, rr = _camera_terms(K_r, dist_r, P_r, X[p], right_px[p])
-        J[0:2] = Jl
-        J[2:4] = Jr
-        for cam in range(2):
-            D = Dl if cam == 0 else Dr
-            s2 = sigma_l[p] ** 2 if cam == 0 else sigma_r[p] ** 2
-            A = _inv2(D)  # ∂(ideal px)/∂(distorted px)
-            o = 2 * cam
-            for i in range(2):
-                for j in range(2):
-                    C[p, o + i, o + j] = s2 * (A[i, 0] * A[j, 0] + A[i, 1] * A[j, 1])
-                    W[o + i, o + j] = (D[0, i] * D[0, j] + D[1, i] * D[1, j]) / s2
-        if weighted:
-            JtW = _mm(J.T.copy(), W)
-            info_inv = _inv3(_mm(JtW, J))
-            gain[p] = _mm(info_inv, JtW)
-            cov[p] = info_inv
-        else:
-            B = _mm(_inv3(_mm(J.T.copy(), J)), J.T.copy())
-            gain[p] = B
-            cov[p] = _mm(_mm(B, C[p]), B.T.copy())
-        a = _left_null(J)
-        null[p] = a
-        epi[p] = a[0] * rl[0] + a[1] * rl[1] + a[2] * rr[0] + a[3] * rr[1]
-    return cov, gain, C, null, epi
+# ---- stereo: per-point covariance --------------------------------------------------------
 
 
 def _sigmas(sigma: FloatArray | float, n: int, name: str) -> FloatArray:
@@ -267,7 +106,7 @@ def _stereo_terms(
     sigma_right_px: FloatArray | float,
     weighted: bool,
 ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
-    out = _stereo_kernel(
+    out = stereo_kernel(
         *_stereo_inputs(calib, left_px, right_px, X_mm, sigma_left_px, sigma_right_px),
         bool(weighted),
     )
@@ -303,74 +142,6 @@ def point_covariances(
     return _stereo_terms(calib, left_px, right_px, X_mm, sigma_left_px, sigma_right_px, weighted)[0]
 
 
-# ---- ring: Jacobians of the circle fit ----------------------------------------------------
-@njit(cache=True, nogil=True)
-def _circle_residuals(
-    pts: np.ndarray, c: np.ndarray, nrm: np.ndarray, radius: float
-) -> np.ndarray:  # pragma: no cover - compiled
-    """(2N) per point: signed distance from the plane (along nrm, mm), then in-plane radial
-    distance − radius (mm)."""
-    n = pts.shape[0]
-    out = np.empty(2 * n)
-    for p in range(n):
-        d = pts[p] - c
-        off = d @ nrm
-        q = d - off * nrm
-        out[2 * p] = off
-        out[2 * p + 1] = np.sqrt(q @ q) - radius
-    return out
-
-
-@njit(cache=True, nogil=True)
-def _fit_jacobians(
-    pts: np.ndarray, c: np.ndarray, nrm: np.ndarray, radius: float
-) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled
-    """(∂θ/∂p 7×3N, ∂ρ/∂p 2N×3N) of the plane + circle fit at points ON the circle (c, unit
-    nrm, radius): θ = (centre, normal signed like nrm, radius), ρ the points' residuals from
-    their own refitted circle. NaN when the points do not define a circle.
-
-    At zero residual the fit is first-order the least-squares solution of the linearised
-    residuals (the TLS plane is the least-squares plane of the off-plane offsets; Kåsa +
-    Gauss–Newton in it the least-squares circle of the radial distances; the plane's tilt
-    moves the radial distances at second order only). With u_k the unit radial of point k,
-    (e1, e2) in-plane axes and ψ = (δc 3, tilt t1, t2, δr):
-    off_k = n·δp_k − n·δc + r·(t1 u_k·e1 + t2 u_k·e2), radial_k = u_k·δp_k − u_k·δc − δr,
-    i.e. ρ = A ψ + B δp; the fit takes ψ = −(AᵀA)⁻¹AᵀB δp, and ∂ρ/∂p = B + A ∂ψ/∂p.
-    (Tested against central differences of :func:`~app.geometry.circle_fit.fit_circle_3d`.)
-    """
-    n = pts.shape[0]
-    e1, e2 = plane_axes(nrm)
-    A = np.zeros((2 * n, 6))
-    B = np.zeros((2 * n, 3 * n))
-    for k in range(n):
-        u = (pts[k] - c) / radius
-        for i in range(3):
-            A[2 * k, i] = -nrm[i]
-            A[2 * k + 1, i] = -u[i]
-            B[2 * k, 3 * k + i] = nrm[i]
-            B[2 * k + 1, 3 * k + i] = u[i]
-        A[2 * k, 3] = radius * (u @ e1)
-        A[2 * k, 4] = radius * (u @ e2)
-        A[2 * k + 1, 5] = -1.0
-    jt = np.full((7, 3 * n), np.nan)
-    jr = np.full((2 * n, 3 * n), np.nan)
-    ata = A.T @ A
-    # a singular system (collinear points, fewer than 3): no circle, NaN Jacobians
-    if (
-        n < 3
-        or not np.all(np.isfinite(ata))
-        or abs(np.linalg.det(ata)) < 1e-12 * max(1.0, radius) ** 8
-    ):
-        return jt, jr
-    G = -np.linalg.solve(ata, A.T @ B)  # ∂ψ/∂p, 6×3N
-    jt[0:3] = G[0:3]
-    for i in range(3):
-        jt[3 + i] = e1[i] * G[3] + e2[i] * G[4]
-    jt[6] = G[5]
-    jr[:] = B + A @ G
-    return jt, jr
-
-
 def _center_normal(circle: Circle3D) -> tuple[FloatArray, FloatArray]:
     nrm = np.asarray(circle.normal, dtype=np.float64).reshape(3)
     x, y, z = nrm.tolist()
@@ -378,32 +149,14 @@ def _center_normal(circle: Circle3D) -> tuple[FloatArray, FloatArray]:
     return np.asarray(circle.center, dtype=np.float64).reshape(3), nrm / norm
 
 
-@njit(cache=True, nogil=True)
-def _ring_terms(
-    pts: np.ndarray, c: np.ndarray, nrm: np.ndarray, radius: float
-) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled
-    """(∂θ/∂p 7×3N, ∂ρ/∂p 2N×3N) of the circle fit (see :func:`_fit_jacobians`), linearised at
-    the points' closest points on the circle: the model's estimate of the true configuration.
-    There the residuals have exactly 2N − 6 dof; at the measured points the fit's response to
-    a point sliding along the ring is not zero (∝ its residual), a noise-induced term that
-    first-order theory does not have (it made the 8 m ring's centre covariance ~25 % high and
-    the consistency test's null space ill-defined). NaN when there is no such circle."""
-    n = pts.shape[0]
-    on = np.empty((n, 3))
-    for k in range(n):
-        d = pts[k] - c
-        q = d - (d @ nrm) * nrm
-        on[k] = c + radius * q / np.sqrt(q @ q)
-    return _fit_jacobians(on, c, nrm, radius)
-
-
 def _ring_jacobians(points_mm: FloatArray, circle: Circle3D) -> tuple[FloatArray, FloatArray]:
-    """:func:`_ring_terms` of these points and ``circle`` (``FitError`` when degenerate)."""
+    """:func:`~app.geometry.uncertainty_kernels.ring_terms` of these points and ``circle``
+    (``FitError`` when degenerate)."""
     pts = np.ascontiguousarray(np.asarray(points_mm, dtype=np.float64).reshape(-1, 3))
     if len(pts) < 3 or not np.all(np.isfinite(pts)):
         raise FitError("a circle needs at least 3 finite points")
     c, nrm = _center_normal(circle)
-    jt, jr = _ring_terms(pts, c, nrm, float(circle.radius))
+    jt, jr = ring_terms(pts, c, nrm, float(circle.radius))
     if not (np.all(np.isfinite(jt)) and np.all(np.isfinite(jr))):
         raise FitError("the circle fit is degenerate at these points")
     return jt, jr
@@ -435,8 +188,9 @@ def ring_covariance(
     :func:`~app.geometry.circle_fit.fit_circle_3d` (``points_mm``), optionally oriented.
 
     J = ∂(centre, normal, radius)/∂(3N coordinates) of ``fit_circle_3d`` in closed form
-    (:func:`_fit_jacobians`), the refitted normal signed like ``circle.normal``, taken at the
-    points' closest points on ``circle`` (see :func:`_ring_jacobians`); Σ = Σ_k J_k Σ_k J_kᵀ
+    (``_fit_jacobians`` of :mod:`app.geometry.uncertainty_kernels`), the refitted normal
+    signed like ``circle.normal``, taken at the points' closest points on ``circle`` (see
+    :func:`_ring_jacobians`); Σ = Σ_k J_k Σ_k J_kᵀ
     (points independent, ``point_cov`` N×3×3 mm² from :func:`point_covariances`). The
     Jacobians are kept for :func:`fit_consistency` of the same lock (a small cache).
     """
@@ -447,79 +201,6 @@ def ring_covariance(
         normal_cov=cov[3:6, 3:6].copy(),
         radius_var_mm2=float(cov[6, 6]),
     )
-
-
-# ---- a lock's terms in one call ------------------------------------------------------------
-@njit(cache=True, nogil=True)
-def _largest_eigenvalue_sym3(m: np.ndarray) -> float:  # pragma: no cover - compiled
-    """λ_max of a symmetric 3×3 matrix in closed form (the trigonometric solution of the
-    characteristic cubic; equal to ``np.linalg.eigvalsh(m)[-1]`` to rounding, tested); NaN
-    when ``m`` is not finite."""
-    a00, a11, a22 = m[0, 0], m[1, 1], m[2, 2]
-    a01, a02, a12 = m[0, 1], m[0, 2], m[1, 2]
-    p1 = a01 * a01 + a02 * a02 + a12 * a12
-    q = (a00 + a11 + a22) / 3.0
-    if not math.isfinite(p1 + q):
-        return np.nan
-    d0, d1, d2 = a00 - q, a11 - q, a22 - q
-    p2 = d0 * d0 + d1 * d1 + d2 * d2 + 2.0 * p1
-    if p2 == 0.0:  # a multiple of the identity
-        return q
-    p = math.sqrt(p2 / 6.0)
-    # r = det((m − q·I) / p) / 2, in [−1, 1] up to rounding
-    det = d0 * (d1 * d2 - a12 * a12) - a01 * (a01 * d2 - a12 * a02) + a02 * (a01 * a12 - d1 * a02)
-    r = det / (2.0 * p * p * p)
-    r = min(1.0, max(-1.0, r))
-    return q + 2.0 * p * math.cos(math.acos(r) / 3.0)
-
-
-@njit(cache=True, nogil=True)
-def _lock_kernel(
-    K_l: np.ndarray,
-    dist_l: np.ndarray,
-    P_l: np.ndarray,
-    K_r: np.ndarray,
-    dist_r: np.ndarray,
-    P_r: np.ndarray,
-    left_px: np.ndarray,
-    right_px: np.ndarray,
-    X: np.ndarray,
-    sigma_l: np.ndarray,
-    sigma_r: np.ndarray,
-    systematic_px: float,
-    c: np.ndarray,
-    nrm: np.ndarray,
-    radius: float,
-) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:  # pragma: no cover - compiled
-    """(point covariances N×3×3 and centre covariance 3×3 with σ² + systematic² per image,
-    mm²; the χ² statistic with σ alone; the largest eigenvalue of each point's covariance,
-    then of the centre's, mm²); NaN centre covariance when the fit is degenerate."""
-    _, gain, C, a, epi = _stereo_kernel(
-        K_l, dist_l, P_l, K_r, dist_r, P_r, left_px, right_px, X, sigma_l, sigma_r, False
-    )
-    # C_k = σ² A Aᵀ per image: with σ² + systematic² it scales by (σ² + s²)/σ² per block
-    s2 = systematic_px * systematic_px
-    n = X.shape[0]
-    cov = np.empty((n, 3, 3))
-    Cb = np.zeros((4, 4))
-    for k in range(n):
-        fl = (sigma_l[k] * sigma_l[k] + s2) / (sigma_l[k] * sigma_l[k])
-        fr = (sigma_r[k] * sigma_r[k] + s2) / (sigma_r[k] * sigma_r[k])
-        Cb[0:2, 0:2] = C[k, 0:2, 0:2] * fl
-        Cb[2:4, 2:4] = C[k, 2:4, 2:4] * fr
-        cov[k] = _mm(_mm(gain[k], Cb), gain[k].T.copy())
-    jt, jr = _ring_terms(X, c, nrm, radius)
-    centre = np.zeros((3, 3))
-    for k in range(X.shape[0]):
-        jk = jt[0:3, 3 * k : 3 * k + 3].copy()
-        centre += _mm(_mm(jk, cov[k]), jk.T.copy())
-    lam = np.empty(n + 1)
-    for k in range(n):
-        lam[k] = _largest_eigenvalue_sym3(cov[k])
-    lam[n] = _largest_eigenvalue_sym3(centre)
-    if not np.all(np.isfinite(jr)):
-        return cov, centre, np.nan, lam
-    return cov, centre, _chi2_kernel(a, gain, C, epi, X, c, nrm, radius, jr), lam
 
 
 @dataclass(frozen=True)
@@ -558,7 +239,7 @@ def lock_terms(
     if not (math.isfinite(systematic_px) and systematic_px >= 0.0):
         raise ValueError("systematic_px must be finite and ≥ 0 (px)")
     c, nrm = _center_normal(circle)
-    cov, centre, T, lam = _lock_kernel(*args, float(systematic_px), c, nrm, float(circle.radius))
+    cov, centre, T, lam = lock_kernel(*args, float(systematic_px), c, nrm, float(circle.radius))
     if not (np.all(np.isfinite(centre)) and math.isfinite(T)):
         raise FitError("the circle fit is degenerate at these points")
     return LockTerms(
@@ -581,68 +262,6 @@ def _sphere_rule(n_u: int = 16, n_phi: int = 12) -> tuple[FloatArray, FloatArray
 
 
 _U2, _C2, _W = _sphere_rule()
-
-
-@njit(cache=True, nogil=True)
-def _tail(
-    x: float, lam: np.ndarray, u2: np.ndarray, c2: np.ndarray, w: np.ndarray
-) -> tuple[float, float]:  # pragma: no cover - compiled
-    """P(Σ λᵢ zᵢ² > x) = E_ω[S₃(x / ωᵀΛω)] and its derivative in x (λ descending)."""
-    tot, dtot = 0.0, 0.0
-    for j in range(w.shape[0]):
-        g = lam[0] * u2[j] + (1.0 - u2[j]) * (lam[1] * c2[j] + lam[2] * (1.0 - c2[j]))
-        if g <= 0.0:
-            continue
-        t = x / g
-        if t > 1400.0:
-            continue
-        e = math.exp(-0.5 * t)
-        tot += w[j] * (math.erfc(math.sqrt(0.5 * t)) + math.sqrt(2.0 * t / math.pi) * e)
-        dtot -= w[j] * math.sqrt(t / (2.0 * math.pi)) * e / g
-    return tot, dtot
-
-
-@njit(cache=True, nogil=True)
-def _pl_kernel(
-    lams: np.ndarray,
-    x0: np.ndarray,
-    p: float,
-    q1: float,
-    q3: float,
-    u2: np.ndarray,
-    c2: np.ndarray,
-    w: np.ndarray,
-) -> np.ndarray:  # pragma: no cover - compiled
-    """Radius r with P(‖e‖ > r) = p per row of descending eigenvalues: safeguarded Newton on
-    log P in x = r² from x0, bracketed by the λ₁·χ²₁ and λ₁·χ²₃ quantiles."""
-    out = np.empty(lams.shape[0])
-    lp = math.log(p)
-    for i in range(lams.shape[0]):
-        lam = lams[i]
-        if lam[0] <= 0.0:
-            out[i] = 0.0
-            continue
-        lo, hi = lam[0] * q1, lam[0] * q3
-        x = min(max(x0[i], lo), hi)
-        for _ in range(60):
-            s, ds = _tail(x, lam, u2, c2, w)
-            if s <= 0.0:  # far beyond the quantile
-                hi = x
-                x = 0.5 * (lo + hi)
-                continue
-            f = math.log(s) - lp
-            if abs(f) < 1e-10:  # P within 1e-10 (relative) of p
-                break
-            if f > 0.0:
-                lo = x
-            else:
-                hi = x
-            xn = x - f * s / ds
-            if not lo < xn < hi:
-                xn = 0.5 * (lo + hi)
-            x = xn
-        out[i] = math.sqrt(x)
-    return out
 
 
 @lru_cache(maxsize=16)
@@ -684,7 +303,7 @@ def led_protection_levels_mm(
     s1, s2 = lams.sum(axis=1), (lams * lams).sum(axis=1)
     with np.errstate(invalid="ignore", divide="ignore"):
         x0 = np.nan_to_num(s2 / s1 * chdtri(s1 * s1 / s2, p_exceed))
-    return np.asarray(_pl_kernel(lams, x0, float(p_exceed), q1, q3, _U2, _C2, _W))
+    return np.asarray(pl_kernel(lams, x0, float(p_exceed), q1, q3, _U2, _C2, _W))
 
 
 def protection_level_mm(
@@ -707,67 +326,6 @@ def protection_level_mm(
     ``method="eigen"``: that bound, sqrt(λ_max·χ²₃(1−p)), conservative by construction.
     """
     return float(led_protection_levels_mm(np.asarray(cov).reshape(1, 3, 3), p_exceed, method)[0])
-
-
-@njit(cache=True, nogil=True)
-def _residual_cov(
-    a: np.ndarray, gain: np.ndarray, C: np.ndarray, jr: np.ndarray
-) -> np.ndarray:  # pragma: no cover - compiled
-    """cov(y) = Σ_k M_k C_k M_kᵀ of y = (N epipolar, 2N circle residuals): M_k (3N×4) has
-    a_kᵀ in row k and ∂ρ/∂p_k · B_k below."""
-    n = a.shape[0]
-    m = 3 * n
-    S = np.zeros((m, m))
-    Mk = np.empty((m, 4))
-    for k in range(n):
-        Mk[:n] = 0.0
-        Mk[k] = a[k]
-        for r in range(2 * n):
-            for j in range(4):
-                Mk[n + r, j] = (
-                    jr[r, 3 * k] * gain[k, 0, j]
-                    + jr[r, 3 * k + 1] * gain[k, 1, j]
-                    + jr[r, 3 * k + 2] * gain[k, 2, j]
-                )
-        MC = _mm(Mk, C[k])
-        for i in range(m):
-            for j in range(m):
-                acc = 0.0
-                for q in range(4):
-                    acc += MC[i, q] * Mk[j, q]
-                S[i, j] += acc
-    return S
-
-
-@njit(cache=True, nogil=True)
-def _chi2_kernel(
-    a: np.ndarray,
-    gain: np.ndarray,
-    C: np.ndarray,
-    epi: np.ndarray,
-    X: np.ndarray,
-    c: np.ndarray,
-    nrm: np.ndarray,
-    radius: float,
-    jr: np.ndarray,
-) -> float:  # pragma: no cover - compiled
-    """T = yᵀ cov(y)⁺ y of :func:`fit_consistency` on the top 3N − 6 directions of cov(y)."""
-    n = X.shape[0]
-    S = _residual_cov(a, gain, C, jr)
-    y = np.concatenate((epi, _circle_residuals(X, c, nrm, radius)))
-    dof = 3 * n - 6
-    if n == 3:  # the circle passes through the 3 points: only the epipolar residuals remain
-        S, y = S[:n, :n].copy(), y[:n].copy()
-    scale = np.sqrt(np.diag(S))
-    lam, vec = np.linalg.eigh(S / np.outer(scale, scale))  # unit-free, then the top 3N − 6
-    m = len(y)
-    T = 0.0
-    for j in range(m - dof, m):
-        proj = 0.0
-        for i in range(m):
-            proj += vec[i, j] * y[i] / scale[i]
-        T += proj * proj / lam[j]
-    return T
 
 
 # ---- consistency ---------------------------------------------------------------------------
@@ -833,7 +391,7 @@ def fit_consistency(
     c, nrm = _center_normal(circle)
     _, jr = _ring_jacobians(X, circle)
     T = float(
-        _chi2_kernel(a, gain, C, epi, np.ascontiguousarray(X), c, nrm, float(circle.radius), jr)
+        chi2_kernel(a, gain, C, epi, np.ascontiguousarray(X), c, nrm, float(circle.radius), jr)
     )
     dof = 3 * n - 6
     p_value = float(chdtrc(dof, T))

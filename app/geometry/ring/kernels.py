@@ -25,7 +25,7 @@ import numpy as np
 from numba import njit
 
 from app.geometry.calibration import FloatArray
-from app.geometry.circle_fit import circle_kernel, distance_kernel, plane_axes
+from app.geometry.circle_fit_kernels import circle_kernel, distance_kernel, plane_axes
 from app.geometry.ring.params import RingParams
 
 _DEG = 180.0 / math.pi  # np.degrees' factor

@@ -5,7 +5,7 @@ image, repeated; pair k = k-th left file + k-th right file, in upload order), ``
 (inner corners, e.g. ``9x6``), ``square_mm``, optional ``model`` (``paper`` | ``full``),
 ``estimate_skew``, ``max_rms_px``, ``drop_outliers`` and ``include_png``. Returns
 ``{"calibration": ..., "report": ...}`` (and ``report_png_base64`` on request). The report
-is that of ``aar-dock calibrate`` (app.geometry.calibration_report): per-view errors with the
+is that of ``aar-dock calibrate`` (app.calibration.report): per-view errors with the
 held-out residual, ``rejected`` (board missing, or left/right grids not the same corners),
 ``dropped`` (reprojection outliers, robust z-score rule), ``coverage``, ``held_out``,
 ``detectors`` and the warnings. The calibration is *not* activated here: send it to
@@ -31,10 +31,10 @@ import cv2
 import numpy as np
 from fastapi import APIRouter, Depends, File, Form, HTTPException, Request, UploadFile
 
-from app.geometry.board_detect import Board, CheckerboardError, pair_name, parse_board
+from app.calibration.board import Board, CheckerboardError, pair_name, parse_board
+from app.calibration.report_plot import report_png_bytes
+from app.calibration.stereo_calibration import calibrate_checkerboard
 from app.geometry.calibration import CalibrationError
-from app.geometry.calibration_report import report_png_bytes
-from app.geometry.stereo_calibrate import calibrate_checkerboard
 from app.server.dependencies import request_settings, require_token
 from app.server.image_guard import (
     AmbiguousHeaderError,
