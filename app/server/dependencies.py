@@ -105,11 +105,11 @@ class AppState:
     calibrations: CalibrationStore
     uploads: UploadProcessor
     recorder: Recorder
+    streams: StreamService  # the active frame source (the simulation or a camera stream)
     viz: VizService | None = None  # when viser runs
     viser_port: int | None = None
     upload_pool: UploadPool | None = None  # None: uploads in threads of this process
     sim_worker: SimWorker | None = None  # None: the simulation in the tick thread
-    streams: StreamService | None = None  # the active frame source
     mavlink: MavlinkOutput | None = None  # the MAVLink 2 output (settings.mavlink)
     camera_view: CameraView = field(default_factory=CameraView)  # the page's camera images
     foxglove: FoxgloveOutput | None = None  # Foxglove live (settings.foxglove_port)
@@ -123,8 +123,7 @@ class AppState:
     def apply_calibration(self, calibration: StereoCalibration) -> None:
         self.loop.set_calibration(calibration)
         self.uploads.set_calibration(calibration)
-        if self.streams is not None:
-            self.streams.set_calibration(calibration)
+        self.streams.set_calibration(calibration)
         if self.viz is not None:
             self.viz.set_calibration(calibration)
 

@@ -123,7 +123,7 @@ def build_state(
         min_free_mb=settings.recording_min_free_mb,
         mcap_plant=settings.sim_plant,  # the rig mount of the MCAP log's /tf
     )
-    st = AppState(
+    return AppState(
         settings=settings,
         loop=loop,
         bus=loop.bus,
@@ -131,12 +131,11 @@ def build_state(
         calibrations=CalibrationStore(calib),
         uploads=UploadProcessor(calib),
         recorder=recorder,
+        streams=StreamService(loop, calib, settings, loop.bus),
         upload_pool=upload_pool,
         sim_worker=None if backend.worker is None else backend.worker.worker,
         camera_view=CameraView(image_hz=settings.image_hz),
     )
-    st.streams = StreamService(loop, calib, settings, st.bus)
-    return st
 
 
 def _start_viz(st: AppState, settings: Settings) -> None:
@@ -198,7 +197,6 @@ def start_services(st: AppState, settings: Settings, *, warm: bool) -> None:
         # (apps with an injected source, i.e. tests, start them on demand)
         st.upload_pool.warm()
     if settings.source.strip() not in ("", "sim"):
-        assert st.streams is not None
         st.streams.switch(settings.source)  # SourceError: the service does not start
 
 
@@ -213,8 +211,7 @@ def release_workers(st: AppState, backend: SimBackend) -> None:
 
 def stop_services(st: AppState, backend: SimBackend) -> None:
     """Shutdown: the stream, the recorder, the tick thread, the outputs, the workers."""
-    if st.streams is not None:
-        st.streams.close()
+    st.streams.close()
     st.recorder.close()
     st.loop.stop()
     if st.mavlink is not None:
@@ -244,7 +241,6 @@ def make_lifespan(
         try:
             start_services(st, settings, warm=source_factory is None)
         except BaseException:
-            assert st.streams is not None
             st.streams.close()
             if st.viz is not None:
                 st.viz.stop()

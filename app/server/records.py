@@ -41,11 +41,22 @@ Source = Literal["sim", "upload", "video", "camera", "push"]
 Vec3 = tuple[float, float, float]
 
 
-class SimState(Protocol):
+class RawFrame(Protocol):
+    """What the subscribers get with a record: the pair's images (``None`` when not kept or
+    already overwritten), read on first access where they are lazy."""
+
+    @property
+    def left_image(self) -> np.ndarray | None: ...
+    @property
+    def right_image(self) -> np.ndarray | None: ...
+
+
+class SimState(RawFrame, Protocol):
     """One simulated tick as the record reads it (:class:`app.sim.docking.DockingTick`).
 
     Tanker frame, m; ``control``: the 4 deflections from trim; ``uav_state``: the receiver's
-    12 states; ``led_truth_cam_mm``: the LEDs' true positions in the left-camera frame (mm)."""
+    12 states; ``led_truth_cam_mm``: the LEDs' true positions in the left-camera frame (mm);
+    its camera images are the subscribers' raw side of an in-process tick."""
 
     @property
     def t_s(self) -> float: ...
@@ -81,16 +92,6 @@ class SimState(Protocol):
     def miss_m(self) -> float | None: ...
     @property
     def led_truth_cam_mm(self) -> FloatArray | None: ...
-
-
-class RawFrame(Protocol):
-    """What the subscribers get with a record: the pair's images (``None`` when not kept or
-    already overwritten), read on first access where they are lazy."""
-
-    @property
-    def left_image(self) -> np.ndarray | None: ...
-    @property
-    def right_image(self) -> np.ndarray | None: ...
 
 
 @dataclass(frozen=True)

@@ -46,8 +46,10 @@ class ImageRing:
         slot_bytes = _HDR_BYTES + ((capacity + 63) // 64) * 64
         shm = shared_memory.SharedMemory(create=True, size=slots * slot_bytes)
         ring = cls(shm, slots, capacity, owner=True)
+        buf = shm.buf
+        assert buf is not None
         for i in range(slots):
-            _HDR.pack_into(shm.buf, i * slot_bytes, -1, 0, 0, 0, 0)
+            _HDR.pack_into(buf, i * slot_bytes, -1, 0, 0, 0, 0)
         return ring
 
     @classmethod
@@ -66,6 +68,7 @@ class ImageRing:
         if nl + nr > self.capacity:
             return False
         buf = self.shm.buf
+        assert buf is not None  # open (the worker closes its ring when it exits)
         base = slot * self.slot_bytes
         data = base + _HDR_BYTES
         _HDR.pack_into(buf, base, -1, 0, 0, 0, 0)
@@ -80,6 +83,7 @@ class ImageRing:
             if self._closed:
                 return None
             buf = self.shm.buf
+            assert buf is not None  # not closed (checked above)
             base = slot * self.slot_bytes
             data = base + _HDR_BYTES
             s0, lh, lw, rh, rw = _HDR.unpack_from(buf, base)
