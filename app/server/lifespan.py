@@ -86,8 +86,8 @@ def sim_backend(settings: Settings, injected: SourceFactory | None) -> SimBacken
     from app.server.sim_worker.proxy import process_source_factory
 
     # the tick thread relays each tick through a few system calls, each of which gives the
-    # GIL away; with the event loop busy (50 WebSocket clients) taking it back cost up to the
-    # switch interval each time (5 ms by default): the relay fell behind
+    # GIL away; while the event loop is busy, taking it back can cost up to the switch
+    # interval each time (5 ms by default): a shorter one keeps the relay on time
     sys.setswitchinterval(min(switch_interval, GIL_SWITCH_S))
     worker = process_source_factory(
         image_hz=settings.image_hz, step_timeout_s=settings.sim_step_timeout_s
@@ -248,8 +248,8 @@ def make_lifespan(
             raise
         app.state.aar = st
         # the objects made at start-up (modules, viser, the first runs) out of the cyclic
-        # collector's sight: a full collection then takes ≈ 1 ms instead of 70–140 ms, which
-        # stopped every thread of this process, the tick thread's relay included
+        # collector's sight: a full collection, which stops every thread of this process (the
+        # tick thread's relay included), then only walks what was made since
         gc.collect()
         gc.freeze()
         log.info(

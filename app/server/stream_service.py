@@ -12,7 +12,7 @@ One source is active at a time: switching to a stream stops the simulated stream
 back to ``sim`` restarts it. The controller runs only with the simulation (it needs the
 receiver's own state); a real autopilot feed would be another source of own state.
 
-Supervision (issue 23): a source that stops — its thread exits, ``AAR_STREAM_FAILURE_STREAK``
+Supervision: a source that stops — its thread exits, ``AAR_STREAM_FAILURE_STREAK``
 pairs in a row fail (undecodable, refused, processing error), a camera stops delivering, or a
 pushed pair waits unread for ``AAR_STREAM_STALL_S`` — is reopened by a watchdog thread
 (``aar-stream-watchdog``) after a back-off (``AAR_STREAM_RESTART_BACKOFF_S``, doubling up to
