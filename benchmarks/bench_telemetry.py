@@ -77,7 +77,7 @@ def serve(mode: str, port: int, hz: float) -> None:
     """Child process: the service with the given stream on ``port`` (uvicorn, one worker)."""
     import uvicorn
 
-    from app.server.tick_loop import default_source_factory
+    from app.server.sim_source import default_source_factory
 
     def no_vision(config, calibration):
         return default_source_factory(config.model_copy(update={"vision": False}), calibration)

@@ -16,10 +16,11 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
+from app.server.clock import FakeClock
 from app.server.main import create_app
 from app.server.schemas import SimConfig
 from app.server.settings import Settings
-from app.server.tick_loop import FakeClock, TickLoop
+from app.server.tick_loop import TickLoop
 from app.vision.result import PoseResult
 
 REPO = Path(__file__).resolve().parents[1]
@@ -119,7 +120,7 @@ def test_tick_loop_fixed_rate_with_fake_clock_drops_late_ticks() -> None:
     )
     loop.start_sim()
     got = []
-    loop.subscribe(lambda rec, raw: got.append(rec))
+    loop.bus.subscribe(lambda rec, raw: got.append(rec))
     loop.run_iterations(30)
     assert loop.ticks == len(got) > 0
     # each tick costs 2.5 periods: every deadline that passed is either ticked or dropped,
@@ -174,7 +175,7 @@ def test_tick_loop_auto_restart_after_done() -> None:
     )
     loop.start_sim()
     runs = set()
-    loop.subscribe(lambda rec, raw: runs.add(rec.run))
+    loop.bus.subscribe(lambda rec, raw: runs.add(rec.run))
     loop.run_iterations(200)
     assert len(runs) >= 2
     assert loop.config.seed > 3  # the next run uses the next seed

@@ -1,4 +1,4 @@
-"""The service's CPU work in worker processes: the simulation (``app.server.sim_process``) and
+"""The service's CPU work in worker processes: the simulation (``app.server.sim_worker``) and
 the uploads (``app.server.upload_pool``), as the default app runs them."""
 
 from __future__ import annotations
@@ -17,9 +17,9 @@ import pytest
 from fastapi.testclient import TestClient
 from waiting import wait_until
 
-from app.server import sim_process
 from app.server.main import create_app
 from app.server.settings import Settings
+from app.server.sim_worker import image_ring, proxy
 
 REPO = Path(__file__).resolve().parents[1]
 PAIR = REPO / "sample_data" / "pair_1000mm"
@@ -49,7 +49,7 @@ def test_default_app_steps_the_simulation_in_a_worker_process(
     assert worker.pid is not None and worker.pid != os.getpid()
     assert worker.ping() == worker.pid
     raws: list[Any] = []
-    st.loop.subscribe(lambda record, raw: raws.append((record, raw)))
+    st.bus.subscribe(lambda record, raw: raws.append((record, raw)))
     wait_until(lambda: len(raws) >= 8, 10, "ticks from the worker")
     h = c.get("/api/v1/healthz").json()
     assert h["status"] == "ok" and h["sim_running"] and h["ticks"] >= 8 and h["errors"] == 0
@@ -64,7 +64,7 @@ def test_default_app_steps_the_simulation_in_a_worker_process(
     assert int(left.max()) > 200  # the LEDs are in the picture
     # a slot overwritten long ago reads as None (the dashboard keeps its last image)
     _, old = raws[0]
-    wait_until(lambda: len(raws) >= 8 + 2 * sim_process.RING_SLOTS, 10, "more ticks")
+    wait_until(lambda: len(raws) >= 8 + 2 * image_ring.RING_SLOTS, 10, "more ticks")
     if old._images is None:  # not read yet
         assert old.left_image is None
     # shutting the service down stops the worker and frees the shared memory
@@ -84,17 +84,17 @@ def test_refused_config_is_422_and_the_old_simulation_keeps_stepping(
     c, st = service
     loop = st.loop
     # a config the parent lets through but the simulation (in the worker) refuses
-    real = sim_process.docking_config
+    real = proxy.docking_config
 
     def refused_for_seed_77(config: Any) -> Any:
         dcfg = real(config)
         return replace(dcfg, camera_hz=1e6) if config.seed == 77 else dcfg
 
-    monkeypatch.setattr(sim_process, "docking_config", refused_for_seed_77)
+    monkeypatch.setattr(proxy, "docking_config", refused_for_seed_77)
     monkeypatch.setattr(DockingConfig, "validate", lambda self: None)  # only here, the parent
     wait_until(lambda: loop.ticks >= 3, 10, "first ticks")
     run0, config0, pid0 = loop.run, loop.config, st.sim_worker.pid
-    t0 = loop.latest.t_s
+    t0 = loop.bus.latest.t_s
     r = c.put("/api/v1/sim/config", json={"seed": 77})
     assert r.status_code == 422, r.text
     assert "simulation rejected the config" in r.json()["detail"]
@@ -102,12 +102,12 @@ def test_refused_config_is_422_and_the_old_simulation_keeps_stepping(
     assert loop.config == config0 and loop.run == run0 and st.sim_worker.pid == pid0
     n = loop.ticks
     wait_until(lambda: loop.ticks >= n + 5, 10, "ticks after the refusal")
-    assert loop.latest.t_s > t0 and loop.latest.run == run0  # the same run goes on
+    assert loop.bus.latest.t_s > t0 and loop.bus.latest.run == run0  # the same run goes on
     assert loop.errors == 0
     # an accepted one: a new run, in the same worker
     r = c.put("/api/v1/sim/config", json={"seed": 5})
     assert r.status_code == 200 and loop.run == run0 + 1 and st.sim_worker.pid == pid0
-    wait_until(lambda: loop.latest.run == run0 + 1, 10, "ticks of the new run")
+    wait_until(lambda: loop.bus.latest.run == run0 + 1, 10, "ticks of the new run")
     assert st.sim_worker.spawns == 1
 
 
@@ -118,7 +118,7 @@ def test_killed_worker_is_replaced_and_ticks_resume(service: tuple[TestClient, A
     pid0, run0 = worker.pid, loop.run
     os.kill(pid0, signal.SIGKILL)
     wait_until(lambda: loop.errors >= 1, 10, "the loss to be noticed")
-    wait_until(lambda: loop.latest.run > run0, 15, "ticks from the new worker")
+    wait_until(lambda: loop.bus.latest.run > run0, 15, "ticks from the new worker")
     assert worker.pid is not None and worker.pid not in (pid0, os.getpid())
     assert worker.restarts == 1 and worker.spawns == 2
     n = loop.ticks
@@ -126,7 +126,7 @@ def test_killed_worker_is_replaced_and_ticks_resume(service: tuple[TestClient, A
     h = c.get("/api/v1/healthz").json()
     assert h["status"] == "ok" and h["sim_running"] and h["errors"] == 1
     assert "worker" in h["last_error"]
-    assert loop.latest.t_s < 2.0  # a new run: the simulation restarted from its start
+    assert loop.bus.latest.t_s < 2.0  # a new run: the simulation restarted from its start
     assert "aar_sim_worker_restarts_total 1" in c.get("/api/v1/metrics").text
 
 
@@ -146,7 +146,7 @@ def test_a_hung_worker_times_out_and_is_replaced(tmp_path: Path) -> None:
         # the 1 s timeout + a respawn (≈ 1–2 s, more on a loaded machine), not a hang
         assert time.monotonic() - t0 < 12.0
         assert "no answer within 1 s" in (loop.last_error or "")
-        wait_until(lambda: loop.latest.run > run0, 15, "ticks from the new worker")
+        wait_until(lambda: loop.bus.latest.run > run0, 15, "ticks from the new worker")
         assert worker.pid != pid0 and worker.restarts == 1
         assert not Path(f"/proc/{pid0}").exists() or "Z" in Path(f"/proc/{pid0}/stat").read_text()
 
@@ -227,7 +227,7 @@ def test_without_shared_memory_images_travel_in_the_pipe_at_the_image_rate() -> 
     from app.server.schemas import SimConfig
     from app.server.settings import DEFAULT_CALIBRATION
 
-    factory = sim_process.process_source_factory(image_hz=0.5, shared_images=False)
+    factory = proxy.process_source_factory(image_hz=0.5, shared_images=False)
     try:
         src = factory(SimConfig(), StereoCalibration.load(DEFAULT_CALIBRATION))
         ticks = [src.step() for _ in range(6)]  # far quicker than 2 s
@@ -237,4 +237,4 @@ def test_without_shared_memory_images_travel_in_the_pipe_at_the_image_rate() -> 
     assert with_images == [True] + [False] * 5
     right0 = ticks[0].right_image
     assert right0 is not None and right0.shape == (1024, 1280)
-    assert all(t.pose is not None for t in ticks)  # every tick's data, only not its images
+    assert all(t.state.pose is not None for t in ticks)  # every tick's data, only not its images

@@ -1,4 +1,4 @@
-"""The tick schedule kept by the simulation worker (``app.server.sim_process``) and the tick
+"""The tick schedule kept by the simulation worker (``app.server.sim_worker``) and the tick
 loop relaying a paced source (``app.server.tick_loop``); the step latency's definition."""
 
 from __future__ import annotations
@@ -10,13 +10,15 @@ from typing import Any
 import numpy as np
 import pytest
 
-from app.server import sim_process
+from app.server.clock import FakeClock
 from app.server.schemas import SimConfig
-from app.server.tick_loop import FakeClock, TickLoop
+from app.server.sim_worker import proxy, worker
+from app.server.tick_loop import TickLoop
+from tests.support.fake_sim import FakeSimState
 
 
 def test_pace_serves_deadlines_a_period_apart_and_counts_the_missed_ones() -> None:
-    pace = sim_process._Pace(sid=1, gen=1, period_s=0.1, first_deadline=10.0)
+    pace = worker.Pace(sid=1, gen=1, period_s=0.1, first_deadline=10.0)
     assert pace.due(10.0) == (10.0, 0)
     assert pace.next_t == pytest.approx(10.1)
     assert pace.due(10.13) == (pytest.approx(10.1), 0)  # late, but before the next deadline
@@ -31,7 +33,7 @@ def test_worker_releases_ticks_on_its_own_schedule_and_pause_keeps_the_simulatio
     from app.server.settings import DEFAULT_CALIBRATION
 
     hz = 20.0
-    factory = sim_process.process_source_factory()
+    factory = proxy.process_source_factory()
     try:
         src = factory(SimConfig(tick_hz=hz), StereoCalibration.load(DEFAULT_CALIBRATION))
         assert src.paced
@@ -61,14 +63,14 @@ def test_worker_releases_ticks_on_its_own_schedule_and_pause_keeps_the_simulatio
     # after the pause a new schedule: its first deadline is not a stale one
     assert after[0].deadline_s >= t_resume
     # the simulation went on where it was (the ticks computed ahead were kept, none skipped)
-    t_s = [t.t_s for t in ticks + after]
+    t_s = [t.state.t_s for t in ticks + after]
     dt = float(np.median(np.diff(t_s)))
     np.testing.assert_allclose(np.diff(t_s), dt, rtol=1e-9, atol=1e-9)
 
 
 @dataclass
 class _PacedTick:
-    """What a paced source's tick carries (``app.server.sim_process.ProcessTick``)."""
+    """What a paced source's tick carries (``app.server.sim_worker.proxy.ProcessTick``)."""
 
     t_s: float
     deadline_s: float
@@ -76,6 +78,11 @@ class _PacedTick:
     missed_deadlines: int
     paced: bool = True
     extra_timings_ms: dict[str, float] = field(default_factory=dict)
+    received_s: float | None = None
+
+    @property
+    def state(self) -> FakeSimState:
+        return FakeSimState(t_s=self.t_s)
 
 
 class _PacedSource:
@@ -113,7 +120,7 @@ def _started_loop(source: Any, clock: FakeClock, hz: float) -> tuple[TickLoop, l
         auto_restart_s=None,
     )
     records: list[Any] = []
-    loop.subscribe(lambda record, raw: records.append(record))
+    loop.bus.subscribe(lambda record, raw: records.append(record))
     loop.start_sim()
     return loop, records
 
@@ -149,7 +156,7 @@ def test_in_process_step_latency_counts_from_the_deadline() -> None:
             self.clock = clock
 
         def step(self) -> Any:
-            return _PacedTick(0.0, 0.0, 0.0, 0, paced=False)
+            return FakeSimState()
 
     clock = FakeClock()
     loop, records = _started_loop(Slow(clock), clock, 10.0)

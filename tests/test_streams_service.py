@@ -238,10 +238,10 @@ class _FakeSim:
         self.t = 0.0
 
     def step(self) -> Any:
-        from types import SimpleNamespace
+        from tests.support.fake_sim import FakeSimState
 
         self.t += 1 / 30
-        return SimpleNamespace(t_s=self.t, pose=None, lock=False, lock_reason="fake sim")
+        return FakeSimState(t_s=self.t, pose=None, lock=False, lock_reason="fake sim")
 
 
 def test_one_source_at_a_time_sim_start_stops_the_stream(

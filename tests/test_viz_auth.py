@@ -35,6 +35,7 @@ from app.server.schemas import SimConfig
 from app.server.settings import Settings
 from app.viz.access import AccessPolicy, OriginPolicy
 from app.viz.gui import DockingGui
+from tests.support.fake_sim import FakeSimState
 
 TOKEN = "s3cret-operator-token"
 
@@ -57,7 +58,7 @@ class _Source:
 
     def step(self) -> Any:
         self.k += 1
-        return SimpleNamespace(t_s=self.k / 30.0)
+        return FakeSimState(t_s=self.k / 30.0)
 
 
 @contextmanager

@@ -6,7 +6,7 @@ import secrets
 import threading
 import time
 from dataclasses import dataclass, field
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 from fastapi import Depends, HTTPException, Request, status
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
@@ -18,7 +18,16 @@ from app.server.recording import Recorder
 from app.server.schemas import SimConfig
 from app.server.settings import Settings
 from app.server.telemetry import TelemetryHub
+from app.server.telemetry_bus import TelemetryBus
 from app.server.tick_loop import TickLoop
+
+if TYPE_CHECKING:  # each imported where it runs (viser, the worker pools: optional parts)
+    from app.server.foxglove_output import FoxgloveOutput
+    from app.server.sim_worker.proxy import SimWorker
+    from app.server.stream_service import StreamService
+    from app.server.upload_pool import UploadPool
+    from app.vision.pipeline import NavigationPipeline
+    from app.viz.service import VizService
 
 
 class CalibrationStore:
@@ -74,7 +83,9 @@ class UploadProcessor:
     def calibration(self) -> StereoCalibration:
         return self._calibration
 
-    def pipeline(self, matcher: str, calibration: StereoCalibration | None = None) -> Any:
+    def pipeline(
+        self, matcher: str, calibration: StereoCalibration | None = None
+    ) -> NavigationPipeline:
         from app.vision.pipeline import NavigationPipeline, PipelineConfig
 
         if calibration is None:
@@ -85,20 +96,23 @@ class UploadProcessor:
 
 @dataclass
 class AppState:
+    """The running service: what the routes, the 3-D scene's actions and shutdown reach."""
+
     settings: Settings
-    loop: TickLoop
+    loop: TickLoop  # the simulation's schedule and lifecycle
+    bus: TelemetryBus  # every source's records: seq, history, subscribers, stage statistics
     hub: TelemetryHub
     calibrations: CalibrationStore
     uploads: UploadProcessor
     recorder: Recorder
-    viz: Any = None  # app.viz.service.VizService when viser runs
+    streams: StreamService  # the active frame source (the simulation or a camera stream)
+    viz: VizService | None = None  # when viser runs
     viser_port: int | None = None
-    upload_pool: Any = None  # app.server.upload_pool.UploadPool; None: uploads in threads
-    sim_worker: Any = None  # app.server.sim_process.SimWorker; None: simulation in a thread
-    streams: Any = None  # app.server.stream_service.StreamService (the active frame source)
+    upload_pool: UploadPool | None = None  # None: uploads in threads of this process
+    sim_worker: SimWorker | None = None  # None: the simulation in the tick thread
     mavlink: MavlinkOutput | None = None  # the MAVLink 2 output (settings.mavlink)
     camera_view: CameraView = field(default_factory=CameraView)  # the page's camera images
-    foxglove: Any = None  # app.server.foxglove_output.FoxgloveOutput (settings.foxglove_port)
+    foxglove: FoxgloveOutput | None = None  # Foxglove live (settings.foxglove_port)
     extras: dict[str, Any] = field(default_factory=dict)
 
     def apply_sim_config(self, config: SimConfig) -> None:
@@ -109,8 +123,7 @@ class AppState:
     def apply_calibration(self, calibration: StereoCalibration) -> None:
         self.loop.set_calibration(calibration)
         self.uploads.set_calibration(calibration)
-        if self.streams is not None:
-            self.streams.set_calibration(calibration)
+        self.streams.set_calibration(calibration)
         if self.viz is not None:
             self.viz.set_calibration(calibration)
 

@@ -1,10 +1,11 @@
-"""Prometheus text exposition of the tick loop's counters and stage latencies."""
+"""Prometheus text exposition of the tick loop's counters and the bus's stage latencies."""
 
 from __future__ import annotations
 
 from collections.abc import Mapping
 
 from app.server.stream_service import StreamService
+from app.server.telemetry_bus import TelemetryBus
 from app.server.tick_loop import TickLoop
 
 
@@ -17,6 +18,7 @@ def _line(name: str, value: float, labels: dict[str, str] | None = None) -> str:
 
 def render_metrics(
     loop: TickLoop,
+    bus: TelemetryBus,
     *,
     ws_clients: int = 0,
     uploads: int = 0,
@@ -60,7 +62,7 @@ def render_metrics(
     )
     samples: list[str] = []
     for q in (0.5, 0.99):
-        for stage, value in sorted(loop.stage_quantiles(q).items()):
+        for stage, value in sorted(bus.stage_quantiles(q).items()):
             samples.append(
                 _line("aar_stage_latency_ms", value, {"stage": stage, "quantile": str(q)})
             )

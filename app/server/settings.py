@@ -19,7 +19,7 @@ Hardening round 2 (docs/service.md): stream supervision (``AAR_STREAM_FAILURE_ST
 ``AAR_PUSH_MAX_MESSAGES_PER_S``, ``AAR_WS_ABUSE_PENALTY_S``).
 
 Where the CPU work runs: ``AAR_SIM_IN_PROCESS`` (default false: the simulation steps in a
-worker process, ``app.server.sim_process``), ``AAR_SIM_STEP_TIMEOUT_S``,
+worker process, ``app.server.sim_worker``), ``AAR_SIM_STEP_TIMEOUT_S``,
 ``AAR_UPLOADS_IN_PROCESS`` (default false: uploads in a process pool, ``app.server.upload_pool``).
 """
 

@@ -4,7 +4,7 @@ The simulation is stepped by the fixed-rate :class:`~app.server.tick_loop.TickLo
 source (video, camera, push: :mod:`app.streams`) runs at its *own* pace in a dedicated thread
 (``aar-stream``): read a pair (decoding in OpenCV, which releases the GIL), track it,
 filter, compute guidance (:class:`~app.streams.processor.StreamProcessor`), then publish the
-record through the tick loop's subscribers (history, WebSocket hub, 3-D scene, recorder).
+record on the telemetry bus (history, WebSocket hub, 3-D scene, recorder).
 Nothing of this runs on the web server's event loop; the push WebSocket handler only parses
 the message header and hands the bytes over (the newest pair is kept).
 
@@ -12,7 +12,7 @@ One source is active at a time: switching to a stream stops the simulated stream
 back to ``sim`` restarts it. The controller runs only with the simulation (it needs the
 receiver's own state); a real autopilot feed would be another source of own state.
 
-Supervision (issue 23): a source that stops — its thread exits, ``AAR_STREAM_FAILURE_STREAK``
+Supervision: a source that stops — its thread exits, ``AAR_STREAM_FAILURE_STREAK``
 pairs in a row fail (undecodable, refused, processing error), a camera stops delivering, or a
 pushed pair waits unread for ``AAR_STREAM_STALL_S`` — is reopened by a watchdog thread
 (``aar-stream-watchdog``) after a back-off (``AAR_STREAM_RESTART_BACKOFF_S``, doubling up to
@@ -28,11 +28,14 @@ import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
+from app.server import records
 from app.server.limits import ConcurrencyLimit
+from app.server.schemas import StreamInfo
 from app.server.settings import Settings
-from app.server.tick_loop import TickLoop, tick_to_record
+from app.server.telemetry_bus import TelemetryBus
+from app.server.tick_loop import TickLoop
 from app.streams.frames import EndOfStream, SourceError
 from app.streams.processor import StreamProcessor
 from app.streams.protocol import PushMessage
@@ -45,6 +48,9 @@ from app.streams.sources import (
     open_source,
     parse_source,
 )
+
+if TYPE_CHECKING:
+    from app.geometry.calibration import StereoCalibration
 
 log = logging.getLogger(__name__)
 STABLE_S = 30.0  # a source that ran this long before failing restarts after the first back-off
@@ -64,8 +70,17 @@ class SourceHealth:
 
 
 class StreamService:
-    def __init__(self, loop: TickLoop, calibration: Any, settings: Settings) -> None:
+    def __init__(
+        self,
+        loop: TickLoop,
+        calibration: StereoCalibration,
+        settings: Settings,
+        bus: TelemetryBus | None = None,
+    ) -> None:
+        """``loop``: the simulation (stopped while a stream runs, and started to switch back);
+        ``bus``: where the stream's records go (default: the loop's)."""
         self.loop = loop
+        self.bus = loop.bus if bus is None else bus
         self.settings = settings
         self._calibration = calibration
         self._lock = threading.RLock()  # switching, stopping, restarting (joins threads)
@@ -208,7 +223,7 @@ class StreamService:
             self.failure = None
             self._restart_at = None
 
-    def set_calibration(self, calibration: Any) -> None:
+    def set_calibration(self, calibration: StereoCalibration) -> None:
         with self._lock:
             self._calibration = calibration
             if self.processor is not None:
@@ -387,31 +402,28 @@ class StreamService:
                     continue
                 t0 = time.perf_counter()
                 tick = processor.process(frame, source.kind)
+                timings = dict(tick.extra_timings_ms)
                 if source.kind == "camera":  # grab time on this machine's monotonic clock
-                    tick.extra_timings_ms["frame_age"] = (time.monotonic() - frame.t_s) * 1e3
+                    timings["frame_age"] = (time.monotonic() - frame.t_s) * 1e3
                 stats = source.stats
-                tick.stream = {
-                    "spec": source.spec,
-                    "frame": frame.seq,
-                    "frame_t_s": frame.t_s,
-                    "mode": tick.mode,
-                    "fps": round(stats.fps(), 3),
-                    "pairs": stats.pairs,
-                    "dropped_skew": stats.dropped_skew,
-                    "dropped_backpressure": stats.dropped_backpressure,
-                    "skew_ms": stats.last_skew_ms,
-                }
-                step_ms = (time.perf_counter() - t0) * 1e3
-                record = tick_to_record(
-                    tick,
-                    seq=self.loop.next_seq(),
-                    clock_s=self.loop.clock.now(),
-                    run=self.loop.run,
-                    step_ms=step_ms,
+                info = StreamInfo(
+                    spec=source.spec,
+                    frame=frame.seq,
+                    frame_t_s=frame.t_s,
+                    mode=tick.mode,
+                    fps=round(stats.fps(), 3),
+                    pairs=stats.pairs,
+                    dropped_skew=stats.dropped_skew,
+                    dropped_backpressure=stats.dropped_backpressure,
+                    skew_ms=stats.last_skew_ms,
                 )
+                step_ms = (time.perf_counter() - t0) * 1e3
                 if stop.is_set():
                     break
-                self.loop.publish_stream(record, tick)
+                self.bus.publish(
+                    records.from_stream(tick, info, step_ms=step_ms, extra_timings_ms=timings),
+                    run=self.loop.run,
+                )
                 self.frames += 1
                 consecutive = self.streak = 0
                 self._last_delivered = time.monotonic()

@@ -120,7 +120,7 @@ def _init_worker(nice: int, parent_pid: int) -> None:
 
 @lru_cache(maxsize=4)
 def _calibration(key: str) -> Any:
-    from app.server.sim_process import calibration_from_wire
+    from app.server.sim_worker.wire import calibration_from_wire
 
     return calibration_from_wire(json.loads(key))
 

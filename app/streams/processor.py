@@ -1,18 +1,17 @@
 """Everything after the source: stereo tracker → drogue filter → guidance, per pair.
 
 :class:`StreamProcessor` is shared by ``aar-dock track`` and the service's stream loop, so a
-recorded sequence gives the same results offline as live. Its :class:`StreamTick` has the
-attribute names of the simulation's tick that the service's record conversion reads.
+recorded sequence gives the same results offline as live; the service turns a
+:class:`StreamTick` into its telemetry record with ``app.server.records.from_stream``.
 """
 
 from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import Any
 
 from app.geometry.calibration import StereoCalibration
-from app.streams.frames import SourceKind, StereoFrame
+from app.streams.frames import Image, SourceKind, StereoFrame
 from app.streams.guidance import GuidanceConfig, GuidanceState, StreamGuidance
 from app.vision.pipeline import PipelineConfig
 from app.vision.result import PoseResult
@@ -21,19 +20,20 @@ from app.vision.tracking import StereoTracker
 
 @dataclass
 class StreamTick:
+    """One pair's result: the tracker's pose, the drogue filter's guidance, the frame itself."""
+
     source: SourceKind
     frame: StereoFrame
     pose: PoseResult
     guidance: GuidanceState
     mode: str  # tracker mode: acquired / tracked / lost / error
     track_epoch: int  # increments when the tracker is reset (a recording starts fresh)
-    processor: Any = field(default=None, repr=False)  # the StreamProcessor that made it
+    processor: StreamProcessor | None = field(default=None, repr=False)  # what made it
     extra_timings_ms: dict[str, float] = field(default_factory=dict)
-    stream: dict[str, Any] = field(default_factory=dict)  # the source's counters
 
-    # --- the names the service's record conversion reads ---------------------------
     @property
     def t_s(self) -> float:
+        """Capture time on the source's clock (s)."""
         return self.frame.t_s
 
     @property
@@ -45,17 +45,12 @@ class StreamTick:
         return self.pose.reason
 
     @property
-    def left_image(self) -> Any:
+    def left_image(self) -> Image:
         return self.frame.left
 
     @property
-    def right_image(self) -> Any:
+    def right_image(self) -> Image:
         return self.frame.right
-
-    def __getattr__(self, name: str) -> Any:
-        if name.startswith("_"):
-            raise AttributeError(name)
-        return getattr(self.guidance, name)
 
 
 class StreamProcessor:

@@ -16,7 +16,7 @@ router = APIRouter(prefix="/sim", tags=["simulation"])
 
 def plant_info(config: SimConfig) -> PlantInfo | None:
     """The configured plant's airframe and trim (its design is built once and cached)."""
-    from app.server.tick_loop import docking_config
+    from app.server.sim_source import docking_config
     from app.sim.docking import describe_plant
 
     try:

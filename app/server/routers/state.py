@@ -19,7 +19,7 @@ router = APIRouter(tags=["state"])
 @router.get("/state", response_model=TickRecord, responses={404: {"model": Message}})
 def get_latest(state: StateDep) -> TickRecord:
     """The latest published tick record (simulated tick or upload)."""
-    latest = state.loop.latest
+    latest = state.bus.latest
     if latest is None:
         raise HTTPException(status.HTTP_404_NOT_FOUND, "no tick published yet")
     return latest
@@ -39,7 +39,7 @@ def get_history(
             422,
             f"seconds must be <= {state.settings.history_s:g} (the ring buffer length)",
         )
-    return state.loop.history(seconds)
+    return state.bus.history(seconds)
 
 
 @router.get("/healthz", response_model=Health)
@@ -96,6 +96,7 @@ def metrics(state: StateDep) -> PlainTextResponse:
     """Prometheus text format: tick rate, dropped ticks, stage latencies."""
     text = render_metrics(
         state.loop,
+        state.bus,
         ws_clients=state.hub.client_count,
         uploads=state.uploads.count,
         sim_worker_restarts=None if state.sim_worker is None else state.sim_worker.restarts,

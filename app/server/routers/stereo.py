@@ -16,18 +16,20 @@ from __future__ import annotations
 
 import asyncio
 import logging
-import time
 from dataclasses import dataclass
-from typing import Annotated, Any, Literal
+from typing import Annotated, Literal
 
 import numpy as np
 from fastapi import APIRouter, Depends, File, Form, HTTPException, UploadFile, status
 
+from app.geometry.calibration import StereoCalibration
+from app.server import records
 from app.server.dependencies import AppState, StateDep, require_token
 from app.server.image_guard import ImageHeader, screen
 from app.server.lazy_images import ImagePair, LazyImagePair
-from app.server.schemas import Message, TickRecord
-from app.server.sim_process import calibration_to_wire
+from app.server.records import RawFrame
+from app.server.schemas import Message
+from app.server.sim_worker.wire import calibration_to_wire
 from app.server.upload_pool import (
     UploadError,
     UploadWorkerCrashed,
@@ -110,8 +112,12 @@ def _check_sizes(lh: ImageHeader, rh: ImageHeader, expected: tuple[int, int] | N
 
 
 async def _in_threads(
-    state: AppState, left_bytes: bytes, right_bytes: bytes, matcher: str, calibration: Any
-) -> tuple[PoseResult, Any]:
+    state: AppState,
+    left_bytes: bytes,
+    right_bytes: bytes,
+    matcher: str,
+    calibration: StereoCalibration,
+) -> tuple[PoseResult, RawFrame | None]:
     """``AAR_UPLOADS_IN_PROCESS``: decode and pipeline in worker threads of this process."""
     expected = calibration.image_size
     left_img, right_img = await asyncio.to_thread(_decode_pair, left_bytes, right_bytes)
@@ -126,8 +132,12 @@ async def _in_threads(
 
 
 async def _in_worker_process(
-    state: AppState, left_bytes: bytes, right_bytes: bytes, matcher: str, calibration: Any
-) -> tuple[PoseResult, Any]:
+    state: AppState,
+    left_bytes: bytes,
+    right_bytes: bytes,
+    matcher: str,
+    calibration: StereoCalibration,
+) -> tuple[PoseResult, RawFrame | None]:
     """Decode and pipeline in an :class:`UploadPool` worker process."""
     pool = state.upload_pool
     assert pool is not None
@@ -152,7 +162,7 @@ async def _in_worker_process(
             log.error("pipeline failed on an upload (worker process):\n%s", out["traceback"])
         raise HTTPException(out["status"], out["detail"])
     result = PoseResult.model_validate(out["result"])
-    raw = None
+    raw: RawFrame | None = None
     if state.uploads.images_due(1.0 / state.settings.image_hz):
         raw = LazyUploadFrames(left_bytes, right_bytes)
     return result, raw
@@ -198,18 +208,6 @@ async def post_stereo(
     result, raw = await run(state, left_bytes, right_bytes, matcher, calibration)
     del left_bytes, right_bytes
     state.uploads.count += 1
-    loop = state.loop
-    record = TickRecord(
-        seq=loop.next_seq(),
-        source="upload",
-        t_s=0.0,
-        clock_s=loop.clock.now(),
-        wall_time=time.time(),
-        run=loop.run,
-        pose=result,
-        lock=result.lock,
-        lock_reason=result.reason,
-        timings_ms={k: float(v) for k, v in result.timing_ms.model_dump().items()},
-    )
-    loop.publish(record, raw)
+    # an upload is not on the loop's schedule: its timings stay out of the stage statistics
+    state.bus.publish(records.from_upload(result, raw), run=state.loop.run, stages=False)
     return result
