@@ -26,16 +26,16 @@ from pathlib import Path
 
 import numpy as np
 
+from app.resources import REPO_ROOT, load_default_calibration
 from app.sim.hostile import WRONG_MM
 from app.sim.led_ring import random_pose
-from app.sim.paths import REPO_ROOT, load_default_calibration
 from app.sim.stereo_render import RenderSettings, render_pair
 from app.vision.pipeline import NavigationPipeline
 
 CHILD = r"""
 import json, sys, time
 import numpy as np
-from app.sim.paths import load_default_calibration
+from app.resources import load_default_calibration
 from app.vision.pipeline import NavigationPipeline
 data = np.load(sys.argv[1])
 calib = load_default_calibration()

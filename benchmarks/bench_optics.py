@@ -21,9 +21,9 @@ from collections import Counter
 from dataclasses import replace
 from pathlib import Path
 
+from app.resources import load_default_calibration
 from app.sim.optics_eval import OpticsOutcome, evaluate, summarise
 from app.sim.optics_set import load_optics_set
-from app.sim.paths import load_default_calibration
 from app.vision.local_centroid import LocalCentroidConfig
 from app.vision.pipeline import PipelineConfig
 

@@ -37,8 +37,8 @@ import numpy as np
 from app.geometry.calibration import CameraIntrinsics, StereoCalibration
 from app.geometry.projection import undistort_pixels
 from app.geometry.triangulation import refine_reprojection, triangulate_linear
+from app.resources import load_default_calibration
 from app.sim.led_ring import stereo_center_x_mm, tilted_normal
-from app.sim.paths import load_default_calibration
 from app.sim.stereo_render import RenderedPair, RenderSettings, render_pair
 from app.sim.warmup import compile_kernels
 from app.vision.ihwt import describe

@@ -17,7 +17,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from app.sim.paths import load_default_calibration
+from app.resources import load_default_calibration
 from app.sim.stereo_render import RenderSettings, render_pair
 
 

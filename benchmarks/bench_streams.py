@@ -32,7 +32,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from streams_sequence import render_sequence, write_avi, write_png_folders  # noqa: E402
 
-from app.sim.paths import load_default_calibration  # noqa: E402
+from app.resources import load_default_calibration  # noqa: E402
 from app.streams.frames import EndOfStream  # noqa: E402
 from app.streams.processor import StreamProcessor  # noqa: E402
 from app.streams.sources import SourceOptions, VideoSource  # noqa: E402

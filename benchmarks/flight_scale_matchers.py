@@ -22,8 +22,8 @@ import argparse
 
 import numpy as np
 
+from app.resources import load_default_calibration
 from app.sim.led_ring import LedRing
-from app.sim.paths import load_default_calibration
 from app.sim.stereo_render import RenderSettings, render_pair
 from app.vision.pipeline import NavigationPipeline, PipelineConfig
 

@@ -14,8 +14,8 @@ import argparse
 import statistics
 from dataclasses import replace
 
+from app.resources import load_default_calibration
 from app.sim.hostile import hostile_cases, run_case
-from app.sim.paths import load_default_calibration
 from app.vision.pipeline import PipelineConfig
 
 

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from app.geometry.calibration import StereoCalibration, paper_calibration
-from app.sim.paths import REPO_ROOT
+from app.resources import REPO_ROOT
 
 
 def pytest_sessionstart(session: pytest.Session) -> None:

@@ -94,6 +94,6 @@ def read_jsonl(path: Path) -> list[dict]:
 @functools.cache
 def cached_sequence(n: int = 40) -> Sequence:
     """One rendering per test session (the sample calibration)."""
-    from app.sim.paths import load_default_calibration
+    from app.resources import load_default_calibration
 
     return render_sequence(load_default_calibration(), n)

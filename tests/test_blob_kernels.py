@@ -154,8 +154,8 @@ def test_warmup_compiles_everything_frames_need() -> None:
     compiled loops with argument types ``app.sim.warmup`` has already compiled: nothing is
     compiled after it (no compile pause in the middle of a stream)."""
     from app.geometry import ring, triangulation_kernels
+    from app.resources import load_default_calibration
     from app.sim.led_ring import stereo_center_x_mm, tilted_normal
-    from app.sim.paths import load_default_calibration
     from app.sim.stereo_render import RenderSettings, render_pair
     from app.sim.warmup import compile_kernels
     from app.vision import (

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from app.cli.main import main
-from app.sim.paths import REPO_ROOT
+from app.resources import REPO_ROOT
 from app.sim.stereo_render import render_pair
 
 

@@ -9,9 +9,9 @@ from pathlib import Path
 
 import pytest
 
+from app.resources import load_default_calibration
 from app.sim.optics_eval import OpticsOutcome, evaluate, summarise
 from app.sim.optics_set import load_optics_set
-from app.sim.paths import load_default_calibration
 
 pytestmark = pytest.mark.slow
 

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from app.sim.paths import REPO_ROOT
+from app.resources import REPO_ROOT
 
 DOCS = [REPO_ROOT / "README.md", *sorted((REPO_ROOT / "docs").glob("*.md"))]
 FENCE = re.compile(r"^(```|~~~).*?^\1", re.S | re.M)

@@ -319,7 +319,7 @@ def test_cli_bad_calibration_exits_2(tmp_path, capsys) -> None:  # type: ignore[
 
 
 def test_calibration_roundtrip_used_by_cli_is_the_paper_rig() -> None:
-    from app.sim.paths import load_default_calibration
+    from app.resources import load_default_calibration
 
     c = load_default_calibration()
     assert isinstance(c, StereoCalibration)

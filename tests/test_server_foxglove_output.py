@@ -14,9 +14,9 @@ from typing import Any
 import numpy as np
 import websockets
 
+from app.resources import load_default_calibration
 from app.server.foxglove_output import FoxgloveOutput
 from app.server.schemas import TickRecord
-from app.sim.paths import load_default_calibration
 from app.vision.result import PoseResult
 
 TOPICS = {

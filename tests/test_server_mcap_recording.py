@@ -25,10 +25,10 @@ from mcap.stream_reader import StreamReader
 from mcap_protobuf.decoder import DecoderFactory
 
 from app.cli.main import main as cli_main
+from app.resources import load_default_calibration
 from app.server.recording import Recorder
 from app.server.routers import recording as recording_router
 from app.server.schemas import TickRecord
-from app.sim.paths import load_default_calibration
 from app.streams.annotations import led_color
 from app.vision.result import DrogueResult, LedResult, PoseResult
 
@@ -255,7 +255,7 @@ sys.path.insert(0, {tests!r})
 from test_server_mcap_recording import _Raw, _record
 from app.server.recording import Recorder
 from app.server.routers import recording as recording_router
-from app.sim.paths import load_default_calibration
+from app.resources import load_default_calibration
 rec = Recorder({dir!r}, max_s=600, max_frames_mb=1e6)
 info = rec.start(frames=True, calibration=load_default_calibration())
 rng = np.random.default_rng(5)

@@ -13,8 +13,8 @@ import app.vision.features as features_mod
 import app.vision.pipeline as pipeline_mod
 import app.vision.preprocess as preprocess_mod
 import app.vision.tracking as tracking_mod
+from app.resources import load_default_calibration
 from app.sim.led_ring import stereo_center_x_mm, tilted_normal
-from app.sim.paths import load_default_calibration
 from app.sim.stereo_render import RenderedPair, RenderSettings, render_pair
 from app.vision.pipeline import NavigationPipeline
 from app.vision.preprocess import ImageError

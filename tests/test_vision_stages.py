@@ -322,7 +322,7 @@ def test_rejected_candidates_are_the_renderers_clutter_lights(pair: str) -> None
     import json
     from pathlib import Path
 
-    from app.sim.paths import load_default_calibration
+    from app.resources import load_default_calibration
 
     d = Path(__file__).resolve().parents[1] / "sample_data" / pair
     truth = json.loads((d / "truth.json").read_text())

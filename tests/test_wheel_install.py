@@ -27,7 +27,7 @@ import numpy as np
 import pytest
 from waiting import stop_process
 
-from app.sim.paths import REPO_ROOT
+from app.resources import REPO_ROOT
 
 INSTALL_TIMEOUT_S = 900
 SERVE_TIMEOUT_S = 120
@@ -113,7 +113,7 @@ def test_process_a_shipped_sample(installed):
     result = json.loads(_run([exe, "process", "--sample", "pair_1000mm", "--json"], work, env, 300))
     assert result["lock"] is True and len(result["leds"]) == 5
     # the truth shipped next to the pair (not the repository's copy)
-    code = "from app.sim.paths import sample_data_dir; print(sample_data_dir())"
+    code = "from app.resources import sample_data_dir; print(sample_data_dir())"
     data = Path(_run([str(bin_dir / "python"), "-c", code], work, env, 60).strip())
     assert data.resolve().is_relative_to(bin_dir.parent.resolve())
     truth = json.loads((data / "pair_1000mm" / "truth.json").read_text())
@@ -192,9 +192,9 @@ def test_page_assets_and_defaults_come_from_the_package(tmp_path, monkeypatch) -
     under XDG_DATA_HOME, not into the working directory."""
     from fastapi.testclient import TestClient
 
+    from app import resources as paths
     from app.server.main import create_app
     from app.server.settings import Settings
-    from app.sim import paths
 
     monkeypatch.setenv("XDG_DATA_HOME", str(tmp_path / "xdg"))
     monkeypatch.chdir(tmp_path)

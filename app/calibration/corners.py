@@ -36,7 +36,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from app.calibration.board import CheckerboardError
-from app.geometry.calibration import FloatArray
+from app.types import FloatArray
 
 SUBPIX_FRACTION = 0.25  # cornerSubPix half-window / smallest corner spacing (px / px)
 SUBPIX_HALF_RANGE = (2, 11)  # px

@@ -22,7 +22,7 @@ from numpy.typing import NDArray
 
 from app.calibration.board import CheckerboardError
 from app.calibration.corners import METHODS, CornerResult, detect_corners_detail
-from app.geometry.calibration import FloatArray
+from app.types import FloatArray
 
 # rough cost of one detector pass, ns per pixel (measured here on 640x480 and 1280x1024):
 # classic ≈ 3, SB ≈ 120; used only to decide whether a process pool pays off

@@ -14,9 +14,10 @@ from numpy.typing import NDArray
 from app.calibration.board import Board
 from app.calibration.opencv_fit import TERM_FOLD, StereoFit, as_calibration, stereo_fit
 from app.calibration.report import HeldOutCheck
-from app.geometry.calibration import FloatArray, StereoCalibration
+from app.geometry.calibration import StereoCalibration
 from app.geometry.projection import undistort_pixels
 from app.geometry.triangulation import triangulate_linear
+from app.types import FloatArray
 
 HELD_OUT_MAX_FOLDS = 3
 

@@ -21,7 +21,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from app.calibration.board import CheckerboardError
-from app.geometry.calibration import CalibrationError, FloatArray, StereoCalibration
+from app.geometry.calibration import CalibrationError, StereoCalibration
+from app.types import FloatArray
 
 Model = Literal["paper", "full"]
 MODEL_FLAGS: dict[str, int] = {

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from app.geometry.calibration import FloatArray
+from app.types import FloatArray
 
 COVERAGE_GRID = (4, 4)  # rows x cols of image cells counted by the coverage map
 SKEW_NOTE = (

@@ -22,9 +22,10 @@ from numpy.typing import NDArray
 
 from app.calibration.board import Board, CheckerboardError
 from app.calibration.opencv_fit import StereoFit, as_calibration, stereo_fit
-from app.geometry.calibration import FloatArray, StereoCalibration
+from app.geometry.calibration import StereoCalibration
 from app.geometry.projection import undistort_pixels
 from app.geometry.triangulation import triangulate_linear
+from app.types import FloatArray
 
 RIG_TOL_SQUARES = 0.4  # rig check: |ΔT| tolerance, in squares (candidates are 1 square apart)
 RIG_TOL_DEG = 3.0  # rig check: rotation tolerance (deg)

@@ -13,7 +13,7 @@ import math
 
 import numpy as np
 
-from app.geometry.calibration import FloatArray
+from app.types import FloatArray
 
 OUTLIER_Z = 3.5  # robust z-score threshold (Iglewicz & Hoaglin)
 OUTLIER_RATIO = 2.0  # ... and at least this multiple of the median view RMS

@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 
 from app.calibration.opencv_fit import StereoFit
-from app.geometry.calibration import FloatArray
+from app.types import FloatArray
 
 
 def _rodrigues_many(rvecs: FloatArray) -> FloatArray:

@@ -61,7 +61,7 @@ def _summary(result) -> str:  # type: ignore[no-untyped-def]
 
 def run(args: argparse.Namespace) -> int:
     from app.geometry.calibration import CalibrationError, StereoCalibration
-    from app.sim.paths import MissingDataError, load_default_calibration, sample_pair, sample_pairs
+    from app.resources import MissingDataError, load_default_calibration, sample_pair, sample_pairs
     from app.vision.io import check_pair, read_image
     from app.vision.pipeline import NavigationPipeline, PipelineConfig
     from app.vision.preprocess import ImageError

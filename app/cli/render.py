@@ -59,8 +59,8 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from app.geometry.calibration import CalibrationError, StereoCalibration
+    from app.resources import default_calibration_path, load_default_calibration
     from app.sim.led_ring import LedRing, stereo_center_x_mm, tilted_normal
-    from app.sim.paths import default_calibration_path, load_default_calibration
     from app.sim.stereo_render import RenderSettings, render_pair
 
     try:

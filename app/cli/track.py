@@ -79,7 +79,7 @@ def register(subparsers: Any) -> None:
 
 def _calibration(args: argparse.Namespace) -> Any:
     from app.geometry.calibration import StereoCalibration
-    from app.sim.paths import load_default_calibration
+    from app.resources import load_default_calibration
     from app.streams.mcap_source import is_mcap, mcap_calibration
     from app.streams.recording import is_frame_recording, recording_calibration
 

@@ -8,9 +8,8 @@ probe tip with their relative velocity over the time to go ``t_go = gap / closur
 from __future__ import annotations
 
 import numpy as np
-from numpy.typing import NDArray
 
-FloatArray = NDArray[np.float64]
+from app.types import FloatArray
 
 
 def predicted_miss_m(

@@ -19,12 +19,11 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numpy.typing import NDArray
 
 from app.control.drogue_swing import predict_swing_offset
 from app.sim.hose_drogue import HoseDrogueParams
+from app.types import FloatArray
 
-FloatArray = NDArray[np.float64]
 FORECAST_STEPS = 64  # quadrature points of the forced response over the horizon
 
 

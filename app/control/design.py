@@ -21,14 +21,13 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
 from app.control.linear_model import LinearModel
 from app.control.lqr import IntegralLqr
 from app.control.observer import StateObserver
-from app.sim.frames import euler_to_matrix
+from app.geometry.rotations import euler_to_matrix
+from app.types import FloatArray
 
-FloatArray = NDArray[np.float64]
 MEASURED_STATES = (3, 4, 5, 6, 7, 8, 9, 10, 11)  # p q r φ θ ψ x y z (INS-like)
 
 

@@ -13,9 +13,9 @@ from __future__ import annotations
 from collections import deque
 
 import numpy as np
-from numpy.typing import NDArray
 
-FloatArray = NDArray[np.float64]
+from app.types import FloatArray
+
 CHI2_3_999 = 16.266
 # (x, P, initialised, ever_initialised, coast_time_s, consecutive_rejections)
 _Snapshot = tuple[FloatArray, FloatArray, bool, bool, float, int]

@@ -14,10 +14,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 from scipy.linalg import expm
 
-FloatArray = NDArray[np.float64]
+from app.types import FloatArray
 
 
 @dataclass(frozen=True)

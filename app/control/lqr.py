@@ -12,10 +12,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 from scipy.linalg import solve_continuous_are, solve_discrete_are
 
-FloatArray = NDArray[np.float64]
+from app.types import FloatArray
 
 
 def continuous_lqr(a: FloatArray, b: FloatArray, q: FloatArray, r: FloatArray) -> FloatArray:

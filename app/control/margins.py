@@ -18,11 +18,9 @@ scale on the feedback gain that does.
 from __future__ import annotations
 
 import numpy as np
-from numpy.typing import NDArray
 
 from app.control.lqr import has_lag, lag_alpha
-
-FloatArray = NDArray[np.float64]
+from app.types import FloatArray
 
 
 def closed_loop_matrix(

@@ -9,10 +9,9 @@ so :class:`StateObserver` uses its discrete counterpart (steady-state Kalman gai
 from __future__ import annotations
 
 import numpy as np
-from numpy.typing import NDArray
 from scipy.linalg import solve_continuous_are, solve_discrete_are
 
-FloatArray = NDArray[np.float64]
+from app.types import FloatArray
 
 
 def continuous_observer_gain(

@@ -14,9 +14,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 
-FloatArray = NDArray[np.float64]
+from app.types import FloatArray
+
 PHASES = ("approach", "final", "contact", "station_keeping", "backoff")
 
 

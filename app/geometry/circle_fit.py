@@ -15,8 +15,8 @@ from typing import Any
 
 import numpy as np
 
-from app.geometry.calibration import FloatArray
 from app.geometry.circle_fit_kernels import circle_kernel, distance_kernel, plane_axes
+from app.types import FloatArray
 
 
 class FitError(ValueError):

@@ -10,7 +10,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from app.geometry.calibration import CameraIntrinsics, FloatArray, StereoCalibration
+from app.geometry.calibration import CameraIntrinsics, StereoCalibration
+from app.types import FloatArray
 
 _EYE = np.eye(3)
 _ZERO3 = np.zeros(3)

@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from app.geometry.calibration import FloatArray
 from app.geometry.triangulation_kernels import linear_kernel, refine_kernel
+from app.types import FloatArray
 
 
 def _points(x: FloatArray, width: int) -> FloatArray:

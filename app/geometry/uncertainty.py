@@ -36,7 +36,7 @@ import numpy as np
 from numpy.polynomial.legendre import leggauss
 from scipy.special import chdtrc, chdtri
 
-from app.geometry.calibration import FloatArray, StereoCalibration
+from app.geometry.calibration import StereoCalibration
 from app.geometry.circle_fit import Circle3D, FitError
 from app.geometry.uncertainty_kernels import (
     chi2_kernel,
@@ -45,6 +45,7 @@ from app.geometry.uncertainty_kernels import (
     ring_terms,
     stereo_kernel,
 )
+from app.types import FloatArray
 
 # ---- stereo: per-point covariance --------------------------------------------------------
 

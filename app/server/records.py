@@ -30,13 +30,14 @@ import numpy as np
 import numpy.typing as npt
 
 from app.server.schemas import Control, Guidance, StreamInfo, TickRecord
+from app.types import FloatArray
 from app.vision.result import PoseResult
 
 if TYPE_CHECKING:
     from app.streams.guidance import GuidanceState
     from app.streams.processor import StreamTick
 
-FloatArray = npt.NDArray[np.float64]
+
 Source = Literal["sim", "upload", "video", "camera", "push"]
 Vec3 = tuple[float, float, float]
 

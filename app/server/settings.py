@@ -33,14 +33,14 @@ from typing import Annotated, Any
 from pydantic import Field, field_validator
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
-from app.sim import paths
+from app import resources as paths
 from app.sim.plant import DEFAULT_PLANT
 from app.sim.sim_config import Plant
 
 LOCAL_HOSTS = ("localhost", "127.0.0.1", "::1")
 WILDCARD_BIND = ("0.0.0.0", "::", "")
 
-# shipped inside the package (app/sim/paths.py): found from a wheel as from the checkout
+# shipped inside the package (app/resources.py): found from a wheel as from the checkout
 DEFAULT_CALIBRATION = paths.sample_data_dir() / "calibration.json"
 DEFAULT_STATIC = paths.static_dir()
 

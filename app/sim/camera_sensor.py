@@ -28,11 +28,11 @@ from numpy.typing import NDArray
 from app.geometry.calibration import StereoCalibration
 from app.sim.led_ring import LedRing
 from app.sim.stereo_render import Rect, RenderedPair, RenderSettings, render_pair
+from app.types import FloatArray
 from app.vision.pipeline import PipelineConfig
 from app.vision.result import PoseResult
 from app.vision.tracking import StereoTracker
 
-FloatArray = NDArray[np.float64]
 RenderMode = Literal["full", "windows"]
 RENDER_MODES: tuple[str, ...] = ("full", "windows")
 

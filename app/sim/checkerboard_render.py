@@ -32,10 +32,9 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from app.geometry.calibration import CameraIntrinsics, FloatArray, StereoCalibration
+from app.geometry.calibration import CameraIntrinsics, StereoCalibration
 from app.geometry.projection import project_camera, undistort_pixels
-
-UInt8Image = NDArray[np.uint8]
+from app.types import FloatArray, UInt8Array
 
 
 @dataclass(frozen=True)
@@ -157,7 +156,7 @@ def render_board_view(
     settings: CheckerRenderSettings | None = None,
     rng: np.random.Generator | None = None,
     light_phase_rad: float = 0.0,
-) -> UInt8Image:
+) -> UInt8Array:
     """Render the board seen by one camera (board pose given in that camera's frame).
 
     ``rays`` comes from :func:`pixel_rays`. Each ray (x, y, 1)·λ meets the plane
@@ -269,8 +268,8 @@ def sample_poses(
 class RenderedCheckerSet:
     """Rendered stereo checkerboard views and the truth they were made from."""
 
-    left: list[UInt8Image]
-    right: list[UInt8Image]
+    left: list[UInt8Array]
+    right: list[UInt8Array]
     poses: list[BoardPose]
     spec: CheckerboardSpec
     settings: CheckerRenderSettings
@@ -295,8 +294,8 @@ def render_checker_set(
     rays_l = pixel_rays(calib.left, calib.image_size, st.supersample)
     rays_r = pixel_rays(calib.right, calib.image_size, st.supersample)
     rng = np.random.default_rng(seed + 1000)
-    left: list[UInt8Image] = []
-    right: list[UInt8Image] = []
+    left: list[UInt8Array] = []
+    right: list[UInt8Array] = []
     iterator: Any = range(len(poses))
     if progress:
         from tqdm import tqdm

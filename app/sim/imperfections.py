@@ -38,11 +38,10 @@ from dataclasses import asdict, dataclass, field, fields, replace
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
 from app.geometry.calibration import CameraIntrinsics, StereoCalibration
+from app.types import FloatArray
 
-FloatArray = NDArray[np.float64]
 STREAM = 0x696D70  # second seed word of the imperfections' random streams ("imp")
 
 

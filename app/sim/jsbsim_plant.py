@@ -34,10 +34,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from app.control.linear_model import ActuatorLimits, LinearModel
-from app.sim.frames import euler_to_matrix
+from app.geometry.rotations import euler_to_matrix
 from app.sim.plant import TrimPoint
+from app.types import FloatArray
 
-FloatArray = NDArray[np.float64]
 FT_M = 0.3048  # m per ft
 SLUG_FT3_KG_M3 = 515.378818  # kg/m³ per slug/ft³
 WGS84_A_M = 6378137.0

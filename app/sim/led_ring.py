@@ -18,10 +18,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from app.geometry.calibration import FloatArray, StereoCalibration
+from app.geometry.calibration import StereoCalibration
 from app.geometry.circle_fit import plane_basis
 from app.geometry.led_ids import DEFAULT_PHASE_DEG
 from app.geometry.projection import project_stereo
+from app.types import FloatArray
 
 HEAD_ON = np.array([0.0, 0.0, -1.0])
 

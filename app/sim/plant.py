@@ -18,11 +18,10 @@ from dataclasses import dataclass
 from typing import Literal, Protocol
 
 import numpy as np
-from numpy.typing import NDArray
 
 from app.control.linear_model import LinearModel
+from app.types import FloatArray
 
-FloatArray = NDArray[np.float64]
 PLANTS = ("jsbsim", "linear")
 # the plant of DockingConfig, the CLI and the service's simulated stream when none is named
 DEFAULT_PLANT: Literal["jsbsim", "linear"] = "jsbsim"

@@ -26,15 +26,14 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-from numpy.typing import NDArray
 from scipy.linalg import expm
 from scipy.optimize import fsolve
 
 from app.control.linear_model import ActuatorLimits, LinearModel
-from app.sim.frames import euler_to_matrix
+from app.geometry.rotations import euler_to_matrix
 from app.sim.plant import TrimPoint
+from app.types import FloatArray
 
-FloatArray = NDArray[np.float64]
 GRAVITY = 9.80665
 
 STATE_NAMES: tuple[str, ...] = ("u", "v", "w", "p", "q", "r", "phi", "theta", "psi", "x", "y", "z")

@@ -1,7 +1,7 @@
 """The stereo rig's mounting on the receiver as the docking simulation flies it (body frame, m).
 
 One place for the left camera's pose on the airframe (its position and the toe-in that aims it
-at a point ``camera_aim_ahead_m`` ahead of the probe tip: :func:`app.sim.frames.look_at_camera`)
+at a point ``camera_aim_ahead_m`` ahead of the probe tip: :func:`app.geometry.rotations.look_at_camera`)
 for the adapters that need it without a simulation: the 3-D view and the MAVLink output.
 """
 
@@ -10,12 +10,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 
+from app.geometry.rotations import look_at_camera
 from app.sim.docking import DockingConfig
-from app.sim.frames import look_at_camera
-
-FloatArray = NDArray[np.float64]
+from app.types import FloatArray
 
 
 @dataclass(frozen=True)

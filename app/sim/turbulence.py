@@ -20,10 +20,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 from scipy.linalg import expm, solve_discrete_lyapunov
 
-FloatArray = NDArray[np.float64]
+from app.types import FloatArray
 
 FT = 0.3048
 LENGTH_SCALE_M = 1750.0 * FT  # MIL-F-8785C, h > 2000 ft

@@ -18,8 +18,8 @@ import time
 import numpy as np
 
 from app.geometry.ring import RingParams, find_ring
+from app.resources import load_default_calibration
 from app.sim.led_ring import stereo_center_x_mm, tilted_normal
-from app.sim.paths import load_default_calibration
 from app.sim.stereo_render import RenderSettings, render_pair
 from app.vision.pipeline import NavigationPipeline
 from app.vision.tracking import StereoTracker

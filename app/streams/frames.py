@@ -11,8 +11,9 @@ from typing import Literal, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
+from app.types import UInt8Array
+
 SourceKind = Literal["video", "camera", "push"]
-Image = NDArray[np.uint8]
 
 
 class SourceError(ValueError):
@@ -28,8 +29,8 @@ class StereoFrame:
     """One stereo pair. Times in seconds on the source's clock (file time, device monotonic
     clock or the pusher's clock); ``t_s`` is the pair's time (mean of both sides)."""
 
-    left: Image
-    right: Image
+    left: UInt8Array
+    right: UInt8Array
     t_s: float
     seq: int  # frame counter of the source (pushed pairs: the pusher's sequence number)
     t_left_s: float | None = None
@@ -111,7 +112,7 @@ class FrameSource(Protocol):
     def close(self) -> None: ...
 
 
-def ensure_gray_or_bgr(image: NDArray[np.generic]) -> Image:
+def ensure_gray_or_bgr(image: NDArray[np.generic]) -> UInt8Array:
     """8-bit gray or BGR as the pipeline takes it: a BGR frame whose three channels are
     equal (a grey camera through a video codec) becomes gray; BGRA loses alpha."""
     img = np.asarray(image)

@@ -21,13 +21,12 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 
 from app.control.abort import predicted_miss_m
 from app.control.drogue_filter import DrogueFilter
+from app.types import FloatArray
 from app.vision.result import PoseResult
 
-FloatArray = NDArray[np.float64]
 MAX_GAP_S = 1.0  # a longer gap between frames (or time going back) restarts the filter
 
 

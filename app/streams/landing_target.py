@@ -6,7 +6,7 @@ on the receiver to the fields of MAVLink 2's ``LANDING_TARGET`` (message 149). T
 sends it is :mod:`app.streams.mavlink_link`; the mapping is documented in
 ``docs/ecosystem.md``.
 
-Frames (``app.sim.frames``): camera ``C`` (x right, y down, z along the optical axis) and the
+Frames (``app.geometry.rotations``): camera ``C`` (x right, y down, z along the optical axis) and the
 receiver's body ``B`` (x forward, y right wing, z down: MAVLink's ``MAV_FRAME_BODY_FRD``).
 
 - ``angle_x`` / ``angle_y`` (rad): the drogue centre's angular offset from the left camera's
@@ -29,11 +29,9 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from numpy.typing import NDArray
 
+from app.types import FloatArray
 from app.vision.result import PoseResult
-
-FloatArray = NDArray[np.float64]
 
 MAV_FRAME_BODY_FRD = 12  # MAVLink common.xml, MAV_FRAME
 LANDING_TARGET_TYPE_VISION_FIDUCIAL = 2  # MAVLink common.xml, LANDING_TARGET_TYPE

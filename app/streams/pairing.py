@@ -7,8 +7,9 @@ dropped and counted. A side that ends ends the stream.
 
 from __future__ import annotations
 
-from app.streams.frames import Image, StereoFrame
+from app.streams.frames import StereoFrame
 from app.streams.readers import MonoReader
+from app.types import UInt8Array
 
 
 class TimestampPairer:
@@ -16,8 +17,8 @@ class TimestampPairer:
         self.left, self.right = left, right
         self.max_skew_s = max_skew_s
         self.dropped = 0  # frames without a partner within the skew
-        self._l: tuple[float, Image] | None = None
-        self._r: tuple[float, Image] | None = None
+        self._l: tuple[float, UInt8Array] | None = None
+        self._r: tuple[float, UInt8Array] | None = None
         self.seq = 0
 
     def next_pair(self) -> StereoFrame | None:

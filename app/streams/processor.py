@@ -11,8 +11,9 @@ import time
 from dataclasses import dataclass, field
 
 from app.geometry.calibration import StereoCalibration
-from app.streams.frames import Image, SourceKind, StereoFrame
+from app.streams.frames import SourceKind, StereoFrame
 from app.streams.guidance import GuidanceConfig, GuidanceState, StreamGuidance
+from app.types import UInt8Array
 from app.vision.pipeline import PipelineConfig
 from app.vision.result import PoseResult
 from app.vision.tracking import StereoTracker
@@ -45,11 +46,11 @@ class StreamTick:
         return self.pose.reason
 
     @property
-    def left_image(self) -> Image:
+    def left_image(self) -> UInt8Array:
         return self.frame.left
 
     @property
-    def right_image(self) -> Image:
+    def right_image(self) -> UInt8Array:
         return self.frame.right
 
 

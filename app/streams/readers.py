@@ -15,7 +15,8 @@ from typing import Protocol
 import cv2
 import numpy as np
 
-from app.streams.frames import Image, SourceError, ensure_gray_or_bgr
+from app.streams.frames import SourceError, ensure_gray_or_bgr
+from app.types import UInt8Array
 
 IMAGE_SUFFIXES = (".png", ".bmp", ".tif", ".tiff", ".jpg", ".jpeg", ".pgm", ".ppm")
 
@@ -23,7 +24,7 @@ IMAGE_SUFFIXES = (".png", ".bmp", ".tif", ".tiff", ".jpg", ".jpeg", ".pgm", ".pp
 class MonoReader(Protocol):
     name: str
 
-    def read(self) -> tuple[float, Image] | None:
+    def read(self) -> tuple[float, UInt8Array] | None:
         """(time s, image) of the next frame; ``None`` at the end."""
         ...
 
@@ -62,7 +63,7 @@ class ImageSequenceReader:
             raise SourceError(f"{spec!r}: fewer timestamps than images")
         self.index = 0
 
-    def read(self) -> tuple[float, Image] | None:
+    def read(self) -> tuple[float, UInt8Array] | None:
         if self.index >= len(self.files):
             return None
         i = self.index
@@ -99,7 +100,7 @@ class CaptureReader:
         self._grab_t = time.monotonic() if ok else None
         return ok
 
-    def retrieve(self) -> tuple[float, Image] | None:
+    def retrieve(self) -> tuple[float, UInt8Array] | None:
         if self._grab_t is None:
             return None
         ok, img = self.cap.retrieve()
@@ -115,7 +116,7 @@ class CaptureReader:
             t = msec / 1e3 if msec > 0 or i == 0 else i / self.fps
         return t, ensure_gray_or_bgr(np.asarray(img))
 
-    def read(self) -> tuple[float, Image] | None:
+    def read(self) -> tuple[float, UInt8Array] | None:
         if not self.grab():
             return None
         return self.retrieve()

@@ -18,16 +18,14 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 from scipy.special import chdtrc
 
 from app.geometry.calibration import StereoCalibration
 from app.geometry.circle_fit import Circle3D, FitError
 from app.geometry.uncertainty import eigen_protection_levels_mm, lock_terms
+from app.types import FloatArray
 from app.vision.result import DrogueResult
 from app.vision.types import Blob
-
-FloatArray = NDArray[np.float64]
 
 
 @dataclass(frozen=True)

@@ -7,11 +7,11 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from app.types import UInt8Array
 from app.vision.blob_kernels import detect_in_boxes, extract_in_mask
 from app.vision.bright_region_kernels import hot_tile_boxes
 from app.vision.local_centroid import LocalCentroidConfig, box_table, local_blob
 from app.vision.local_centroid_kernels import local_centroids
-from app.vision.preprocess import U8Image
 from app.vision.preprocess_kernels import frame_summary
 from app.vision.types import Blob, RejectedBlob
 
@@ -67,7 +67,7 @@ def gate_array(gate: BlobGate) -> np.ndarray:
 def _blobs(
     found: tuple[np.ndarray, np.ndarray, np.ndarray, int],
     gate: BlobGate,
-    gray: U8Image | None = None,
+    gray: UInt8Array | None = None,
     centroid: LocalCentroidConfig | None = None,
 ) -> tuple[list[Blob], list[RejectedBlob]]:
     """Blobs and rejected blobs from a compiled extraction's outputs (kept rows, their
@@ -96,8 +96,8 @@ def _blobs(
 
 
 def extract_blobs(
-    gray: U8Image,
-    mask: U8Image,
+    gray: UInt8Array,
+    mask: UInt8Array,
     background: float,
     gate: BlobGate | None = None,
     crop: bool = True,
@@ -139,7 +139,7 @@ def extract_blobs(
 BAND_ROWS = 16  # rows per band of :func:`band_maxima` (the tile side of :func:`bright_boxes`)
 
 
-def band_maxima(gray: U8Image) -> np.ndarray:
+def band_maxima(gray: UInt8Array) -> np.ndarray:
     """Maximum of each column over bands of ``BAND_ROWS`` rows: (ceil(H / 16), W) uint8, one
     compiled pass over the image (its overall max is eq. 10's peak;
     :func:`app.vision.preprocess_kernels.frame_summary`, which also gives the background's histogram
@@ -147,7 +147,7 @@ def band_maxima(gray: U8Image) -> np.ndarray:
     return np.asarray(frame_summary(gray, BAND_ROWS, 0, 1)[0])
 
 
-def bright_boxes(gray: U8Image, threshold: int, bands: np.ndarray | None = None) -> list[Box]:
+def bright_boxes(gray: UInt8Array, threshold: int, bands: np.ndarray | None = None) -> list[Box]:
     """Boxes (x0, y0, x1, y1, half-open, px) that together hold every pixel ≥ ``threshold``:
     the 16×16-px tiles whose maximum reaches the threshold (from :func:`band_maxima`), grouped
     into 8-connected clusters, each cluster's box shrunk to its bright pixels — no full-frame
@@ -159,7 +159,7 @@ def bright_boxes(gray: U8Image, threshold: int, bands: np.ndarray | None = None)
 
 
 def detect_blobs(
-    gray: U8Image,
+    gray: UInt8Array,
     threshold: int,
     background: float,
     gate: BlobGate | None = None,

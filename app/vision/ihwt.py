@@ -18,14 +18,12 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from app.types import FloatArray, UInt8Array
 from app.vision.ihwt_kernels import DESCRIPTOR_SIZE, SAMPLES_PER_SUBSQUARE, describe_kernel
-from app.vision.preprocess import U8Image
 from app.vision.types import Blob
 
-FloatArray = NDArray[np.float64]
 
-
-def integral_image(gray: U8Image) -> FloatArray:
+def integral_image(gray: UInt8Array) -> FloatArray:
     """Eq. 12: I_Σ(x, y) = Σ_{i≤x, j≤y} I(i, j), with a leading zero row/column ((H+1)×(W+1))."""
     return np.asarray(cv2.integral(gray, sdepth=cv2.CV_64F), dtype=np.float64)
 
@@ -97,7 +95,7 @@ def describe_point(ii: FloatArray, center_px: tuple[float, float], window_px: fl
 
 
 def describe(
-    gray: U8Image,
+    gray: UInt8Array,
     blobs: list[Blob],
     window_factor: float = 8.0,
     min_window_px: int = 16,

@@ -23,10 +23,9 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 from scipy.optimize import linear_sum_assignment
 
-from app.geometry.calibration import FloatArray
+from app.types import FloatArray, IntArray
 from app.vision.matching_kernels import (
     DISJOINT_COST_MAX,
     descriptor_kernel,
@@ -62,9 +61,6 @@ def epipolar_distances(F: FloatArray, x_left: FloatArray, x_right: FloatArray) -
     xl = np.ascontiguousarray(np.asarray(x_left, dtype=np.float64).reshape(-1, 2))
     xr = np.ascontiguousarray(np.asarray(x_right, dtype=np.float64).reshape(-1, 2))
     return np.asarray(epipolar_kernel(fm, xl, xr))
-
-
-IntArray = NDArray[np.int64]
 
 
 @dataclass(frozen=True)

@@ -6,11 +6,10 @@ from typing import Literal
 
 import cv2
 import numpy as np
-from numpy.typing import NDArray
 
+from app.types import UInt8Array
 from app.vision.preprocess_kernels import difference_histogram, subsampled_histogram
 
-U8Image = NDArray[np.uint8]
 ThresholdMode = Literal["auto", "otsu"] | int
 
 
@@ -18,7 +17,7 @@ class ImageError(ValueError):
     """An input image that cannot be processed (wrong type, shape or size)."""
 
 
-def validate_image(image: object, name: str = "image") -> U8Image:
+def validate_image(image: object, name: str = "image") -> UInt8Array:
     """Check that ``image`` is a non-empty uint8 gray (H×W) or colour (H×W×3/4) array."""
     if not isinstance(image, np.ndarray):
         raise ImageError(f"{name}: expected a numpy array, got {type(image).__name__}")
@@ -37,7 +36,7 @@ def validate_image(image: object, name: str = "image") -> U8Image:
     return np.ascontiguousarray(image)
 
 
-def to_gray(image: U8Image) -> U8Image:
+def to_gray(image: UInt8Array) -> UInt8Array:
     """Eq. 9: Gray = 0.299 R + 0.587 G + 0.114 B (BGR channel order); gray passes through."""
     if image.ndim == 2:
         return image
@@ -49,7 +48,7 @@ def to_gray(image: U8Image) -> U8Image:
 ColourDetect = Literal["gray", "green"]
 
 
-def green_excess(image: U8Image, saturated_dn: int = 250) -> U8Image:
+def green_excess(image: UInt8Array, saturated_dn: int = 250) -> UInt8Array:
     """The LED image of a colour frame: G − max(B, R) per pixel (clipped at 0; DN), and 255
     where all three channels are saturated (a core with no colour left). The LEDs are green
     (paper §3.1): their light stands out here while white or yellow sun glints, grey metal,
@@ -63,7 +62,7 @@ def green_excess(image: U8Image, saturated_dn: int = 250) -> U8Image:
     return np.asarray(cv2.max(excess, sat), dtype=np.uint8)
 
 
-def detection_image(image: U8Image, mode: ColourDetect = "green") -> U8Image:
+def detection_image(image: UInt8Array, mode: ColourDetect = "green") -> UInt8Array:
     """The single-channel image the LEDs are found and measured on: a gray frame as it is; a
     colour frame by eq. 9 (``"gray"``, the paper) or :func:`green_excess` (``"green"``)."""
     if image.ndim == 2 or mode == "gray":
@@ -75,7 +74,7 @@ BACKGROUND_ROW_STEP = 8  # the background's subsample: every 8th row ...
 BACKGROUND_COL_STEP = 4  # ... and every 4th column (1/32 of the pixels)
 
 
-def noise_sigma(gray: U8Image) -> float:
+def noise_sigma(gray: UInt8Array) -> float:
     """The pixel noise σ (DN) of an image, robust to the scene: 1.4826·median|ΔI|/√2 of the
     differences of horizontally neighbouring pixels (every 8th row, every 4th column), the
     median interpolated within its integer bin; at least 0.5 DN. On a flat background it is
@@ -116,7 +115,7 @@ def background_from_histogram(hist: np.ndarray) -> tuple[float, float]:
     return float(med), max(1.4826 * mad, 0.5)
 
 
-def background_level(gray: U8Image) -> tuple[float, float]:
+def background_level(gray: UInt8Array) -> tuple[float, float]:
     """Robust background level and noise σ (DN) from a 1/32 subsample (every 8th row, every 4th
     column: one eighth of the memory traffic): :func:`background_from_histogram`."""
     hist = subsampled_histogram(gray, BACKGROUND_ROW_STEP, BACKGROUND_COL_STEP)
@@ -124,7 +123,7 @@ def background_level(gray: U8Image) -> tuple[float, float]:
 
 
 def choose_threshold(
-    gray: U8Image,
+    gray: UInt8Array,
     mode: ThresholdMode = "auto",
     background: tuple[float, float] | None = None,
     peak: float | None = None,
@@ -163,13 +162,13 @@ def auto_threshold(background: float, sigma: float, peak: float) -> int:
     return int(min(255, max(1, t)))
 
 
-def binarize(gray: U8Image, threshold: int) -> U8Image:
+def binarize(gray: UInt8Array, threshold: int) -> UInt8Array:
     """Eq. 10: 255 where I ≥ T_s, else 0."""
     _, out = cv2.threshold(gray, threshold - 1, 255, cv2.THRESH_BINARY)  # > T−1 ⇔ ≥ T
     return np.asarray(out, dtype=np.uint8)
 
 
-def median_filter(binary: U8Image, ksize: int = 3) -> U8Image:
+def median_filter(binary: UInt8Array, ksize: int = 3) -> UInt8Array:
     """Median filter removing the granular noise and jagged LED edges (§4.1 (3))."""
     if ksize <= 1:
         return binary

@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from app.sim.frames import euler_to_matrix
+from app.geometry.rotations import euler_to_matrix
 
 #: Viewing direction (from the target towards the camera): right of and above the approach,
 #: slightly behind the receiver (tanker frame, z down → negative z is up).

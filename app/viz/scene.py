@@ -23,7 +23,7 @@ import viser
 import viser.transforms as vtf
 
 from app.geometry.led_ids import DEFAULT_PHASE_DEG
-from app.sim.frames import euler_to_matrix
+from app.geometry.rotations import euler_to_matrix
 from app.streams.annotations import LED_COLORS_RGB, annotate, led_color
 
 DROGUE_RADIUS_M = 0.305

@@ -14,7 +14,6 @@ from itertools import combinations
 
 import numpy as np
 
-from app.geometry.calibration import FloatArray
 from app.geometry.circle_fit import Circle3D, FitError, distance_to_circle, fit_circle_3d
 from app.geometry.ring import (
     RingHypothesis,
@@ -25,6 +24,7 @@ from app.geometry.ring import (
     slot_residuals,
     view_angle_deg,
 )
+from app.types import FloatArray
 
 
 def cross_rows(a: FloatArray, b: FloatArray) -> FloatArray:

@@ -24,9 +24,9 @@ import math
 import numpy as np
 from numba import njit
 
-from app.geometry.calibration import FloatArray
 from app.geometry.circle_fit_kernels import circle_kernel, distance_kernel, plane_axes
 from app.geometry.ring.params import RingParams
+from app.types import FloatArray
 
 _DEG = 180.0 / math.pi  # np.degrees' factor
 _RAD = math.pi / 180.0  # np.radians' factor

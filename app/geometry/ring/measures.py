@@ -13,7 +13,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from app.geometry.calibration import FloatArray
 from app.geometry.circle_fit import Circle3D, circle_points, run_circle_fit
 from app.geometry.ring.kernels import (
     ring_measures_kernel,
@@ -21,6 +20,7 @@ from app.geometry.ring.kernels import (
     slot_offset_kernel,
     slot_residuals_kernel,
 )
+from app.types import FloatArray
 
 
 def oriented(circle: Circle3D) -> Circle3D:

@@ -13,9 +13,9 @@ import statistics
 
 import numpy as np
 
-from app.geometry.calibration import FloatArray
 from app.geometry.circle_fit import Circle3D, distance_to_circle
 from app.geometry.ring.params import RingParams, RingPrior
+from app.types import FloatArray
 
 
 def _log10_comb(n: int, k: int) -> float:

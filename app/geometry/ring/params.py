@@ -14,8 +14,8 @@ from typing import Any
 
 import numpy as np
 
-from app.geometry.calibration import FloatArray
 from app.geometry.circle_fit import Circle3D
+from app.types import FloatArray
 
 
 @dataclass(frozen=True)

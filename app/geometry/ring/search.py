@@ -13,7 +13,6 @@ from collections.abc import Callable
 
 import numpy as np
 
-from app.geometry.calibration import FloatArray
 from app.geometry.circle_fit import Circle3D
 from app.geometry.ring.kernels import radius_only_kernel, refine_kernel, ring_consts, seed_kernel
 from app.geometry.ring.nfa import background_volume_mm3, log10_nfa, prior_volume_mm3
@@ -25,6 +24,7 @@ from app.geometry.ring.params import (
     RingRejection,
     agrees_with_prior,
 )
+from app.types import FloatArray
 
 MAX_SEEDS = 20_000  # refinement budget; seeds are ordered by fit quality (never reached in tests)
 

@@ -13,13 +13,12 @@ import threading
 from multiprocessing import shared_memory
 
 import numpy as np
-import numpy.typing as npt
+
+from app.types import UInt8Array
 
 RING_SLOTS = 8  # ≈ 0.23 s of ticks at 30 Hz before a slot is reused
 _HDR = struct.Struct("<qqqqq")  # stamp, left h, left w, right h, right w
 _HDR_BYTES = 64
-
-Image = npt.NDArray[np.uint8]
 
 
 class ImageRing:
@@ -60,7 +59,7 @@ class ImageRing:
     def name(self) -> str:
         return str(self.shm.name)
 
-    def write(self, slot: int, stamp: int, left: Image, right: Image) -> bool:
+    def write(self, slot: int, stamp: int, left: UInt8Array, right: UInt8Array) -> bool:
         """Worker side; ``False`` if the pair does not fit (or is not 2-D uint8)."""
         if left.dtype != np.uint8 or right.dtype != np.uint8 or left.ndim != 2 or right.ndim != 2:
             return False
@@ -77,7 +76,7 @@ class ImageRing:
         _HDR.pack_into(buf, base, stamp, left.shape[0], left.shape[1], *right.shape)
         return True
 
-    def read(self, slot: int, stamp: int) -> tuple[Image, Image] | None:
+    def read(self, slot: int, stamp: int) -> tuple[UInt8Array, UInt8Array] | None:
         """Parent side: copies of the pair stamped ``stamp``, or ``None`` if overwritten."""
         with self._lock:
             if self._closed:

@@ -23,13 +23,10 @@ from multiprocessing.connection import Connection
 from multiprocessing.process import BaseProcess
 from typing import TYPE_CHECKING, Any
 
-import numpy as np
-import numpy.typing as npt
-
 from app.server.lazy_images import ImagePair, LazyImagePair
 from app.server.schemas import SimConfig
 from app.server.sim_source import SourceRestarted, SourceUnavailable, docking_config
-from app.server.sim_worker.image_ring import RING_SLOTS, Image, ImageRing
+from app.server.sim_worker.image_ring import RING_SLOTS, ImageRing
 from app.server.sim_worker.wire import (
     STREAM,
     Message,
@@ -37,6 +34,7 @@ from app.server.sim_worker.wire import (
     raise_remote,
 )
 from app.server.sim_worker.worker import LOOKAHEAD, worker_main
+from app.types import FloatArray, UInt8Array
 
 if TYPE_CHECKING:
     from app.geometry.calibration import StereoCalibration
@@ -45,7 +43,7 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
-FloatArray = npt.NDArray[np.float64]
+
 SPAWN = multiprocessing.get_context("spawn")
 DEFAULT_IMAGE_SIZE = (1280, 1024)  # (w, h) when no calibration says otherwise
 
@@ -82,7 +80,7 @@ class ProcessTick(LazyImagePair):
         ring: ImageRing | None,
         slot: int,
         stamp: int,
-        inline: tuple[Image, Image] | None,
+        inline: tuple[UInt8Array, UInt8Array] | None,
         sim_ms: float,
         *,
         deadline_s: float,

@@ -30,9 +30,10 @@ from dataclasses import replace
 from multiprocessing.connection import Connection
 from typing import TYPE_CHECKING
 
-from app.server.sim_worker.image_ring import Image, ImageRing
+from app.server.sim_worker.image_ring import ImageRing
 from app.server.sim_worker.priority import raise_thread_priority
 from app.server.sim_worker.wire import Message, calibration_from_wire, error_reply
+from app.types import UInt8Array
 
 if TYPE_CHECKING:
     from app.sim.docking import DockingSimulation
@@ -64,7 +65,7 @@ class WorkerState:
         self.k += 1
         stamp = (self.epoch << 32) | self.k
         slot = -1
-        inline: tuple[Image, Image] | None = None
+        inline: tuple[UInt8Array, UInt8Array] | None = None
         left, right = tick.left_image, tick.right_image
         if left is not None and right is not None:
             ring = self.ring

@@ -13,14 +13,13 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numpy.typing import NDArray
 
 from app.control.bow_wave import BowWaveModel, bow_force_n
 from app.control.drogue_swing import predict_swing_offset
 from app.sim.docking.config import DockingConfig
 from app.sim.hose_drogue import HoseDrogueParams
+from app.types import FloatArray
 
-FloatArray = NDArray[np.float64]
 # timed closure (the A-4): from the hold at the standoff the probe arrives after gap / closure
 # speed plus this lag of the fore-aft loop (s; measured, calm air); the probe's lateral error
 # to its reference decays with TIP_RETURN_S (s; the lateral loop's ≈ 0.5 rad/s)

@@ -12,9 +12,8 @@ from numpy.typing import NDArray
 
 from app.sim.receiver import INPUT_NAMES, STATE_NAMES
 from app.sim.stereo_render import Rect
+from app.types import FloatArray
 from app.vision.result import PoseResult
-
-FloatArray = NDArray[np.float64]
 
 
 @dataclass

@@ -39,7 +39,6 @@ import math
 from dataclasses import replace
 
 import numpy as np
-from numpy.typing import NDArray
 
 from app.control.abort import AlphaBetaTracker, predicted_miss_m, should_abort
 from app.control.bow_wave import BowWaveModel
@@ -49,13 +48,14 @@ from app.control.lqr import IntegralLqr
 from app.control.observer import StateObserver
 from app.control.reference import GuidanceConfig, ReferenceGenerator
 from app.geometry.calibration import StereoCalibration
+from app.geometry.rotations import euler_to_matrix, look_at_camera
+from app.resources import load_default_calibration
 from app.sim.camera_sensor import StereoCameraSensor
 from app.sim.docking.config import PLANT_GUIDANCE, DockingConfig
 from app.sim.docking.guidance import SwingGuidance
 from app.sim.docking.plant_design import design_for, make_plant
 from app.sim.docking.results import DockingOutcome, DockingTick
 from app.sim.docking.vision import DrogueFrame, camera_sensor, drogue_in_tanker, take_frame
-from app.sim.frames import euler_to_matrix, look_at_camera
 from app.sim.hose_drogue import HoseDrogue, HoseDrogueParams
 from app.sim.imperfections import (
     FrameChannel,
@@ -66,13 +66,12 @@ from app.sim.imperfections import (
     resolve,
     wake_downwash,
 )
-from app.sim.paths import load_default_calibration
 from app.sim.plant import ReceiverPlant
 from app.sim.receiver import Actuators
 from app.sim.stereo_render import Rect
 from app.sim.turbulence import DrydenTurbulence
+from app.types import FloatArray
 
-FloatArray = NDArray[np.float64]
 SEARCH_GAP_M = 5.0  # closest gap flown on the a-priori drogue position before acquisition
 GUST_HISTORY_TICKS = 64
 REARM_GAP_M = 1.5  # gap (m) the probe must open before another break-away counts as an abort

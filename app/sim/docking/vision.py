@@ -22,11 +22,11 @@ from app.sim.docking.config import DockingConfig
 from app.sim.imperfections import resolve
 from app.sim.led_ring import LedRing
 from app.sim.stereo_render import Rect, RenderSettings
+from app.types import FloatArray
 from app.vision.error_bound import ErrorBoundConfig
 from app.vision.pipeline import PipelineConfig
 from app.vision.result import PoseResult
 
-FloatArray = NDArray[np.float64]
 DISPARITY_PER_EXTRA_PX = 0.02  # ring-fit tolerance (disparity σ) per px of calibration doubt
 DISPARITY_SIGMA_PX = 0.15  # effective disparity noise of the ring-centre fit (conservative)
 

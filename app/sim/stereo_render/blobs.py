@@ -14,9 +14,10 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from app.geometry.calibration import CameraIntrinsics, FloatArray, StereoCalibration
+from app.geometry.calibration import CameraIntrinsics, StereoCalibration
 from app.geometry.projection import project_camera, project_stereo
 from app.sim.stereo_render.scene import MIN_DEPTH_MM
+from app.types import FloatArray
 
 
 @dataclass(frozen=True)

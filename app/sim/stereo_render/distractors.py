@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from app.geometry.calibration import FloatArray, StereoCalibration
+from app.geometry.calibration import StereoCalibration
 from app.sim.led_ring import LedRing, led_angles_rad, ring_basis
 from app.sim.stereo_render.blobs import (
     Blob,
@@ -31,6 +31,7 @@ from app.sim.stereo_render.blobs import (
     to_right,
 )
 from app.sim.stereo_render.scene import LED_BGR, RenderSettings
+from app.types import FloatArray
 
 GLINT_DEPTH_FACTORS = (0.87, 1.13)  # default glint depth window, × drogue centre depth
 GLINT_GAP_PX = 4.0  # min gap between the discs of two glints (or a glint and clutter)

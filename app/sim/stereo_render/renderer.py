@@ -22,7 +22,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from app.geometry.calibration import FloatArray, StereoCalibration
+from app.geometry.calibration import StereoCalibration
 from app.sim.led_ring import LedRing, check_pose, ring_points
 from app.sim.stereo_render.blobs import (
     Blob,
@@ -36,6 +36,7 @@ from app.sim.stereo_render.blobs import (
 from app.sim.stereo_render.distractors import Clutter, Extras, Keepout, make_clutter, make_extras
 from app.sim.stereo_render.scene import LED_BGR, Rect, RenderedPair, RenderSettings, RenderTruth
 from app.sim.stereo_render.sensor import clip_rects, compose, overlaps
+from app.types import FloatArray
 
 EXTRAS_STREAM = 0x676C6E74  # second seed word of the hostile extras' random stream
 

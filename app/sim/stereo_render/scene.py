@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from app.geometry.calibration import FloatArray
+from app.types import FloatArray
 
 # (B, G, R) weights of an LED seen through the green filter (mostly green).
 LED_BGR = np.array([0.45, 1.0, 0.30], dtype=np.float32)

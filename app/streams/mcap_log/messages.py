@@ -14,7 +14,7 @@ from foxglove import messages as fm
 from numpy.typing import NDArray
 
 from app.geometry.calibration import StereoCalibration
-from app.sim.frames import euler_to_matrix
+from app.geometry.rotations import euler_to_matrix
 from app.streams.annotations import REJECTED_RGB, WINDOW_RGB, Side, image_marks, led_color
 from app.streams.mcap_log.channels import FRAME_IDS, LED_SPHERE_M, PROBE_SPHERE_M, McapTick, Vec3
 

@@ -1,4 +1,4 @@
-"""Frames and rotations shared by the docking simulation (m, rad).
+"""Rotations and the frame conventions of the simulation, the controller and the outputs (m, rad).
 
 Tanker frame ``T`` (the simulation's inertial frame): origin at the hose exit on the tanker, moving
 with the tanker in steady straight-and-level flight; x forward (direction of flight), y right,
@@ -14,9 +14,8 @@ works in millimetres, everything here in metres: convert once at the boundary.
 from __future__ import annotations
 
 import numpy as np
-from numpy.typing import NDArray
 
-FloatArray = NDArray[np.float64]
+from app.types import FloatArray
 
 
 def euler_to_matrix(phi: float, theta: float, psi: float) -> FloatArray:

@@ -18,7 +18,7 @@ DATA_PACKAGE = "app"
 DATA_DIR = "_data"
 #: The source checkout (tests and benchmarks); in an installed package this is site-packages'
 #: parent and holds nothing of ours: use :func:`data_root` for the bundled data.
-REPO_ROOT = Path(__file__).resolve().parents[2]
+REPO_ROOT = Path(__file__).resolve().parents[1]
 
 
 class MissingDataError(FileNotFoundError):

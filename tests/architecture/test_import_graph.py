@@ -1,0 +1,199 @@
+"""The package's import graph, read from the source with ``ast`` (nothing is imported):
+
+- no import cycle between modules of ``app`` (module-level imports; an import inside a function
+  or under ``if TYPE_CHECKING:`` runs later or never and is not an edge);
+- the layers: the numeric core imports nothing from the adapters or from web/GUI libraries,
+  ``app.geometry`` imports nothing above it, no pools/progress bars/plots in geometry;
+- no ``from app.x import _private`` across modules (ruff's SLF001 covers ``obj._private``).
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+APP = Path(__file__).resolve().parents[2] / "app"
+
+CORE = ("app.vision", "app.geometry", "app.control", "app.sim", "app.streams", "app.calibration")
+ADAPTERS = ("app.server", "app.viz", "app.cli")
+WEB_GUI = ("fastapi", "starlette", "uvicorn", "viser", "websockets", "httpx", "playwright")
+
+
+def module_name(path: Path) -> str:
+    rel = path.relative_to(APP.parent).with_suffix("")
+    parts = list(rel.parts)
+    if parts[-1] == "__init__":
+        parts.pop()
+    return ".".join(parts)
+
+
+def _is_type_checking(node: ast.If) -> bool:
+    t = node.test
+    return (isinstance(t, ast.Name) and t.id == "TYPE_CHECKING") or (
+        isinstance(t, ast.Attribute) and t.attr == "TYPE_CHECKING"
+    )
+
+
+def _resolve(module: str, node: ast.ImportFrom) -> str:
+    """The absolute name of an import (the package uses absolute imports only)."""
+    assert not node.level, f"{module}:{node.lineno}: relative import; use the absolute name"
+    return node.module or ""
+
+
+def module_level_imports(module: str, tree: ast.Module) -> list[tuple[str, list[str], int]]:
+    """(imported module, names imported from it, line) for the imports that run at import."""
+    out: list[tuple[str, list[str], int]] = []
+
+    def visit(body: list[ast.stmt]) -> None:
+        for node in body:
+            if isinstance(node, ast.Import):
+                out.extend((a.name, [], node.lineno) for a in node.names)
+            elif isinstance(node, ast.ImportFrom):
+                out.append((_resolve(module, node), [a.name for a in node.names], node.lineno))
+            elif isinstance(node, ast.If) and not _is_type_checking(node):
+                visit(node.body)
+                visit(node.orelse)
+            elif isinstance(node, ast.Try):
+                visit(node.body)
+                for h in node.handlers:
+                    visit(h.body)
+                visit(node.orelse)
+                visit(node.finalbody)
+
+    visit(tree.body)
+    return out
+
+
+def all_imports(module: str, tree: ast.Module) -> list[tuple[str, list[str], int]]:
+    """Every import statement in the module, wherever it stands."""
+    out: list[tuple[str, list[str], int]] = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            out.extend((a.name, [], node.lineno) for a in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            out.append((_resolve(module, node), [a.name for a in node.names], node.lineno))
+    return out
+
+
+def _load() -> dict[str, ast.Module]:
+    return {
+        module_name(p): ast.parse(p.read_text(), str(p))
+        for p in sorted(APP.rglob("*.py"))
+        if "__pycache__" not in p.parts
+    }
+
+
+MODULES = _load()
+
+
+def _target(imported: str, names: list[str]) -> list[str]:
+    """The app modules an import statement loads (``from app.x import y`` loads app.x.y when
+    y is a submodule)."""
+    out = []
+    if imported in MODULES:
+        out.append(imported)
+    for n in names:
+        sub = f"{imported}.{n}"
+        if sub in MODULES:
+            out.append(sub)
+    # importing app.a.b runs app/__init__ and app/a/__init__ too
+    parts = imported.split(".")
+    for i in range(1, len(parts)):
+        parent = ".".join(parts[:i])
+        if parent in MODULES:
+            out.append(parent)
+    return out
+
+
+def graph() -> dict[str, set[str]]:
+    g: dict[str, set[str]] = {m: set() for m in MODULES}
+    for m, tree in MODULES.items():
+        for imported, names, _ in module_level_imports(m, tree):
+            for t in _target(imported, names):
+                # a package's own __init__ runs before its modules (it is never waited on)
+                if t != m and not m.startswith(t + "."):
+                    g[m].add(t)
+    return g
+
+
+def find_cycle(g: dict[str, set[str]]) -> list[str] | None:
+    """A cycle of the directed graph, or None (iterative DFS with colours)."""
+    colour = dict.fromkeys(g, 0)
+    for root in sorted(g):
+        if colour[root]:
+            continue
+        stack = [(root, iter(sorted(g[root])))]
+        path = [root]
+        colour[root] = 1
+        while stack:
+            node, it = stack[-1]
+            nxt = next(it, None)
+            if nxt is None:
+                colour[node] = 2
+                stack.pop()
+                path.pop()
+                continue
+            if colour[nxt] == 1:
+                return [*path[path.index(nxt) :], nxt]
+            if colour[nxt] == 0:
+                colour[nxt] = 1
+                path.append(nxt)
+                stack.append((nxt, iter(sorted(g[nxt]))))
+    return None
+
+
+def test_the_graph_is_read() -> None:
+    g = graph()
+    assert len(g) > 100
+    assert "app.vision.matching" in g["app.vision.pipeline"]
+    assert find_cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}}) == ["a", "b", "c", "a"]
+    assert find_cycle({"a": {"b"}, "b": set()}) is None
+
+
+def test_no_import_cycle() -> None:
+    cycle = find_cycle(graph())
+    assert cycle is None, "import cycle: " + " → ".join(cycle or [])
+
+
+def _starts(name: str, prefixes: tuple[str, ...]) -> bool:
+    return any(name == p or name.startswith(p + ".") for p in prefixes)
+
+
+@pytest.mark.parametrize("package", CORE)
+def test_the_core_imports_no_adapter_and_no_web_or_gui_library(package: str) -> None:
+    assert package in MODULES, f"{package} is not a package"
+    bad = [
+        f"{m}:{line} imports {imported}"
+        for m, tree in MODULES.items()
+        if _starts(m, (package,))
+        for imported, _, line in all_imports(m, tree)
+        if _starts(imported, ADAPTERS + WEB_GUI)
+    ]
+    assert not bad, bad
+
+
+def test_geometry_is_the_floor() -> None:
+    above = ("app.calibration", "app.vision", "app.sim", "app.control", "app.streams")
+    heavy = ("concurrent.futures", "multiprocessing", "tqdm", "matplotlib")
+    bad = [
+        f"{m}:{line} imports {imported}"
+        for m, tree in MODULES.items()
+        if _starts(m, ("app.geometry",))
+        for imported, _, line in all_imports(m, tree)
+        if _starts(imported, above + heavy)
+    ]
+    assert not bad, bad
+
+
+def test_no_private_name_is_imported_from_another_module() -> None:
+    bad = [
+        f"{m}:{line} imports {n} from {imported}"
+        for m, tree in MODULES.items()
+        for imported, names, line in all_imports(m, tree)
+        if imported.startswith("app") and imported != m
+        for n in names
+        if n.startswith("_") and not n.startswith("__")
+    ]
+    assert not bad, bad
