@@ -1,6 +1,6 @@
 """Cost of a stream source per stereo pair: decoding vs tracking, and the whole stream loop.
 
-Over a rendered 1280×1024 sequence (the stream tests' sequence, ``tests/streams_sequence.py``)
+Over a rendered 1280×1024 sequence (the stream tests' sequence, ``tests/support/streams_sequence.py``)
 written as MJPG videos and as PNG folders, per pair, in the same run:
 
 * ``tracker (in memory)`` — :class:`StereoTracker` on pairs already in memory (the baseline);
@@ -30,13 +30,12 @@ import cv2
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-from streams_sequence import render_sequence, write_avi, write_png_folders  # noqa: E402
-
 from app.resources import load_default_calibration  # noqa: E402
 from app.streams.frames import EndOfStream  # noqa: E402
 from app.streams.processor import StreamProcessor  # noqa: E402
 from app.streams.sources import SourceOptions, VideoSource  # noqa: E402
 from app.vision.tracking import StereoTracker  # noqa: E402
+from tests.support.streams_sequence import render_sequence, write_avi, write_png_folders  # noqa: E402
 
 
 def per_pair(run: Callable[[], int], repeats: int) -> list[float]:

@@ -2,7 +2,7 @@
 squares (eqs. 15–16) and the Gauss–Newton refinement of the reprojection error in both images,
 one 3×3 normal-equation solve per point and per step. From Python the small batched array
 calls cost more than this arithmetic. Called by :mod:`app.geometry.triangulation`, which
-documents the formulas; ``tests/test_geometry.py`` checks them against
+documents the formulas; ``tests/geometry/test_geometry.py`` checks them against
 ``cv2.triangulatePoints``.
 """
 

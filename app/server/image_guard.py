@@ -10,7 +10,7 @@ The size read here must be the size the decoder allocates: each reader follows i
 libtiff: the first directory) and refuses what a decoder could read otherwise — a header field
 written twice or contradicting another (:class:`AmbiguousHeaderError`: a TIFF tag twice or out
 of order, a second IHDR, a TIFF strip or tile larger than the image) and animated PNG (its
-frames are decoded into more buffers). ``tests/test_server_image_guard.py`` fuzzes the readers
+frames are decoded into more buffers). ``tests/server/test_image_guard.py`` fuzzes the readers
 against OpenCV: an accepted header never under-states the decoded size.
 
 Second line of defence: ``OPENCV_IO_MAX_IMAGE_PIXELS`` is set here (unless the operator set

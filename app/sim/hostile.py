@@ -1,6 +1,6 @@
 """Hostile navigation scenarios and their scoring (no wrong lock, lock rate).
 
-Shared by ``tests/test_integrity_hostile.py`` (which asserts zero wrong locks) and
+Shared by ``tests/vision/test_integrity_hostile.py`` (which asserts zero wrong locks) and
 ``benchmarks/hostile_cases.py`` (which prints the README's table with more seeds).
 
 A **wrong lock** is a lock whose drogue centre is more than 5 mm from the truth, or one that

@@ -32,7 +32,7 @@ FULL_WELL_E = 8000.0  # electrons at 255 DN
 READ_NOISE_DN = 1.5
 BLACK_LEVEL_DN = 4.0
 # OpenCV names Bayer patterns by the second row's (1, 1)-(1, 2) pixels; its RGGB alias is
-# the same code as COLOR_BayerBG2BGR (checked in tests/test_optics_set.py with red, green and
+# the same code as COLOR_BayerBG2BGR (checked in tests/sim/test_optics_set.py with red, green and
 # blue patches: COLOR_BayerRG2BGR would swap red and blue for this mosaic)
 BAYER_RGGB_TO_BGR = getattr(cv2, "COLOR_BayerRGGB2BGR", cv2.COLOR_BayerBG2BGR)
 

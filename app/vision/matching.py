@@ -12,7 +12,7 @@
 
 The per-candidate work runs in compiled loops (:mod:`app.vision.matching_kernels`: descriptor
 distances in numpy's summation order, the gate and its cost), so that the results equal the
-numpy formulations to the bit (``tests/test_matching_kernels.py`` keeps those as the
+numpy formulations to the bit (``tests/vision/test_matching_kernels.py`` keeps those as the
 reference); ``*_indices`` give the matches as index arrays, :class:`MatchArrays` /
 :class:`~app.vision.types.Match` as records.
 """

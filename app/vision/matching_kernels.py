@@ -5,7 +5,7 @@
 * :func:`epipolar_kernel` — the symmetric point-to-epipolar-line distance (px) of every pair;
 * :func:`gated_cost` — our matcher's epipolar/depth gate and the assignment cost inside it.
 
-:mod:`app.vision.matching` wraps them; ``tests/test_matching_kernels.py`` keeps the numpy
+:mod:`app.vision.matching` wraps them; ``tests/vision/test_matching_kernels.py`` keeps the numpy
 formulations they replaced as the reference.
 """
 

@@ -11,7 +11,7 @@ Run with a Python that has ``mitsuba`` (the project's optional extra ``render``)
     PYTHONPATH=. python benchmarks/optics/render_optics_set.py --refresh-visibility \
         --out tests/data/optics/dev    # redo the ray casts of a set's manifest only
 
-Camera path (see ``tests/test_optics_set.py`` for the check against the calibration): each
+Camera path (see ``tests/sim/test_optics_set.py`` for the check against the calibration): each
 camera is rendered as an ideal pinhole (Mitsuba ``perspective``: square pixels, focal fx, no
 skew, no distortion) on a film with a margin around the real image; the real camera's skew,
 fy ≠ fx and distortion are then applied by an inverse remap (for every real pixel: normalised

@@ -6,10 +6,11 @@ cares about its time (or its pose) sets just those.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
+from app.server.schemas import SimConfig
 from app.vision.result import PoseResult
 
 
@@ -34,3 +35,60 @@ class FakeSimState:
     led_truth_cam_mm: np.ndarray | None = None
     left_image: np.ndarray | None = None
     right_image: np.ndarray | None = None
+
+
+@dataclass
+class FakeTick:
+    t_s: float
+    phase: str = "approach"
+    drogue_truth_m: np.ndarray = field(default_factory=lambda: np.array([-10.0, 0.0, 1.0]))
+    drogue_normal: np.ndarray = field(default_factory=lambda: np.array([-1.0, 0.0, 0.0]))
+    drogue_measured_m: np.ndarray | None = None
+    drogue_estimate_m: np.ndarray = field(default_factory=lambda: np.array([-10.0, 0.0, 1.0]))
+    probe_tip_m: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    uav_state: np.ndarray = field(default_factory=lambda: np.zeros(12))
+    reference_m: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    control: np.ndarray = field(default_factory=lambda: np.array([0.5, 0.0, 0.1, 0.0]))
+    lock: bool = True
+    lock_reason: str | None = None
+    pose: PoseResult | None = None
+    left_image: np.ndarray | None = None
+    right_image: np.ndarray | None = None
+    led_truth_cam_mm: np.ndarray | None = None
+    captured: bool = False
+    miss_m: float | None = None
+    rel_position_m: np.ndarray = field(default_factory=lambda: np.array([5.0, 0.0, 0.0]))
+
+
+class FakeSim:
+    """Moves the probe 1 m/s along x; done after ``steps`` steps (tests only)."""
+
+    def __init__(
+        self,
+        config: SimConfig,
+        calibration: object,
+        steps: int = 10**9,
+        clock=None,
+        step_cost_s: float = 0.0,
+    ) -> None:
+        self.config = config
+        self.dt = 1.0 / config.tick_hz
+        self.k = 0
+        self.steps = steps
+        self.clock = clock
+        self.step_cost_s = step_cost_s
+
+    @property
+    def done(self) -> bool:
+        return self.k >= self.steps
+
+    def step(self) -> FakeTick:
+        self.k += 1
+        if self.clock is not None and self.step_cost_s:
+            self.clock.advance(self.step_cost_s)
+        t = self.k * self.dt
+        return FakeTick(
+            t_s=t,
+            probe_tip_m=np.array([t * self.config.closure_speed_mps, 0.0, 0.0]),
+            pose=PoseResult(lock=True),
+        )

@@ -1,6 +1,6 @@
 """The compiled reference of the local centroid's background-ring median: ``np.median`` of the
 ring's pixels (:func:`app.vision.local_centroid_kernels.ring_median_counts` gives the same
-number from a 256-bin count; ``tests/test_vision_local_centroid.py``).
+number from a 256-bin count; ``tests/vision/test_local_centroid.py``).
 """
 
 from __future__ import annotations

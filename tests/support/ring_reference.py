@@ -4,7 +4,7 @@
 :func:`hypotheses_reference` :func:`~app.geometry.ring.kernels.refine_kernel`'s loop with
 :func:`fit_hypothesis` (:func:`~app.geometry.ring.kernels.hypothesis_kernel`'s arithmetic),
 :func:`radius_only_count` :func:`~app.geometry.ring.kernels.radius_only_kernel`'s: the same
-seeds, in the same order, and the same hypotheses (``tests/test_ring_kernels.py``).
+seeds, in the same order, and the same hypotheses (``tests/geometry/test_ring_kernels.py``).
 """
 
 from __future__ import annotations

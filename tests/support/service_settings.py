@@ -1,0 +1,19 @@
+"""The service's settings as the tests start it: no 3-D port, recordings under the test's
+temporary directory; each test file adds what it needs."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from app.server.settings import Settings
+
+#: the simulation and the uploads in the test's own process, nothing started by itself
+IN_PROCESS: dict[str, Any] = dict(sim_autostart=False, sim_in_process=True, uploads_in_process=True)
+
+
+def service_settings(tmp_path: Path, **kw: Any) -> Settings:
+    """``Settings`` with ``viser_enabled=False``, ``recordings_dir=tmp_path / "rec"`` and ``kw``."""
+    base: dict[str, Any] = dict(viser_enabled=False, recordings_dir=tmp_path / "rec")
+    base.update(kw)
+    return Settings(**base)
