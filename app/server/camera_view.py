@@ -15,12 +15,13 @@ from __future__ import annotations
 import threading
 import time
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Literal
 
 import cv2
 
 from app.server.schemas import TickRecord
 from app.streams.annotations import Side, draw_marks, image_marks
+from app.streams.frames import RawFrame
 
 Kind = Literal["live", "upload"]
 
@@ -47,19 +48,19 @@ class CameraView:
         self.period_s = 1.0 / image_hz
         self._kept_at = -1e9
         self._lock = threading.Lock()
-        self._latest: dict[Kind, tuple[TickRecord, Any]] = {}
+        self._latest: dict[Kind, tuple[TickRecord, RawFrame]] = {}
         self._encoded: dict[tuple[Kind, Side], CameraImage] = {}
         self.encoded_count = 0
 
-    def on_tick(self, record: TickRecord, raw: Any = None) -> None:
-        if raw is None or not hasattr(raw, "left_image"):
+    def on_tick(self, record: TickRecord, raw: RawFrame | None = None) -> None:
+        if raw is None:
             return
         kind: Kind = "upload" if record.source == "upload" else "live"
         if kind == "live":
             now = time.monotonic()
             if now - self._kept_at < self.period_s:
                 return
-            if getattr(raw, "left_image", None) is None:  # read now: the slot is soon reused
+            if raw.left_image is None:  # read now: the slot is soon reused
                 return
             self._kept_at = now
         with self._lock:
@@ -75,10 +76,10 @@ class CameraView:
         record, raw = latest
         if cached is not None and cached.seq == record.seq:
             return cached
-        img = getattr(raw, f"{side}_image", None)
+        img = raw.left_image if side == "left" else raw.right_image
         if img is None:  # overwritten before it was read (or none this tick)
             return cached
-        windows = getattr(raw, "image_windows_px", None)
+        windows = raw.image_windows_px
         marks = image_marks(
             record.pose,
             side,

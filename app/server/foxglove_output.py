@@ -8,13 +8,14 @@ logger's queue drops what it cannot keep up with.
 from __future__ import annotations
 
 import time
-from typing import Any
 
 from app.geometry.calibration import StereoCalibration
 from app.server.mcap_recording import default_mount, mcap_tick, telemetry_schema
 from app.server.schemas import TickRecord
 from app.streams.foxglove_live import FoxgloveLive
+from app.streams.frames import RawFrame
 from app.streams.mcap_log import FrameInfo, RawPair
+from app.types import UInt8Array
 
 
 class FoxgloveOutput:
@@ -40,19 +41,21 @@ class FoxgloveOutput:
         )
         self.port = self.live.port
 
-    def on_tick(self, record: TickRecord, raw: Any = None) -> None:
+    def on_tick(self, record: TickRecord, raw: RawFrame | None = None) -> None:
         """Tick-loop subscriber: the record now, its images at the reduced rate."""
         line = record.model_dump_json().encode()
         self.live.write_tick(mcap_tick(record, line, raw))
         now = time.monotonic()
         if raw is None or now - self._last_image < self.image_period_s:
             return
-        frame = getattr(raw, "frame", None)  # a stream tick carries its StereoFrame
+        frame = raw.stereo_frame  # a stream tick carries its StereoFrame
+        left: UInt8Array | None
+        right: UInt8Array | None
         if frame is not None:
             left, right = frame.left, frame.right
             info = FrameInfo(frame.seq, frame.t_s, frame.t_left_s, frame.t_right_s)
         else:
-            left, right = getattr(raw, "left_image", None), getattr(raw, "right_image", None)
+            left, right = raw.left_image, raw.right_image
             info = FrameInfo(record.seq, record.t_s)
         if left is None or right is None:
             return

@@ -6,6 +6,9 @@ import threading
 
 import numpy as np
 
+from app.streams.frames import StereoFrame
+from app.types import FloatArray, Rect
+
 ImagePair = tuple[np.ndarray | None, np.ndarray | None]
 
 
@@ -32,3 +35,16 @@ class LazyImagePair:
     @property
     def right_image(self) -> np.ndarray | None:
         return self._pair()[1]
+
+    # the rest of :class:`app.streams.frames.RawFrame`: nothing by default
+    @property
+    def stereo_frame(self) -> StereoFrame | None:
+        return None
+
+    @property
+    def image_windows_px(self) -> tuple[list[Rect], list[Rect]] | None:
+        return None
+
+    @property
+    def camera_pose_T(self) -> tuple[FloatArray, FloatArray] | None:
+        return None

@@ -9,10 +9,9 @@ source's clock: the stream's capture time, the simulation's time for simulated t
 
 from __future__ import annotations
 
-from typing import Any
-
 from app.server import mcap_recording
 from app.server.schemas import TickRecord
+from app.streams.frames import RawFrame
 from app.streams.landing_target import RigMount, landing_target
 from app.streams.mavlink_link import LinkStats, MavlinkLink
 
@@ -39,7 +38,7 @@ class MavlinkOutput:
     def stats(self) -> LinkStats:
         return self.link.stats
 
-    def on_tick(self, record: TickRecord, raw: Any = None) -> None:
+    def on_tick(self, record: TickRecord, raw: RawFrame | None = None) -> None:
         if record.source == "upload":
             return
         pose = record.pose if record.lock else None

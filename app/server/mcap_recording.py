@@ -13,6 +13,7 @@ from typing import Any
 from app.geometry.calibration import StereoCalibration
 from app.server.schemas import TickRecord
 from app.sim.rig_mount import CameraMount
+from app.streams.frames import RawFrame
 from app.streams.mcap_log import EncodedPair, McapLogWriter, McapStats, McapTick, frame_info
 
 
@@ -31,13 +32,13 @@ def default_mount(plant: str | None = None) -> CameraMount:
     return camera_mount(DockingConfig() if plant is None else DockingConfig(plant=plant))
 
 
-def mcap_tick(record: TickRecord, line: bytes, raw: Any = None) -> McapTick:
+def mcap_tick(record: TickRecord, line: bytes, raw: RawFrame | None = None) -> McapTick:
     """The MCAP view of one record (``line``: its JSONL line) and its raw tick's windows."""
 
     def v3(v: Any) -> tuple[float, float, float] | None:
         return None if v is None else (float(v[0]), float(v[1]), float(v[2]))
 
-    windows = getattr(raw, "image_windows_px", None)
+    windows = None if raw is None else raw.image_windows_px
     return McapTick(
         seq=record.seq,
         t_s=record.t_s,
@@ -63,7 +64,7 @@ class RecordingMcap:
             path, calibration=calibration, telemetry_schema=telemetry_schema(), mount=mount
         )
 
-    def on_record(self, record: TickRecord, line: bytes, raw: Any = None) -> None:
+    def on_record(self, record: TickRecord, line: bytes, raw: RawFrame | None = None) -> None:
         self.writer.write_tick(mcap_tick(record, line, raw))
 
     def on_pair(self, entry: dict[str, Any], left_png: bytes, right_png: bytes) -> None:

@@ -30,6 +30,7 @@ import numpy as np
 import numpy.typing as npt
 
 from app.server.schemas import Control, Guidance, StreamInfo, TickRecord
+from app.streams.frames import RawFrame
 from app.types import FloatArray
 from app.vision.result import PoseResult
 
@@ -40,16 +41,6 @@ if TYPE_CHECKING:
 
 Source = Literal["sim", "upload", "video", "camera", "push"]
 Vec3 = tuple[float, float, float]
-
-
-class RawFrame(Protocol):
-    """What the subscribers get with a record: the pair's images (``None`` when not kept or
-    already overwritten), read on first access where they are lazy."""
-
-    @property
-    def left_image(self) -> np.ndarray | None: ...
-    @property
-    def right_image(self) -> np.ndarray | None: ...
 
 
 class SimState(RawFrame, Protocol):

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import asyncio
 import threading
-from typing import Any
 
 from app.server.schemas import TickRecord
+from app.streams.frames import RawFrame
 
 # The images are never part of a record; these bulky fields are left out of the stream too.
 STREAM_EXCLUDE = {"led_truth_cam_mm": True}
@@ -64,7 +64,7 @@ class TelemetryHub:
             c.put(message)
         self.sent += 1
 
-    def publish(self, record: TickRecord, raw: Any = None) -> None:
+    def publish(self, record: TickRecord, raw: RawFrame | None = None) -> None:
         """Subscriber for :class:`TickLoop` (called from the tick thread)."""
         loop = self._loop
         if loop is None or loop.is_closed() or self.client_count == 0:

@@ -18,10 +18,10 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from app.types import Rect
 from app.vision.result import PoseResult
 
 Side = Literal["left", "right"]
-Rect = tuple[int, int, int, int]
 
 # LED id → RGB colour (ids 1..5, then cycling): the same palette in the 3-D scene.
 LED_COLORS_RGB: tuple[tuple[int, int, int], ...] = (

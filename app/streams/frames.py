@@ -11,7 +11,7 @@ from typing import Literal, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from app.types import UInt8Array
+from app.types import FloatArray, Rect, UInt8Array
 
 SourceKind = Literal["video", "camera", "push"]
 
@@ -43,6 +43,28 @@ class StereoFrame:
         if self.t_left_s is None or self.t_right_s is None:
             return 0.0
         return abs(self.t_left_s - self.t_right_s)
+
+
+class RawFrame(Protocol):
+    """The raw side of a published tick, what the subscribers may read besides its record.
+
+    ``left_image`` / ``right_image``: the pair (``None`` when not kept or already overwritten;
+    read on first access where they are lazy); ``stereo_frame``: a camera stream's pair with
+    its own times and counter (``None`` for the simulation and uploads);
+    ``image_windows_px``: the rectangles rendered or searched in the left/right image;
+    ``camera_pose_T``: the left camera's true pose in the tanker frame (R_TC, origin m), where
+    a simulation knows it."""
+
+    @property
+    def left_image(self) -> UInt8Array | None: ...
+    @property
+    def right_image(self) -> UInt8Array | None: ...
+    @property
+    def stereo_frame(self) -> StereoFrame | None: ...
+    @property
+    def image_windows_px(self) -> tuple[list[Rect], list[Rect]] | None: ...
+    @property
+    def camera_pose_T(self) -> tuple[FloatArray, FloatArray] | None: ...
 
 
 @dataclass

@@ -53,6 +53,21 @@ class StreamTick:
     def right_image(self) -> UInt8Array:
         return self.frame.right
 
+    @property
+    def stereo_frame(self) -> StereoFrame:
+        """The pair with the source's own times and counter."""
+        return self.frame
+
+    @property
+    def image_windows_px(self) -> None:
+        """A stream's frames are whole images (the tracker's windows are its own)."""
+        return None
+
+    @property
+    def camera_pose_T(self) -> None:
+        """A real camera's pose in the tanker frame is not known."""
+        return None
+
 
 class StreamProcessor:
     def __init__(

@@ -61,6 +61,7 @@ from app.geometry.ring import (
     view_angle_deg,
 )
 from app.geometry.triangulation import refine_reprojection, triangulate_linear
+from app.types import Rect
 from app.vision.appearance import (
     BlobTable,
     appearance_ok,
@@ -97,7 +98,6 @@ from app.vision.types import Blob
 
 __all__ = ["ImageError", "Rect", "StereoTracker", "TrackerStats"]
 
-Rect = tuple[int, int, int, int]  # (x0, y0, x1, y1) px, half-open
 UNKNOWN_MOTION_PX = 24.0  # window growth (px) while an LED's velocity is not known yet
 Mode = Literal["acquired", "tracked", "lost"]
 

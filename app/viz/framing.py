@@ -13,11 +13,16 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from app.geometry.rotations import euler_to_matrix
+
+if TYPE_CHECKING:
+    from app.server.schemas import (
+        TickRecord,  # the record's type only: viz imports no server module
+    )
 
 #: Viewing direction (from the target towards the camera): right of and above the approach,
 #: slightly behind the receiver (tanker frame, z down → negative z is up).
@@ -28,7 +33,7 @@ FUSELAGE_M = ((0.4, 0.0, 0.0), (-1.6, 0.0, 0.0))  # nose and tail of the drawn f
 WING_TIPS_M = ((-0.5, 1.45, 0.05), (-0.5, -1.45, 0.05))
 
 
-def docking_targets(record: Any) -> np.ndarray:
+def docking_targets(record: TickRecord) -> np.ndarray:
     """Points (N×3, m) that must be in view for a tick record; empty if it has none.
 
     Drogue centre and rim extremes (``drogue_truth_m``), probe tip, and the receiver's nose,

@@ -23,15 +23,21 @@ from collections import deque
 from collections.abc import Callable, Coroutine
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import viser
 import viser.uplot as uplot
 
 from app.sim.sim_config import LED_COUNT, TURBULENCE_LEVELS, SimConfig
-from app.streams.annotations import annotate
+from app.streams.annotations import Side, annotate
+from app.streams.frames import RawFrame
 from app.viz.access import MAX_TOKEN_CHARS, AccessPolicy
+
+if TYPE_CHECKING:
+    from app.server.schemas import (
+        TickRecord,  # the record's type only: viz imports no server module
+    )
 
 log = logging.getLogger(__name__)
 WINDOW = 300  # samples kept in each chart (fixed window)
@@ -488,7 +494,7 @@ class DockingGui:
             dq = self._buf[key] = deque(maxlen=WINDOW)
         dq.append(value)
 
-    def record(self, record: Any) -> None:
+    def record(self, record: TickRecord) -> None:
         """Accumulate one simulated tick into the chart buffers (cheap; every tick).
 
         The charts hold the current run only: a new run (or time going back) clears them, so
@@ -543,7 +549,7 @@ class DockingGui:
         if not content.startswith(STOPPED_NOTE):
             self.status.content = STOPPED_NOTE + "  \n" + content
 
-    def set_status(self, record: Any, tick_rate_hz: float, dropped: int) -> None:
+    def set_status(self, record: TickRecord, tick_rate_hz: float, dropped: int) -> None:
         lock = "**LOCK**" if record.lock else f"**NO LOCK** ({record.lock_reason or '?'})"
         lat = record.timings_ms.get("step", record.timings_ms.get("total", float("nan")))
         lines = [
@@ -579,11 +585,12 @@ class DockingGui:
             )
         self.status.content = "  \n".join(lines)
 
-    def set_images(self, record: Any, raw: Any) -> None:
-        for side, handle in (("left", self.img_left), ("right", self.img_right)):
-            img = getattr(raw, f"{side}_image", None)
+    def set_images(self, record: TickRecord, raw: RawFrame | None) -> None:
+        sides: tuple[tuple[Side, Any], ...] = (("left", self.img_left), ("right", self.img_right))
+        for side, handle in sides:
+            img = None if raw is None else (raw.left_image if side == "left" else raw.right_image)
             if img is not None:
-                windows = getattr(raw, "image_windows_px", None)
+                windows = None if raw is None else raw.image_windows_px
                 handle.image = annotate(
                     img,
                     record.pose,

@@ -14,9 +14,9 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass
-from types import SimpleNamespace
-from typing import Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 import viser
@@ -25,6 +25,12 @@ import viser.transforms as vtf
 from app.geometry.led_ids import DEFAULT_PHASE_DEG
 from app.geometry.rotations import euler_to_matrix
 from app.streams.annotations import LED_COLORS_RGB, annotate, led_color
+from app.streams.frames import RawFrame
+
+if TYPE_CHECKING:
+    from app.server.schemas import (
+        TickRecord,  # the record's type only: viz imports no server module
+    )
 
 DROGUE_RADIUS_M = 0.305
 TRAIL_POINTS = 240
@@ -146,19 +152,33 @@ class ReceiverGeometry:
         return cls(m.r_bc, m.camera_b, m.nose_b, m.probe_tip_b)
 
 
+class HasUavState(Protocol):
+    """A tick record, or the receiver state of the frame's time: ``uav_state`` (12 states)."""
+
+    @property
+    def uav_state(self) -> Sequence[float] | None: ...
+
+
+@dataclass(frozen=True)
+class FrameUavState:
+    """The receiver's state when a tick's camera frame was taken (12 states)."""
+
+    uav_state: Sequence[float] | None
+
+
 def camera_pose_from_tick(
-    record: Any, raw: Any, geometry: ReceiverGeometry | None
+    record: HasUavState, raw: RawFrame | None, geometry: ReceiverGeometry | None
 ) -> CameraPose | None:
     """The left camera's pose in the tanker frame for a simulated tick, if it can be known.
 
     ``raw.camera_pose_T`` ((R_TC, t_TC)) when given; otherwise from the receiver state
     (``uav_state``: φ, θ, ψ at 6..8, position at 9..11) and the camera mounting.
     """
-    pose = getattr(raw, "camera_pose_T", None)
+    pose = None if raw is None else raw.camera_pose_T
     if pose is not None:
         R, t = pose
         return CameraPose(np.asarray(R, float), np.asarray(t, float))
-    uav = getattr(record, "uav_state", None)
+    uav = record.uav_state
     if geometry is None or uav is None or len(uav) < 12:
         return None
     R_TB = euler_matrix(uav[6], uav[7], uav[8])
@@ -303,7 +323,14 @@ class DockingScene:
         self._trail.clear()
         self._ref.clear()
 
-    def update(self, record: Any, raw: Any, *, images: bool = False, frame_uav: Any = None) -> None:
+    def update(
+        self,
+        record: TickRecord,
+        raw: RawFrame | None,
+        *,
+        images: bool = False,
+        frame_uav: Any = None,
+    ) -> None:
         """Update every node from a tick record (inside ``server.atomic()``).
 
         ``frame_uav``: the receiver state when this tick's camera frame was taken (the
@@ -318,9 +345,7 @@ class DockingScene:
             cam_now = camera_pose_from_tick(record, raw, self.geometry)
             cam = cam_now
             if frame_uav is not None:
-                cam = camera_pose_from_tick(
-                    SimpleNamespace(uav_state=frame_uav), raw, self.geometry
-                )
+                cam = camera_pose_from_tick(FrameUavState(frame_uav), raw, self.geometry)
             if cam_now is not None:
                 self._last_cam = cam_now
         else:  # an uploaded pair: shown as seen from the current camera pose
@@ -333,7 +358,7 @@ class DockingScene:
                 self._update_images(record, raw)
 
     def _update_sim(
-        self, record: Any, cam: CameraPose | None, cam_frame: CameraPose | None
+        self, record: TickRecord, cam: CameraPose | None, cam_frame: CameraPose | None
     ) -> None:
         drogue = record.drogue_truth_m
         if drogue is not None:
@@ -395,7 +420,7 @@ class DockingScene:
             self.frustums["right"].position = cr
             self.frustums["right"].wxyz = wxyz_from_matrix(cam.R_TC @ self._R_lr)
 
-    def _update_measured(self, record: Any, cam: CameraPose | None) -> None:
+    def _update_measured(self, record: TickRecord, cam: CameraPose | None) -> None:
         pose = record.pose
         if pose is None or not pose.leds or cam is None:
             self.match_lines.visible = False
@@ -431,12 +456,12 @@ class DockingScene:
             self.measured_center.visible = False
             self.measured_ring.visible = False
 
-    def _update_images(self, record: Any, raw: Any) -> None:
+    def _update_images(self, record: TickRecord, raw: RawFrame | None) -> None:
         for side in ("left", "right"):
-            img = getattr(raw, f"{side}_image", None)
+            img = None if raw is None else (raw.left_image if side == "left" else raw.right_image)
             if img is None:
                 continue
-            windows = getattr(raw, "image_windows_px", None)
+            windows = None if raw is None else raw.image_windows_px
             rgb = annotate(
                 img,
                 record.pose,

@@ -12,15 +12,21 @@ import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import viser
 
+from app.streams.frames import RawFrame
 from app.viz.access import AccessPolicy, handshake_path, install_gate
 from app.viz.framing import docking_targets, frame_view
 from app.viz.gui import DockingGui
 from app.viz.scene import DockingScene, ReceiverGeometry
+
+if TYPE_CHECKING:
+    from app.server.schemas import (
+        TickRecord,  # the record's type only: viz imports no server module
+    )
 
 log = logging.getLogger(__name__)
 UPLOAD_HOLD_S = 8.0  # an uploaded pair stays on the image panels this long
@@ -157,7 +163,7 @@ class VizService:
         except Exception:
             log.exception("viser: minimizing the panel of client %s failed", client.client_id)
 
-    def _reframe_initial(self, record: Any) -> None:
+    def _reframe_initial(self, record: TickRecord) -> None:
         """A new run: viser's initial camera (where a new view starts, and "Reset View")
         frames its drogue and receiver; views already open keep their camera."""
         if self.server is None or record.run == self._framed_run:
@@ -202,7 +208,7 @@ class VizService:
         return [] if record is None else docking_targets(record).tolist()
 
     # ---- inputs -----------------------------------------------------------------------
-    def publish(self, record: Any, raw: Any) -> None:
+    def publish(self, record: TickRecord, raw: RawFrame | None) -> None:
         """Tick-loop subscriber: keep only the latest; the viz thread picks it up."""
         with self._lock:
             if record.source == "upload":

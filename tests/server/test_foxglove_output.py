@@ -18,6 +18,7 @@ from app.resources import load_default_calibration
 from app.server.foxglove_output import FoxgloveOutput
 from app.server.schemas import TickRecord
 from app.vision.result import PoseResult
+from tests.support.raw_frames import RawPair
 
 TOPICS = {
     "/camera/left/image": "foxglove.CompressedImage",
@@ -31,7 +32,7 @@ TOPICS = {
 }
 
 
-class _Raw:
+class _Raw(RawPair):
     def __init__(self) -> None:
         rng = np.random.default_rng(0)
         self.left_image = rng.integers(0, 256, (64, 80), dtype=np.uint8)

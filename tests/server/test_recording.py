@@ -26,6 +26,7 @@ from app.server.routers import recording as recording_router
 from app.server.schemas import TickRecord
 from app.server.settings import Settings
 from tests.support.fake_sim import FakeSim  # the tests' fake step source
+from tests.support.raw_frames import RawPair
 
 
 def _app(tmp_path: Path, **kw: object):
@@ -193,7 +194,7 @@ def _tick(i: int) -> TickRecord:
     )
 
 
-class _Raw:
+class _Raw(RawPair):
     """A tick's raw side with a stereo pair (what the frame writer records)."""
 
     def __init__(self, rng: np.random.Generator) -> None:

@@ -23,6 +23,7 @@ from fastapi.testclient import TestClient
 from app.server.recording import SCENE_LOST_NOTE, Recorder
 from app.server.routers import recording as recording_router
 from app.server.schemas import TickRecord
+from tests.support.raw_frames import RawPair
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -350,7 +351,7 @@ def test_frames_of_an_abandoned_recording_are_recovered_and_replayable(tmp_path:
         left = np.full((16, 20), i, np.uint8)
         right = np.full((16, 20), 100 + i, np.uint8)
         images.append((left, right))
-        rec.on_tick(_record(i), SimpleNamespace(left_image=left, right_image=right))
+        rec.on_tick(_record(i), RawPair(left_image=left, right_image=right))
     writer = rec.frame_writer
     deadline = time.monotonic() + 10
     while writer.pairs < 6 and time.monotonic() < deadline:  # the writer thread catches up

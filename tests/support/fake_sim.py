@@ -35,6 +35,9 @@ class FakeSimState:
     led_truth_cam_mm: np.ndarray | None = None
     left_image: np.ndarray | None = None
     right_image: np.ndarray | None = None
+    stereo_frame: None = None
+    image_windows_px: None = None
+    camera_pose_T: None = None
 
 
 @dataclass
@@ -58,6 +61,9 @@ class FakeTick:
     captured: bool = False
     miss_m: float | None = None
     rel_position_m: np.ndarray = field(default_factory=lambda: np.array([5.0, 0.0, 0.0]))
+    stereo_frame: None = None
+    image_windows_px: None = None
+    camera_pose_T: None = None
 
 
 class FakeSim:

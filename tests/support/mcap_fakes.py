@@ -7,6 +7,7 @@ import numpy as np
 
 from app.server.schemas import TickRecord
 from app.vision.result import DrogueResult, LedResult, PoseResult
+from tests.support.raw_frames import RawPair
 
 
 def fake_record(i: int) -> TickRecord:
@@ -26,7 +27,7 @@ def fake_record(i: int) -> TickRecord:
     )
 
 
-class FakeRaw:
+class FakeRaw(RawPair):
     """A raw sim tick: a stereo pair (noise: PNG cannot cheat) and the tracker's windows."""
 
     def __init__(self, rng: np.random.Generator) -> None:

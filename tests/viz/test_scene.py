@@ -14,6 +14,7 @@ from app.server.schemas import Control, TickRecord
 from app.vision.result import DrogueResult, LedResult, PoseResult
 from app.viz.scene import NODE_NAMES, CameraPose, DockingScene
 from app.viz.service import ViserPortError, start_viser
+from tests.support.raw_frames import RawPair
 
 
 def _free_port() -> int:
@@ -76,7 +77,7 @@ def test_scene_has_named_nodes_and_updates_in_place(server) -> None:
             center_mm=(200.0, 0.0, 5000.0), normal=(0.0, 0.0, -1.0), radius_mm=75.0, rms_mm=0.1
         ),
     )
-    raw = SimpleNamespace(
+    raw = RawPair(
         camera_pose_T=(cam.R_TC, cam.t_TC),
         left_image=np.zeros((1024, 1280), np.uint8),
         right_image=np.zeros((1024, 1280), np.uint8),

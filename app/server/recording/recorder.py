@@ -29,8 +29,11 @@ from app.server.recording.meta import (
 )
 from app.server.recording.recovery import recover_recordings
 from app.server.schemas import TickRecord
+from app.streams.frames import RawFrame
 
 if TYPE_CHECKING:
+    from app.geometry.calibration import StereoCalibration
+    from app.server.mcap_recording import RecordingMcap
     from app.sim.rig_mount import CameraMount
     from app.streams.recording import FrameRecordingWriter
 
@@ -69,7 +72,7 @@ class Recorder:
         max_mb: float = 200.0,
         max_frames_mb: float = 4000.0,
         min_free_mb: float = 0.0,
-        scene_serializer_factory: Any = None,
+        scene_serializer_factory: Callable[[], SceneSerializer] | None = None,
         recover: bool = True,
         mcap: bool = True,
         mcap_plant: str | None = None,
@@ -95,10 +98,10 @@ class Recorder:
         self._last_sync = 0.0
         self._dirty = False
         self._frames: FrameRecordingWriter | None = None
-        self._accept_frame: Callable[[Any], bool] | None = None
+        self._accept_frame: Callable[[RawFrame], bool] | None = None
         self.mcap = mcap  # also write <id>.mcap (app.server.mcap_recording)
         self.mcap_plant = mcap_plant  # the airframe whose rig mount /tf uses (None: default)
-        self._mcap: Any = None  # app.server.mcap_recording.RecordingMcap
+        self._mcap: RecordingMcap | None = None
         self._mount: CameraMount | None = None
         self.recovered: list[RecordingMeta] = self.recover() if recover else []
 
@@ -121,8 +124,8 @@ class Recorder:
         self,
         *,
         frames: bool = False,
-        calibration: Any = None,
-        accept_frame: Callable[[Any], bool] | None = None,
+        calibration: StereoCalibration | None = None,
+        accept_frame: Callable[[RawFrame], bool] | None = None,
         source: str | None = None,
     ) -> RecordingMeta:
         """Start a recording. ``frames``: also the raw stereo pairs of every tick that has
@@ -221,7 +224,7 @@ class Recorder:
         ).start()
         return out
 
-    def on_tick(self, record: TickRecord, raw: Any = None) -> None:
+    def on_tick(self, record: TickRecord, raw: RawFrame | None = None) -> None:
         """Tick-loop subscriber: append and flush the record; request a stop at a bound."""
         with self._lock:
             info, fh = self._info, self._fh
@@ -254,14 +257,16 @@ class Recorder:
         """Telemetry + scene (``max_mb``); the frames have their own bound (the writer's)."""
         return info.telemetry_bytes + self._scene_bytes_est
 
-    def _submit_frame(self, writer: Any, record: TickRecord, raw: Any) -> None:
+    def _submit_frame(
+        self, writer: FrameRecordingWriter, record: TickRecord, raw: RawFrame
+    ) -> None:
         """(lock held) Queue the tick's stereo pair for the frame writer (never blocks)."""
         accept = self._accept_frame
         if accept is not None and not accept(raw):
             return
-        frame = getattr(raw, "frame", None)  # a stream tick carries its StereoFrame
+        frame = raw.stereo_frame  # a stream tick carries its StereoFrame
         if frame is None:
-            left, right = getattr(raw, "left_image", None), getattr(raw, "right_image", None)
+            left, right = raw.left_image, raw.right_image
             if left is None or right is None:
                 return
             from app.streams.frames import StereoFrame
@@ -269,7 +274,9 @@ class Recorder:
             frame = StereoFrame(left=left, right=right, t_s=record.t_s, seq=record.seq)
         writer.submit(frame, record.seq)
 
-    def _open_mcap(self, rec_id: str, calibration: Any) -> Any:
+    def _open_mcap(
+        self, rec_id: str, calibration: StereoCalibration | None
+    ) -> RecordingMcap | None:
         """(lock held) The recording's MCAP log, or None (disabled, or it cannot be opened:
         logged; the recording goes on without it)."""
         if not self.mcap:
@@ -282,7 +289,7 @@ class Recorder:
             log.exception("recording %s: the MCAP log could not be opened", rec_id)
             return None
 
-    def _discard_mcap(self, mcap: Any) -> None:
+    def _discard_mcap(self, mcap: RecordingMcap | None) -> None:
         if mcap is not None:
             mcap.close()
             mcap.path.unlink(missing_ok=True)

@@ -13,7 +13,7 @@ and its telemetry stays downloadable.
 
 from __future__ import annotations
 
-from typing import Annotated, Any
+from typing import Annotated
 
 from fastapi import APIRouter, Depends, HTTPException, Query, status
 from fastapi.responses import FileResponse
@@ -21,6 +21,8 @@ from fastapi.responses import FileResponse
 from app.server.dependencies import StateDep, require_token
 from app.server.recording import RecordingError, RecordingMeta
 from app.server.schemas import Message
+from app.streams.frames import RawFrame
+from app.streams.processor import StreamTick
 
 router = APIRouter(tags=["recording"])
 
@@ -52,11 +54,10 @@ def recording_start(
     if frames and processor is not None:
         first_epoch = processor.epoch + 1
 
-        def accept(raw: Any) -> bool:
-            epoch = getattr(raw, "track_epoch", None)
-            if epoch is None or getattr(raw, "processor", None) is not processor:
+        def accept(raw: RawFrame) -> bool:
+            if not isinstance(raw, StreamTick) or raw.processor is not processor:
                 return True  # the simulation, or a source switched to since: a fresh track
-            return bool(epoch >= first_epoch)
+            return raw.track_epoch >= first_epoch
 
     try:
         info = state.recorder.start(

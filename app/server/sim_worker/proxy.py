@@ -39,7 +39,7 @@ from app.types import FloatArray, UInt8Array
 if TYPE_CHECKING:
     from app.geometry.calibration import StereoCalibration
     from app.sim.docking import DockingConfig, DockingTick
-    from app.sim.stereo_render import Rect
+    from app.types import Rect
 
 log = logging.getLogger(__name__)
 

@@ -5,15 +5,17 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from app.sim.receiver import INPUT_NAMES, STATE_NAMES
-from app.sim.stereo_render import Rect
-from app.types import FloatArray
+from app.types import FloatArray, Rect
 from app.vision.result import PoseResult
+
+if TYPE_CHECKING:
+    from app.streams.frames import StereoFrame
 
 
 @dataclass
@@ -54,6 +56,11 @@ class DockingTick:
     # was taken (before the dynamics step): the 3-D view draws the cameras from it, whatever
     # the airframe's mounting
     camera_pose_T: tuple[FloatArray, FloatArray] | None = None
+
+    @property
+    def stereo_frame(self) -> StereoFrame | None:
+        """A simulated tick has no camera stream's frame (its images are the fields)."""
+        return None
 
 
 @dataclass

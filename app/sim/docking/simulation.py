@@ -68,9 +68,8 @@ from app.sim.imperfections import (
 )
 from app.sim.plant import ReceiverPlant
 from app.sim.receiver import Actuators
-from app.sim.stereo_render import Rect
 from app.sim.turbulence import DrydenTurbulence
-from app.types import FloatArray
+from app.types import FloatArray, Rect
 
 SEARCH_GAP_M = 5.0  # closest gap flown on the a-priori drogue position before acquisition
 GUST_HISTORY_TICKS = 64

@@ -21,8 +21,8 @@ from app.sim.camera_sensor import StereoCameraSensor
 from app.sim.docking.config import DockingConfig
 from app.sim.imperfections import resolve
 from app.sim.led_ring import LedRing
-from app.sim.stereo_render import Rect, RenderSettings
-from app.types import FloatArray
+from app.sim.stereo_render import RenderSettings
+from app.types import FloatArray, Rect
 from app.vision.error_bound import ErrorBoundConfig
 from app.vision.pipeline import PipelineConfig
 from app.vision.result import PoseResult

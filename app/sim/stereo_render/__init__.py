@@ -9,6 +9,6 @@
 """
 
 from app.sim.stereo_render.renderer import render_pair
-from app.sim.stereo_render.scene import LED_BGR, Rect, RenderedPair, RenderSettings, RenderTruth
+from app.sim.stereo_render.scene import LED_BGR, RenderedPair, RenderSettings, RenderTruth
 
-__all__ = ["LED_BGR", "Rect", "RenderSettings", "RenderTruth", "RenderedPair", "render_pair"]
+__all__ = ["LED_BGR", "RenderSettings", "RenderTruth", "RenderedPair", "render_pair"]

@@ -34,9 +34,9 @@ from app.sim.stereo_render.blobs import (
     to_right,
 )
 from app.sim.stereo_render.distractors import Clutter, Extras, Keepout, make_clutter, make_extras
-from app.sim.stereo_render.scene import LED_BGR, Rect, RenderedPair, RenderSettings, RenderTruth
+from app.sim.stereo_render.scene import LED_BGR, RenderedPair, RenderSettings, RenderTruth
 from app.sim.stereo_render.sensor import clip_rects, compose, overlaps
-from app.types import FloatArray
+from app.types import FloatArray, Rect
 
 EXTRAS_STREAM = 0x676C6E74  # second seed word of the hostile extras' random stream
 

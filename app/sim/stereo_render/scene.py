@@ -17,7 +17,6 @@ from app.types import FloatArray
 # (B, G, R) weights of an LED seen through the green filter (mostly green).
 LED_BGR = np.array([0.45, 1.0, 0.30], dtype=np.float32)
 MIN_DEPTH_MM = 1.0  # nearer than this to a camera (mm) a point is not projected
-Rect = tuple[int, int, int, int]  # (x0, y0, x1, y1) px, half-open
 
 
 @dataclass(frozen=True)

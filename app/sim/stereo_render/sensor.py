@@ -12,7 +12,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from app.sim.stereo_render.blobs import Blob, blob_patches, patch_box
-from app.sim.stereo_render.scene import Rect, RenderSettings
+from app.sim.stereo_render.scene import RenderSettings
+from app.types import Rect
 
 NOISE_FIELD_PAD = 256  # px added to each side of the cached noise field (fast_noise)
 

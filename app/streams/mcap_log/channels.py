@@ -40,7 +40,8 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from app.streams.annotations import Rect, Side
+from app.streams.annotations import Side
+from app.types import Rect
 from app.vision.result import PoseResult
 
 FORMAT = "aar-dock-mcap/1"
