@@ -1,4 +1,4 @@
-"""Breakaway logic (paper §6.1 guidance; Issue 3): abort inside the last metre if the predicted miss
+"""Breakaway logic (paper §6.1 guidance): abort inside the last metre if the predicted miss
 exceeds the capture radius, or if the drogue lock is lost near contact.
 
 The predicted miss extrapolates the lateral (y, z, tanker frame) offset of the drogue from the

@@ -15,8 +15,8 @@ restoring force ``−D₀ d / L``; a relative cross-wind ``(g − ḋ)`` tilts t
 
 so ``ω = √(D₀/(m L))`` (≈ 1.43 rad/s, period ≈ 4.4 s), damping ratio ``ζ = D₀/(2 m V ω)`` (≈ 0.09),
 and a steady cross-gust ``g`` moves the drogue by ``L g / V`` (the hose aligns with the relative
-wind) — the properties the tests check. This is the validated reduced-order alternative the issue
-allows in place of the 10-link lumped hose.
+wind) — the properties the tests check. This is a validated reduced-order alternative, used
+in place of a 10-link lumped hose.
 
 Bow wave (documented simple model, not from a CFD source): as the receiver's nose approaches, the
 drogue is pushed away from the nose axis and upwards with a force

@@ -21,7 +21,9 @@ from app.geometry.ring import RingParams, find_ring
 from app.resources import load_default_calibration
 from app.sim.led_ring import stereo_center_x_mm, tilted_normal
 from app.sim.stereo_render import RenderSettings, render_pair
+from app.vision.features import BlobGate, extract_blobs
 from app.vision.pipeline import NavigationPipeline
+from app.vision.preprocess import binarize, median_filter, to_gray
 from app.vision.tracking import StereoTracker
 
 
@@ -38,6 +40,9 @@ def compile_kernels() -> float:
         pair = render_pair(calib, centre, tilted_normal(10.0, 30.0), RenderSettings(), seed=i)
         pipeline.process(pair.left, pair.right)
         tracker.update(pair.left, pair.right)
+    # the whole-frame formulation with a given mask (features.extract_blobs, public API)
+    gray = to_gray(pair.left)
+    extract_blobs(gray, median_filter(binarize(gray, 128)), 10.0, BlobGate())
     # a refusal (no ring among the candidates) runs the ring search's diagnosis loop
     find_ring(np.array([[0.0, 0.0, 1e3], [40.0, 0.0, 1e3], [0.0, 300.0, 1e3]]), RingParams())
     return time.perf_counter() - t0
