@@ -19,6 +19,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from app.types import UInt8Array
+
 PROG = "aar-dock calibrate"
 
 
@@ -80,6 +82,7 @@ def _fail(message: str) -> int:
 
 def run(args: argparse.Namespace) -> int:
     import cv2
+    import numpy as np
 
     from app.calibration.board import Board, CheckerboardError, pair_name, parse_board
     from app.calibration.report_plot import write_report_png
@@ -103,13 +106,14 @@ def run(args: argparse.Namespace) -> int:
         names = [
             pair_name(lf.name, rf.name) for lf, rf in zip(left_files, right_files, strict=True)
         ]
-        lefts, rights = [], []
+        lefts: list[UInt8Array] = []
+        rights: list[UInt8Array] = []
         for lf, rf in zip(left_files, right_files, strict=True):
             for f, dest in ((lf, lefts), (rf, rights)):
                 img = cv2.imread(str(f), cv2.IMREAD_GRAYSCALE)
                 if img is None:
                     raise CheckerboardError(f"cannot read image {f}")
-                dest.append(img)
+                dest.append(np.asarray(img, dtype=np.uint8))
         result = calibrate_checkerboard(
             names,
             lefts,

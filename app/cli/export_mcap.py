@@ -45,6 +45,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"aar-dock export-mcap: {out} exists (--force replaces it)", file=sys.stderr)
         return 2
     try:
+        calib: StereoCalibration | None
         if args.calib:
             calib = StereoCalibration.load(args.calib)
         else:

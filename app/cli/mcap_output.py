@@ -9,7 +9,7 @@ from __future__ import annotations
 import json
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 from app.geometry.calibration import StereoCalibration
 from app.streams.mcap_log import FrameInfo, McapLogWriter, McapTick, encode_pair
@@ -62,7 +62,7 @@ class TrackMcap:
             )
         )
         info = FrameInfo(f.seq, f.t_s, f.t_left_s, f.t_right_s, f.exposure_ms)
-        fmt = "png" if self.jpeg_quality is None else "jpeg"
+        fmt: Literal["png", "jpeg"] = "png" if self.jpeg_quality is None else "jpeg"
         pair = encode_pair(f.left, f.right, info, fmt, self.jpeg_quality or 90)
         self.writer.write_pair(pair, f.seq)
 

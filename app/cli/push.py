@@ -174,7 +174,12 @@ def run(args: argparse.Namespace) -> int:
                         try:  # the service answers only problems (at most one a second)
                             while True:
                                 reply = ws.recv(timeout=0)
-                                print(f"aar-dock push: service: {reply}", file=sys.stderr)
+                                text = (
+                                    reply.decode(errors="replace")
+                                    if isinstance(reply, bytes)
+                                    else reply
+                                )
+                                print(f"aar-dock push: service: {text}", file=sys.stderr)
                         except TimeoutError:
                             pass
                     stats = _final_stats(ws)

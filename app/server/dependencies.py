@@ -6,7 +6,7 @@ import secrets
 import threading
 import time
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Annotated, Any
+from typing import TYPE_CHECKING, Annotated
 
 from fastapi import Depends, HTTPException, Request, status
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
@@ -113,7 +113,6 @@ class AppState:
     mavlink: MavlinkOutput | None = None  # the MAVLink 2 output (settings.mavlink)
     camera_view: CameraView = field(default_factory=CameraView)  # the page's camera images
     foxglove: FoxgloveOutput | None = None  # Foxglove live (settings.foxglove_port)
-    extras: dict[str, Any] = field(default_factory=dict)
 
     def apply_sim_config(self, config: SimConfig) -> None:
         self.loop.set_config(config)

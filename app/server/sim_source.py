@@ -67,8 +67,8 @@ class PacedSource(Protocol):
     def pause(self) -> None: ...
 
 
-AnySource = StepSource | PacedSource
-SourceFactory = Callable[[SimConfig, "StereoCalibration | None"], AnySource]
+SimSource = StepSource | PacedSource
+SourceFactory = Callable[[SimConfig, "StereoCalibration | None"], SimSource]
 
 
 class SourceRestarted(RuntimeError):

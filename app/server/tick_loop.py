@@ -34,8 +34,8 @@ from app.server.clock import Clock, MonotonicClock
 from app.server.records import PacedTiming
 from app.server.schemas import SimConfig, TickRecord
 from app.server.sim_source import (
-    AnySource,
     PacedSource,
+    SimSource,
     SourceFactory,
     SourceRestarted,
     StepSource,
@@ -86,7 +86,7 @@ class TickLoop:
         self._history_s = history_s
         self.bus = bus if bus is not None else TelemetryBus(self.clock, self._history_len())
         self._lock = threading.RLock()  # guards the source and config
-        self._source: AnySource | None = None
+        self._source: SimSource | None = None
         self.running = False
         self.run = 0
         self._done_at: float | None = None
@@ -195,7 +195,7 @@ class TickLoop:
             self.running = False
             self._consecutive_errors = 0
 
-    def _current_source(self, now: float) -> AnySource | None:
+    def _current_source(self, now: float) -> SimSource | None:
         """The source to step now (rebuilt or restarted as due); ``None``: nothing to step.
         Under ``self._lock``."""
         if not self.running:

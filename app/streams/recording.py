@@ -27,7 +27,7 @@ import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import cv2
 import numpy as np
@@ -39,6 +39,9 @@ from app.streams.frames import (
     StereoFrame,
     ensure_gray_or_bgr,
 )
+
+if TYPE_CHECKING:
+    from app.geometry.calibration import StereoCalibration
 
 FORMAT = "aar-dock-frames/1"
 FSYNC_PERIOD_S = 0.5
@@ -236,7 +239,7 @@ def read_index(directory: str | Path) -> list[dict[str, Any]]:
     return out
 
 
-def exact_calibration(data: dict[str, Any]) -> Any:
+def exact_calibration(data: dict[str, Any]) -> StereoCalibration:
     """A :class:`StereoCalibration` from its ``to_dict()`` bit for bit (no re-validation:
     ``StereoCalibration.from_dict`` re-orthonormalises R and may move it by an ulp, and a
     replay must use the very numbers the live pipeline used)."""
@@ -255,7 +258,7 @@ def exact_calibration(data: dict[str, Any]) -> Any:
     )
 
 
-def recording_calibration(directory: str | Path) -> Any:
+def recording_calibration(directory: str | Path) -> StereoCalibration | None:
     """The calibration stored with a frame recording (checked, then exact), or ``None``."""
     from app.geometry.calibration import StereoCalibration
 

@@ -13,7 +13,7 @@ and its telemetry stays downloadable.
 
 from __future__ import annotations
 
-from typing import Annotated
+from typing import Annotated, Literal
 
 from fastapi import APIRouter, Depends, HTTPException, Query, status
 from fastapi.responses import FileResponse
@@ -101,7 +101,9 @@ def recording(rec_id: str, state: StateDep) -> RecordingMeta:
     return info
 
 
-def _download(state: StateDep, rec_id: str, kind: str, media_type: str) -> FileResponse:
+def _download(
+    state: StateDep, rec_id: str, kind: Literal["telemetry", "scene", "mcap"], media_type: str
+) -> FileResponse:
     """One of a recording's files (``kind`` as :meth:`Recorder.locate` names it), or 404."""
     path, why = state.recorder.locate(rec_id, kind)
     if path is None:

@@ -37,6 +37,7 @@ from app.server.upload_pool import (
     decode_upload_image,
     process_upload,
 )
+from app.types import UInt8Array
 from app.vision.result import PoseResult
 
 log = logging.getLogger(__name__)
@@ -45,10 +46,13 @@ router = APIRouter(tags=["stereo"])
 
 @dataclass
 class UploadFrames:
-    """The raw side of an upload record (what the 3-D scene shows)."""
+    """The raw side of an upload record (what the 3-D scene and the camera view show)."""
 
-    left_image: np.ndarray
-    right_image: np.ndarray
+    left_image: UInt8Array
+    right_image: UInt8Array
+    stereo_frame: None = None  # an upload is no stream's frame
+    image_windows_px: None = None  # whole images
+    camera_pose_T: None = None  # a real camera's pose is not known
 
 
 class LazyUploadFrames(LazyImagePair):
