@@ -9,6 +9,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import pytest
 from fastapi.testclient import TestClient
 
 from app.server.main import create_app
@@ -69,9 +70,15 @@ def test_live_images_carry_the_records_detections(tmp_path: Path) -> None:
         assert c.get("/api/v1/camera/left.jpg", params={"source": "upload"}).status_code == 404
 
 
-def test_uploaded_pair_is_drawn_by_the_same_producer(tmp_path: Path) -> None:
+@pytest.mark.parametrize("in_threads", [False, True], ids=["worker-process", "threads"])
+def test_uploaded_pair_is_drawn_by_the_same_producer(tmp_path: Path, in_threads: bool) -> None:
+    """Either upload path (a worker process decodes, or the web process's threads) hands the
+    camera view a complete raw side."""
     settings = Settings(  # type: ignore[call-arg]
-        viser_enabled=False, recordings_dir=tmp_path, sim_autostart=False
+        viser_enabled=False,
+        recordings_dir=tmp_path,
+        sim_autostart=False,
+        uploads_in_process=in_threads,
     )
     with TestClient(create_app(settings)) as c:
         assert c.get("/api/v1/camera/left.jpg").status_code == 404  # nothing yet, JSON reason
