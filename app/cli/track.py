@@ -117,11 +117,9 @@ def track_rows(source: Any, processor: Any, progress: bool = True) -> Any:
     from tqdm import tqdm
 
     from app.streams.frames import EndOfStream
+    from app.streams.sources import VideoSource
 
-    total = None
-    entries = getattr(getattr(source, "_recording", None), "entries", None)
-    if entries is not None:
-        total = len(entries)
+    total = source.pair_count if isinstance(source, VideoSource) else None
     with tqdm(total=total, unit="pair", disable=not progress, file=sys.stderr) as bar:
         while True:
             try:

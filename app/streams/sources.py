@@ -144,6 +144,13 @@ class VideoSource:
         else:
             self._open_pair()
 
+    @property
+    def pair_count(self) -> int | None:
+        """The number of pairs of a frame recording (``None``: videos, folders, MCAP logs)."""
+        if isinstance(self._recording, FrameRecordingSource):
+            return len(self._recording.entries)
+        return None
+
     def _open_pair(self) -> None:
         o = self.options
         left = open_reader(self.left_spec, o.fps)
