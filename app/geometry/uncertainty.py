@@ -150,17 +150,19 @@ def _center_normal(circle: Circle3D) -> tuple[FloatArray, FloatArray]:
     return np.asarray(circle.center, dtype=np.float64).reshape(3), nrm / norm
 
 
-def _ring_jacobians(points_mm: FloatArray, circle: Circle3D) -> tuple[FloatArray, FloatArray]:
+def _ring_jacobians(
+    points_mm: FloatArray, circle: Circle3D
+) -> tuple[FloatArray, FloatArray, FloatArray]:
     """:func:`~app.geometry.uncertainty_kernels.ring_terms` of these points and ``circle``
     (``FitError`` when degenerate)."""
     pts = np.ascontiguousarray(np.asarray(points_mm, dtype=np.float64).reshape(-1, 3))
     if len(pts) < 3 or not np.all(np.isfinite(pts)):
         raise FitError("a circle needs at least 3 finite points")
     c, nrm = _center_normal(circle)
-    jt, jr = ring_terms(pts, c, nrm, float(circle.radius))
+    jt, jr, design = ring_terms(pts, c, nrm, float(circle.radius))
     if not (np.all(np.isfinite(jt)) and np.all(np.isfinite(jr))):
         raise FitError("the circle fit is degenerate at these points")
-    return jt, jr
+    return jt, jr, design
 
 
 def _propagate(jac: FloatArray, point_cov: FloatArray) -> FloatArray:
@@ -195,7 +197,7 @@ def ring_covariance(
     (points independent, ``point_cov`` N×3×3 mm² from :func:`point_covariances`). The
     Jacobians are kept for :func:`fit_consistency` of the same lock (a small cache).
     """
-    jt, _ = _ring_jacobians(points_mm, circle)
+    jt, _, _ = _ring_jacobians(points_mm, circle)
     cov = _propagate(jt, np.asarray(point_cov, dtype=np.float64).reshape(-1, 3, 3))
     return RingCovariance(
         center_cov_mm2=cov[0:3, 0:3].copy(),
@@ -390,9 +392,11 @@ def fit_consistency(
         calib, left_px, right_px, X, sigma_left_px, sigma_right_px, weighted
     )
     c, nrm = _center_normal(circle)
-    _, jr = _ring_jacobians(X, circle)
+    _, jr, design = _ring_jacobians(X, circle)
     T = float(
-        chi2_kernel(a, gain, C, epi, np.ascontiguousarray(X), c, nrm, float(circle.radius), jr)
+        chi2_kernel(
+            a, gain, C, epi, np.ascontiguousarray(X), c, nrm, float(circle.radius), jr, design
+        )
     )
     dof = 3 * n - 6
     p_value = float(chdtrc(dof, T))
