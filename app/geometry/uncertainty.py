@@ -39,6 +39,10 @@ from scipy.special import chdtrc, chdtri
 from app.geometry.calibration import StereoCalibration
 from app.geometry.circle_fit import Circle3D, FitError
 from app.geometry.uncertainty_kernels import (
+    LOCK_BAD_POINTS,
+    LOCK_BAD_SIGMA_LEFT,
+    LOCK_BAD_SIGMA_RIGHT,
+    LOCK_OK,
     chi2_kernel,
     lock_kernel,
     pl_kernel,
@@ -50,14 +54,30 @@ from app.types import FloatArray
 # ---- stereo: per-point covariance --------------------------------------------------------
 
 
-def _sigmas(sigma: FloatArray | float, n: int, name: str) -> FloatArray:
+def _sigmas(sigma: FloatArray | float, n: int, name: str, check: bool = True) -> FloatArray:
+    """One σ per point (px) as a float64 array; ``check``: ``ValueError`` unless each is
+    positive and finite (without, the compiled call checks them)."""
     if isinstance(sigma, np.ndarray) and sigma.dtype == np.float64 and sigma.shape == (n,):
-        s = sigma.copy()  # (the common case: one σ per point already)
+        # (the common case: one σ per point already; the compiled loops only read it)
+        s = sigma if not check else sigma.copy()
     else:
         s = np.broadcast_to(np.asarray(sigma, dtype=np.float64).reshape(-1), (n,)).copy()
-    if not all(0.0 < v < math.inf for v in s.tolist()):
+    if check and not all(0.0 < v < math.inf for v in s.tolist()):
         raise ValueError(f"{name} must be positive and finite (px)")
     return s
+
+
+def _rows(values: FloatArray, width: int) -> FloatArray:
+    """``values`` as C-contiguous float64 rows of ``width`` (as is when they already are)."""
+    if (
+        isinstance(values, np.ndarray)
+        and values.dtype == np.float64
+        and values.ndim == 2
+        and values.shape[1] == width
+        and values.flags.c_contiguous
+    ):
+        return values
+    return np.ascontiguousarray(np.asarray(values, dtype=np.float64).reshape(-1, width))
 
 
 # K, dist, P of the left then the right camera; left px, right px, points mm; σ left, σ right
@@ -234,19 +254,32 @@ def lock_terms(
     estimator). The covariances take a centroid error common to both views, ``systematic_px``
     (1σ, px), in quadrature with each σ; the χ² statistic does not (it cannot see it). Equal
     to the three functions to rounding (tested); ``FitError`` when the fit is degenerate."""
-    args = _stereo_inputs(calib, left_px, right_px, X_mm, sigma_left_px, sigma_right_px)
-    X = args[8]
+    X = _rows(X_mm, 3)
     n = len(X)
-    if n < 3 or not np.all(np.isfinite(X)):
+    status, cov, centre, T, lam = lock_kernel(
+        *calib.kernel_arrays,
+        _rows(left_px, 2).reshape(n, 2),
+        _rows(right_px, 2).reshape(n, 2),
+        X,
+        _sigmas(sigma_left_px, n, "sigma_left_px", check=False),
+        _sigmas(sigma_right_px, n, "sigma_right_px", check=False),
+        float(systematic_px),
+        *_center_normal(circle),
+        float(circle.radius),
+    )
+    # the compiled call checked the inputs; reported in the order the three functions do
+    if status == LOCK_BAD_SIGMA_LEFT:
+        raise ValueError("sigma_left_px must be positive and finite (px)")
+    if status == LOCK_BAD_SIGMA_RIGHT:
+        raise ValueError("sigma_right_px must be positive and finite (px)")
+    if status == LOCK_BAD_POINTS:
         raise FitError("a circle needs at least 3 finite points")
     if not (math.isfinite(systematic_px) and systematic_px >= 0.0):
         raise ValueError("systematic_px must be finite and ≥ 0 (px)")
-    c, nrm = _center_normal(circle)
-    cov, centre, T, lam = lock_kernel(*args, float(systematic_px), c, nrm, float(circle.radius))
-    if not (np.all(np.isfinite(centre)) and math.isfinite(T)):
+    if status != LOCK_OK:
         raise FitError("the circle fit is degenerate at these points")
     return LockTerms(
-        led_cov_mm2=cov, center_cov_mm2=centre, chi2=float(T), dof=3 * n - 6, lambda_max_mm2=lam
+        led_cov_mm2=cov, center_cov_mm2=centre, chi2=T, dof=3 * n - 6, lambda_max_mm2=lam
     )
 
 
@@ -280,9 +313,13 @@ def eigen_protection_levels_mm(lambda_max_mm2: FloatArray, p_exceed: float = 1e-
     mm, from each covariance's largest eigenvalue (mm², e.g. :class:`LockTerms`'
     ``lambda_max_mm2``); ``ValueError`` when one is not finite."""
     lam = np.asarray(lambda_max_mm2, dtype=np.float64)
-    if not np.all(np.isfinite(lam)):
+    values = lam.ravel().tolist()
+    if not all(math.isfinite(v) for v in values):
         raise ValueError("covariance is not finite")
-    return np.asarray(np.sqrt(np.maximum(lam, 0.0) * chi2_3_quantile(float(p_exceed))))
+    q3 = chi2_3_quantile(float(p_exceed))
+    # (per value: a handful of them per lock, where numpy's per-call cost would dominate)
+    levels = [math.sqrt(v * q3) if v > 0.0 else 0.0 for v in values]
+    return np.array(levels, dtype=np.float64).reshape(lam.shape)
 
 
 def led_protection_levels_mm(

@@ -16,6 +16,9 @@ from numba import njit
 
 from app.geometry.circle_fit_kernels import plane_axes
 
+# :func:`lock_kernel`'s status
+LOCK_OK, LOCK_BAD_SIGMA_LEFT, LOCK_BAD_SIGMA_RIGHT, LOCK_BAD_POINTS, LOCK_DEGENERATE = range(5)
+
 _MINOR_ROWS = np.array([[1, 2, 3], [0, 2, 3], [0, 1, 3], [0, 1, 2]])  # rows kept per minor
 
 
@@ -484,16 +487,29 @@ def lock_kernel(
     c: np.ndarray,
     nrm: np.ndarray,
     radius: float,
-) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:  # pragma: no cover - compiled
-    """(point covariances N×3×3 and centre covariance 3×3 with σ² + systematic² per image,
-    mm²; the χ² statistic with σ alone; the largest eigenvalue of each point's covariance,
-    then of the centre's, mm²); NaN centre covariance when the fit is degenerate."""
+) -> tuple[int, np.ndarray, np.ndarray, float, np.ndarray]:  # pragma: no cover - compiled
+    """(status, point covariances N×3×3 and centre covariance 3×3 with σ² + systematic² per
+    image, mm²; the χ² statistic with σ alone; the largest eigenvalue of each point's
+    covariance, then of the centre's, mm²). The inputs are checked here, in the order the
+    caller reports them: ``status`` is :data:`LOCK_BAD_SIGMA_LEFT` / ``_RIGHT`` (a σ not
+    positive and finite; nothing computed), :data:`LOCK_BAD_POINTS` (fewer than 3 points or
+    one not finite; nothing computed), :data:`LOCK_DEGENERATE` (the centre covariance or the
+    statistic not finite: no circle through the points) or :data:`LOCK_OK`."""
+    n = X.shape[0]
+    empty = np.empty((0, 3, 3))
+    for k in range(n):
+        if not (0.0 < sigma_l[k] < np.inf):
+            return LOCK_BAD_SIGMA_LEFT, empty, np.empty((3, 3)), np.nan, np.empty(0)
+    for k in range(n):
+        if not (0.0 < sigma_r[k] < np.inf):
+            return LOCK_BAD_SIGMA_RIGHT, empty, np.empty((3, 3)), np.nan, np.empty(0)
+    if n < 3 or not np.all(np.isfinite(X)):
+        return LOCK_BAD_POINTS, empty, np.empty((3, 3)), np.nan, np.empty(0)
     _, gain, C, a, epi = stereo_kernel(
         K_l, dist_l, P_l, K_r, dist_r, P_r, left_px, right_px, X, sigma_l, sigma_r, False
     )
     # C_k = σ² A Aᵀ per image: with σ² + systematic² it scales by (σ² + s²)/σ² per block
     s2 = systematic_px * systematic_px
-    n = X.shape[0]
     cov = np.empty((n, 3, 3))
     Cb = np.zeros((4, 4))
     for k in range(n):
@@ -511,9 +527,10 @@ def lock_kernel(
     for k in range(n):
         lam[k] = _largest_eigenvalue_sym3(cov[k])
     lam[n] = _largest_eigenvalue_sym3(centre)
-    if not np.all(np.isfinite(jr)):
-        return cov, centre, np.nan, lam
-    return cov, centre, chi2_kernel(a, gain, C, epi, X, c, nrm, radius, jr, design), lam
+    if not (np.all(np.isfinite(jr)) and np.all(np.isfinite(centre))):
+        return LOCK_DEGENERATE, cov, centre, np.nan, lam
+    T = chi2_kernel(a, gain, C, epi, X, c, nrm, radius, jr, design)
+    return (LOCK_OK if math.isfinite(T) else LOCK_DEGENERATE), cov, centre, T, lam
 
 
 # ---- protection level: the generalised χ² quantile --------------------------------------
