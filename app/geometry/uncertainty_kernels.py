@@ -410,7 +410,10 @@ def chi2_kernel(
         S, y = S[:n, :n].copy(), y[:n].copy()
     m = len(y)
     scale = np.sqrt(np.diag(S))
-    St = S / np.outer(scale, scale)
+    St = np.empty((m, m))
+    for i in range(m):
+        for j in range(m):
+            St[i, j] = S[i, j] / (scale[i] * scale[j])
     yt = y / scale
     if m > dof:  # the null space: A's columns in the circle rows, orthonormalised
         U = np.zeros((m, m - dof))
@@ -437,7 +440,13 @@ def chi2_kernel(
                 dot += U[i, j] * yt[i]
             for i in range(m):
                 z[i] -= dot * U[i, j]
-        Sp = St + U @ U.T
+        Sp = St.copy()
+        for i in range(m):
+            for j in range(m):
+                acc = 0.0
+                for q in range(m - dof):
+                    acc += U[i, q] * U[j, q]
+                Sp[i, j] += acc
     else:
         z, Sp = yt, St
     T = _cholesky_quadratic(Sp, z, _MIN_PIVOT)
