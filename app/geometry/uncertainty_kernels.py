@@ -136,7 +136,7 @@ def _inv3(m: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
 
 
 @njit(cache=True, nogil=True)
-def stereo_kernel(
+def _stereo_terms(
     K_l: np.ndarray,
     dist_l: np.ndarray,
     P_l: np.ndarray,
@@ -149,9 +149,10 @@ def stereo_kernel(
     sigma_l: np.ndarray,
     sigma_r: np.ndarray,
     weighted: bool,
+    point_cov: bool,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover
-    """Per point: (Σ_X 3×3 mm², gain B 3×4 with δX = B·δx, C 4×4 ideal-px covariance,
-    unit a 4 with aᵀJ = 0, epipolar residual e = aᵀ·residual px)."""
+    """:func:`stereo_kernel`; without ``point_cov`` the unweighted Σ_X is left unset (a
+    caller that builds its own from the gains)."""
     n = X.shape[0]
     cov = np.empty((n, 3, 3))
     gain = np.empty((n, 3, 4))
@@ -182,11 +183,34 @@ def stereo_kernel(
         else:
             B = _mm(_inv3(_mm(J.T.copy(), J)), J.T.copy())
             gain[p] = B
-            cov[p] = _mm(_mm(B, C[p]), B.T.copy())
+            if point_cov:
+                cov[p] = _mm(_mm(B, C[p]), B.T.copy())
         a = _left_null(J)
         null[p] = a
         epi[p] = a[0] * rl[0] + a[1] * rl[1] + a[2] * rr[0] + a[3] * rr[1]
     return cov, gain, C, null, epi
+
+
+@njit(cache=True, nogil=True)
+def stereo_kernel(
+    K_l: np.ndarray,
+    dist_l: np.ndarray,
+    P_l: np.ndarray,
+    K_r: np.ndarray,
+    dist_r: np.ndarray,
+    P_r: np.ndarray,
+    left_px: np.ndarray,
+    right_px: np.ndarray,
+    X: np.ndarray,
+    sigma_l: np.ndarray,
+    sigma_r: np.ndarray,
+    weighted: bool,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover
+    """Per point: (Σ_X 3×3 mm², gain B 3×4 with δX = B·δx, C 4×4 ideal-px covariance,
+    unit a 4 with aᵀJ = 0, epipolar residual e = aᵀ·residual px)."""
+    return _stereo_terms(
+        K_l, dist_l, P_l, K_r, dist_r, P_r, left_px, right_px, X, sigma_l, sigma_r, weighted, True
+    )
 
 
 # ---- ring: Jacobians of the circle fit ----------------------------------------------------
@@ -514,8 +538,9 @@ def lock_kernel(
             return LOCK_BAD_SIGMA_RIGHT, empty, np.empty((3, 3)), np.nan, np.empty(0)
     if n < 3 or not np.all(np.isfinite(X)):
         return LOCK_BAD_POINTS, empty, np.empty((3, 3)), np.nan, np.empty(0)
-    _, gain, C, a, epi = stereo_kernel(
-        K_l, dist_l, P_l, K_r, dist_r, P_r, left_px, right_px, X, sigma_l, sigma_r, False
+    # (the point covariances are built below from the gains, with the systematic term)
+    _, gain, C, a, epi = _stereo_terms(
+        K_l, dist_l, P_l, K_r, dist_r, P_r, left_px, right_px, X, sigma_l, sigma_r, False, False
     )
     # C_k = σ² A Aᵀ per image: with σ² + systematic² it scales by (σ² + s²)/σ² per block
     s2 = systematic_px * systematic_px
