@@ -67,6 +67,18 @@ def _sigmas(sigma: FloatArray | float, n: int, name: str, check: bool = True) ->
     return s
 
 
+def _vector3(values: FloatArray) -> FloatArray:
+    """``values`` as a C-contiguous float64 (3,) array (as is when it already is one)."""
+    if (
+        isinstance(values, np.ndarray)
+        and values.dtype == np.float64
+        and values.shape == (3,)
+        and values.flags.c_contiguous
+    ):
+        return values
+    return np.ascontiguousarray(np.asarray(values, dtype=np.float64).reshape(3))
+
+
 def _rows(values: FloatArray, width: int) -> FloatArray:
     """``values`` as C-contiguous float64 rows of ``width`` (as is when they already are)."""
     if (
@@ -264,7 +276,8 @@ def lock_terms(
         _sigmas(sigma_left_px, n, "sigma_left_px", check=False),
         _sigmas(sigma_right_px, n, "sigma_right_px", check=False),
         float(systematic_px),
-        *_center_normal(circle),
+        _vector3(circle.center),
+        _vector3(circle.normal),  # (made unit in the call, as _center_normal makes it)
         float(circle.radius),
     )
     # the compiled call checked the inputs; reported in the order the three functions do

@@ -518,7 +518,7 @@ def lock_kernel(
     sigma_r: np.ndarray,
     systematic_px: float,
     c: np.ndarray,
-    nrm: np.ndarray,
+    normal: np.ndarray,
     radius: float,
 ) -> tuple[int, np.ndarray, np.ndarray, float, np.ndarray]:  # pragma: no cover - compiled
     """(status, point covariances N×3×3 and centre covariance 3×3 with σ² + systematic² per
@@ -527,8 +527,14 @@ def lock_kernel(
     caller reports them: ``status`` is :data:`LOCK_BAD_SIGMA_LEFT` / ``_RIGHT`` (a σ not
     positive and finite; nothing computed), :data:`LOCK_BAD_POINTS` (fewer than 3 points or
     one not finite; nothing computed), :data:`LOCK_DEGENERATE` (the centre covariance or the
-    statistic not finite: no circle through the points) or :data:`LOCK_OK`."""
+    statistic not finite: no circle through the points) or :data:`LOCK_OK`. ``normal``: the
+    circle's, of any length (made unit here)."""
     n = X.shape[0]
+    x, y, z = normal[0], normal[1], normal[2]
+    norm = math.sqrt(x * x + y * y + z * z)
+    nrm = np.empty(3)
+    for i in range(3):
+        nrm[i] = normal[i] / norm
     empty = np.empty((0, 3, 3))
     for k in range(n):
         if not (0.0 < sigma_l[k] < np.inf):
