@@ -21,8 +21,10 @@ against Monte-Carlo runs of an independent OpenCV path.
 
 The per-point and per-node arithmetic runs in the compiled loops of
 :mod:`app.geometry.uncertainty_kernels`. :func:`lock_terms` gives a lock's covariances and χ²
-statistic in one compiled call (≈ 0.07 ms for 5 LEDs, the whole bound with its protection
-levels; the three separate functions cost ≈ 0.3 ms).
+statistic in one compiled call (≈ 0.03 ms for 5 LEDs, the whole bound with its protection
+levels; the three separate functions cost ≈ 0.3 ms): the χ² statistic there removes the
+residual covariance's known null space in closed form and solves by Cholesky
+(:func:`~app.geometry.uncertainty_kernels.chi2_kernel`).
 """
 
 from __future__ import annotations
