@@ -21,8 +21,10 @@ against Monte-Carlo runs of an independent OpenCV path.
 
 The per-point and per-node arithmetic runs in the compiled loops of
 :mod:`app.geometry.uncertainty_kernels`. :func:`lock_terms` gives a lock's covariances and χ²
-statistic in one compiled call (≈ 0.07 ms for 5 LEDs, the whole bound with its protection
-levels; the three separate functions cost ≈ 0.3 ms).
+statistic in one compiled call (≈ 0.03 ms for 5 LEDs, the whole bound with its protection
+levels; the three separate functions cost ≈ 0.3 ms): the χ² statistic there removes the
+residual covariance's known null space in closed form and solves by Cholesky
+(:func:`~app.geometry.uncertainty_kernels.chi2_kernel`).
 """
 
 from __future__ import annotations
@@ -39,6 +41,10 @@ from scipy.special import chdtrc, chdtri
 from app.geometry.calibration import StereoCalibration
 from app.geometry.circle_fit import Circle3D, FitError
 from app.geometry.uncertainty_kernels import (
+    LOCK_BAD_POINTS,
+    LOCK_BAD_SIGMA_LEFT,
+    LOCK_BAD_SIGMA_RIGHT,
+    LOCK_OK,
     chi2_kernel,
     lock_kernel,
     pl_kernel,
@@ -50,14 +56,42 @@ from app.types import FloatArray
 # ---- stereo: per-point covariance --------------------------------------------------------
 
 
-def _sigmas(sigma: FloatArray | float, n: int, name: str) -> FloatArray:
+def _sigmas(sigma: FloatArray | float, n: int, name: str, check: bool = True) -> FloatArray:
+    """One σ per point (px) as a float64 array; ``check``: ``ValueError`` unless each is
+    positive and finite (without, the compiled call checks them)."""
     if isinstance(sigma, np.ndarray) and sigma.dtype == np.float64 and sigma.shape == (n,):
-        s = sigma.copy()  # (the common case: one σ per point already)
+        # (the common case: one σ per point already; the compiled loops only read it)
+        s = sigma if not check else sigma.copy()
     else:
         s = np.broadcast_to(np.asarray(sigma, dtype=np.float64).reshape(-1), (n,)).copy()
-    if not all(0.0 < v < math.inf for v in s.tolist()):
+    if check and not all(0.0 < v < math.inf for v in s.tolist()):
         raise ValueError(f"{name} must be positive and finite (px)")
     return s
+
+
+def _vector3(values: FloatArray) -> FloatArray:
+    """``values`` as a C-contiguous float64 (3,) array (as is when it already is one)."""
+    if (
+        isinstance(values, np.ndarray)
+        and values.dtype == np.float64
+        and values.shape == (3,)
+        and values.flags.c_contiguous
+    ):
+        return values
+    return np.ascontiguousarray(np.asarray(values, dtype=np.float64).reshape(3))
+
+
+def _rows(values: FloatArray, width: int) -> FloatArray:
+    """``values`` as C-contiguous float64 rows of ``width`` (as is when they already are)."""
+    if (
+        isinstance(values, np.ndarray)
+        and values.dtype == np.float64
+        and values.ndim == 2
+        and values.shape[1] == width
+        and values.flags.c_contiguous
+    ):
+        return values
+    return np.ascontiguousarray(np.asarray(values, dtype=np.float64).reshape(-1, width))
 
 
 # K, dist, P of the left then the right camera; left px, right px, points mm; σ left, σ right
@@ -150,17 +184,19 @@ def _center_normal(circle: Circle3D) -> tuple[FloatArray, FloatArray]:
     return np.asarray(circle.center, dtype=np.float64).reshape(3), nrm / norm
 
 
-def _ring_jacobians(points_mm: FloatArray, circle: Circle3D) -> tuple[FloatArray, FloatArray]:
+def _ring_jacobians(
+    points_mm: FloatArray, circle: Circle3D
+) -> tuple[FloatArray, FloatArray, FloatArray]:
     """:func:`~app.geometry.uncertainty_kernels.ring_terms` of these points and ``circle``
     (``FitError`` when degenerate)."""
     pts = np.ascontiguousarray(np.asarray(points_mm, dtype=np.float64).reshape(-1, 3))
     if len(pts) < 3 or not np.all(np.isfinite(pts)):
         raise FitError("a circle needs at least 3 finite points")
     c, nrm = _center_normal(circle)
-    jt, jr = ring_terms(pts, c, nrm, float(circle.radius))
+    jt, jr, design = ring_terms(pts, c, nrm, float(circle.radius))
     if not (np.all(np.isfinite(jt)) and np.all(np.isfinite(jr))):
         raise FitError("the circle fit is degenerate at these points")
-    return jt, jr
+    return jt, jr, design
 
 
 def _propagate(jac: FloatArray, point_cov: FloatArray) -> FloatArray:
@@ -195,7 +231,7 @@ def ring_covariance(
     (points independent, ``point_cov`` N×3×3 mm² from :func:`point_covariances`). The
     Jacobians are kept for :func:`fit_consistency` of the same lock (a small cache).
     """
-    jt, _ = _ring_jacobians(points_mm, circle)
+    jt, _, _ = _ring_jacobians(points_mm, circle)
     cov = _propagate(jt, np.asarray(point_cov, dtype=np.float64).reshape(-1, 3, 3))
     return RingCovariance(
         center_cov_mm2=cov[0:3, 0:3].copy(),
@@ -232,19 +268,33 @@ def lock_terms(
     estimator). The covariances take a centroid error common to both views, ``systematic_px``
     (1σ, px), in quadrature with each σ; the χ² statistic does not (it cannot see it). Equal
     to the three functions to rounding (tested); ``FitError`` when the fit is degenerate."""
-    args = _stereo_inputs(calib, left_px, right_px, X_mm, sigma_left_px, sigma_right_px)
-    X = args[8]
+    X = _rows(X_mm, 3)
     n = len(X)
-    if n < 3 or not np.all(np.isfinite(X)):
+    status, cov, centre, T, lam = lock_kernel(
+        *calib.kernel_arrays,
+        _rows(left_px, 2).reshape(n, 2),
+        _rows(right_px, 2).reshape(n, 2),
+        X,
+        _sigmas(sigma_left_px, n, "sigma_left_px", check=False),
+        _sigmas(sigma_right_px, n, "sigma_right_px", check=False),
+        float(systematic_px),
+        _vector3(circle.center),
+        _vector3(circle.normal),  # (made unit in the call, as _center_normal makes it)
+        float(circle.radius),
+    )
+    # the compiled call checked the inputs; reported in the order the three functions do
+    if status == LOCK_BAD_SIGMA_LEFT:
+        raise ValueError("sigma_left_px must be positive and finite (px)")
+    if status == LOCK_BAD_SIGMA_RIGHT:
+        raise ValueError("sigma_right_px must be positive and finite (px)")
+    if status == LOCK_BAD_POINTS:
         raise FitError("a circle needs at least 3 finite points")
     if not (math.isfinite(systematic_px) and systematic_px >= 0.0):
         raise ValueError("systematic_px must be finite and ≥ 0 (px)")
-    c, nrm = _center_normal(circle)
-    cov, centre, T, lam = lock_kernel(*args, float(systematic_px), c, nrm, float(circle.radius))
-    if not (np.all(np.isfinite(centre)) and math.isfinite(T)):
+    if status != LOCK_OK:
         raise FitError("the circle fit is degenerate at these points")
     return LockTerms(
-        led_cov_mm2=cov, center_cov_mm2=centre, chi2=float(T), dof=3 * n - 6, lambda_max_mm2=lam
+        led_cov_mm2=cov, center_cov_mm2=centre, chi2=T, dof=3 * n - 6, lambda_max_mm2=lam
     )
 
 
@@ -278,9 +328,13 @@ def eigen_protection_levels_mm(lambda_max_mm2: FloatArray, p_exceed: float = 1e-
     mm, from each covariance's largest eigenvalue (mm², e.g. :class:`LockTerms`'
     ``lambda_max_mm2``); ``ValueError`` when one is not finite."""
     lam = np.asarray(lambda_max_mm2, dtype=np.float64)
-    if not np.all(np.isfinite(lam)):
+    values = lam.ravel().tolist()
+    if not all(math.isfinite(v) for v in values):
         raise ValueError("covariance is not finite")
-    return np.asarray(np.sqrt(np.maximum(lam, 0.0) * chi2_3_quantile(float(p_exceed))))
+    q3 = chi2_3_quantile(float(p_exceed))
+    # (per value: a handful of them per lock, where numpy's per-call cost would dominate)
+    levels = [math.sqrt(v * q3) if v > 0.0 else 0.0 for v in values]
+    return np.array(levels, dtype=np.float64).reshape(lam.shape)
 
 
 def led_protection_levels_mm(
@@ -390,9 +444,11 @@ def fit_consistency(
         calib, left_px, right_px, X, sigma_left_px, sigma_right_px, weighted
     )
     c, nrm = _center_normal(circle)
-    _, jr = _ring_jacobians(X, circle)
+    _, jr, design = _ring_jacobians(X, circle)
     T = float(
-        chi2_kernel(a, gain, C, epi, np.ascontiguousarray(X), c, nrm, float(circle.radius), jr)
+        chi2_kernel(
+            a, gain, C, epi, np.ascontiguousarray(X), c, nrm, float(circle.radius), jr, design
+        )
     )
     dof = 3 * n - 6
     p_value = float(chdtrc(dof, T))

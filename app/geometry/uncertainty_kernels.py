@@ -16,6 +16,9 @@ from numba import njit
 
 from app.geometry.circle_fit_kernels import plane_axes
 
+# :func:`lock_kernel`'s status
+LOCK_OK, LOCK_BAD_SIGMA_LEFT, LOCK_BAD_SIGMA_RIGHT, LOCK_BAD_POINTS, LOCK_DEGENERATE = range(5)
+
 _MINOR_ROWS = np.array([[1, 2, 3], [0, 2, 3], [0, 1, 3], [0, 1, 2]])  # rows kept per minor
 
 
@@ -133,7 +136,7 @@ def _inv3(m: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
 
 
 @njit(cache=True, nogil=True)
-def stereo_kernel(
+def _stereo_terms(
     K_l: np.ndarray,
     dist_l: np.ndarray,
     P_l: np.ndarray,
@@ -146,9 +149,10 @@ def stereo_kernel(
     sigma_l: np.ndarray,
     sigma_r: np.ndarray,
     weighted: bool,
+    point_cov: bool,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover
-    """Per point: (Σ_X 3×3 mm², gain B 3×4 with δX = B·δx, C 4×4 ideal-px covariance,
-    unit a 4 with aᵀJ = 0, epipolar residual e = aᵀ·residual px)."""
+    """:func:`stereo_kernel`; without ``point_cov`` the unweighted Σ_X is left unset (a
+    caller that builds its own from the gains)."""
     n = X.shape[0]
     cov = np.empty((n, 3, 3))
     gain = np.empty((n, 3, 4))
@@ -179,11 +183,34 @@ def stereo_kernel(
         else:
             B = _mm(_inv3(_mm(J.T.copy(), J)), J.T.copy())
             gain[p] = B
-            cov[p] = _mm(_mm(B, C[p]), B.T.copy())
+            if point_cov:
+                cov[p] = _mm(_mm(B, C[p]), B.T.copy())
         a = _left_null(J)
         null[p] = a
         epi[p] = a[0] * rl[0] + a[1] * rl[1] + a[2] * rr[0] + a[3] * rr[1]
     return cov, gain, C, null, epi
+
+
+@njit(cache=True, nogil=True)
+def stereo_kernel(
+    K_l: np.ndarray,
+    dist_l: np.ndarray,
+    P_l: np.ndarray,
+    K_r: np.ndarray,
+    dist_r: np.ndarray,
+    P_r: np.ndarray,
+    left_px: np.ndarray,
+    right_px: np.ndarray,
+    X: np.ndarray,
+    sigma_l: np.ndarray,
+    sigma_r: np.ndarray,
+    weighted: bool,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover
+    """Per point: (Σ_X 3×3 mm², gain B 3×4 with δX = B·δx, C 4×4 ideal-px covariance,
+    unit a 4 with aᵀJ = 0, epipolar residual e = aᵀ·residual px)."""
+    return _stereo_terms(
+        K_l, dist_l, P_l, K_r, dist_r, P_r, left_px, right_px, X, sigma_l, sigma_r, weighted, True
+    )
 
 
 # ---- ring: Jacobians of the circle fit ----------------------------------------------------
@@ -207,10 +234,11 @@ def _circle_residuals(
 @njit(cache=True, nogil=True)
 def _fit_jacobians(
     pts: np.ndarray, c: np.ndarray, nrm: np.ndarray, radius: float
-) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled
-    """(∂θ/∂p 7×3N, ∂ρ/∂p 2N×3N) of the plane + circle fit at points ON the circle (c, unit
-    nrm, radius): θ = (centre, normal signed like nrm, radius), ρ the points' residuals from
-    their own refitted circle. NaN when the points do not define a circle.
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover - compiled
+    """(∂θ/∂p 7×3N, ∂ρ/∂p 2N×3N, A 2N×6) of the plane + circle fit at points ON the circle
+    (c, unit nrm, radius): θ = (centre, normal signed like nrm, radius), ρ the points'
+    residuals from their own refitted circle, A = ∂ρ/∂ψ the fit's design matrix (below). NaN
+    Jacobians when the points do not define a circle.
 
     At zero residual the fit is first-order the least-squares solution of the linearised
     residuals (the TLS plane is the least-squares plane of the off-plane offsets; Kåsa +
@@ -218,7 +246,8 @@ def _fit_jacobians(
     moves the radial distances at second order only). With u_k the unit radial of point k,
     (e1, e2) in-plane axes and ψ = (δc 3, tilt t1, t2, δr):
     off_k = n·δp_k − n·δc + r·(t1 u_k·e1 + t2 u_k·e2), radial_k = u_k·δp_k − u_k·δc − δr,
-    i.e. ρ = A ψ + B δp; the fit takes ψ = −(AᵀA)⁻¹AᵀB δp, and ∂ρ/∂p = B + A ∂ψ/∂p.
+    i.e. ρ = A ψ + B δp; the fit takes ψ = −(AᵀA)⁻¹AᵀB δp, and ∂ρ/∂p = B + A ∂ψ/∂p =
+    (I − A(AᵀA)⁻¹Aᵀ) B: the residuals are orthogonal to A's 6 columns whatever δp.
     (Tested against central differences of :func:`~app.geometry.circle_fit.fit_circle_3d`.)
     """
     n = pts.shape[0]
@@ -244,21 +273,22 @@ def _fit_jacobians(
         or not np.all(np.isfinite(ata))
         or abs(np.linalg.det(ata)) < 1e-12 * max(1.0, radius) ** 8
     ):
-        return jt, jr
+        return jt, jr, A
     G = -np.linalg.solve(ata, A.T @ B)  # ∂ψ/∂p, 6×3N
     jt[0:3] = G[0:3]
     for i in range(3):
         jt[3 + i] = e1[i] * G[3] + e2[i] * G[4]
     jt[6] = G[5]
     jr[:] = B + A @ G
-    return jt, jr
+    return jt, jr, A
 
 
 @njit(cache=True, nogil=True)
 def ring_terms(
     pts: np.ndarray, c: np.ndarray, nrm: np.ndarray, radius: float
-) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled
-    """(∂θ/∂p 7×3N, ∂ρ/∂p 2N×3N) of the circle fit (see :func:`_fit_jacobians`), linearised at
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover - compiled
+    """(∂θ/∂p 7×3N, ∂ρ/∂p 2N×3N, the design matrix A 2N×6) of the circle fit (see
+    :func:`_fit_jacobians`), linearised at
     the points' closest points on the circle: the model's estimate of the true configuration.
     There the residuals have exactly 2N − 6 dof; at the measured points the fit's response to
     a point sliding along the ring is not zero (∝ its residual), a noise-induced term that
@@ -305,6 +335,76 @@ def _residual_cov(
 
 
 @njit(cache=True, nogil=True)
+def residual_system(
+    a: np.ndarray,
+    gain: np.ndarray,
+    C: np.ndarray,
+    epi: np.ndarray,
+    X: np.ndarray,
+    c: np.ndarray,
+    nrm: np.ndarray,
+    radius: float,
+    jr: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled
+    """(cov(y) 3N×3N, y 3N) of :func:`~app.geometry.uncertainty.fit_consistency`: the N
+    epipolar residuals (px), then each point's off-plane and radial residuals (mm)."""
+    S = _residual_cov(a, gain, C, jr)
+    y = np.concatenate((epi, _circle_residuals(X, c, nrm, radius)))
+    return S, y
+
+
+@njit(cache=True, nogil=True)
+def _cholesky_quadratic(
+    S: np.ndarray, y: np.ndarray, min_pivot: float
+) -> float:  # pragma: no cover
+    """yᵀ S⁻¹ y of a symmetric positive-definite S by its Cholesky factor (S = LLᵀ, then
+    ‖L⁻¹y‖²); NaN when a squared pivot falls below ``min_pivot`` (S not safely definite)."""
+    m = y.shape[0]
+    L = np.zeros((m, m))
+    for j in range(m):
+        d = S[j, j]
+        for k in range(j):
+            d -= L[j, k] * L[j, k]
+        if not d >= min_pivot:
+            return np.nan
+        d = math.sqrt(d)
+        L[j, j] = d
+        for i in range(j + 1, m):
+            acc = S[i, j]
+            for k in range(j):
+                acc -= L[i, k] * L[j, k]
+            L[i, j] = acc / d
+    T = 0.0
+    w = np.empty(m)
+    for i in range(m):
+        acc = y[i]
+        for k in range(i):
+            acc -= L[i, k] * w[k]
+        w[i] = acc / L[i, i]
+        T += w[i] * w[i]
+    return T
+
+
+@njit(cache=True, nogil=True)
+def _eigen_chi2(St: np.ndarray, yt: np.ndarray, dof: int) -> float:  # pragma: no cover
+    """ytᵀ St⁺ yt on the top ``dof`` eigen-directions of St (the general formulation)."""
+    lam, vec = np.linalg.eigh(St)
+    m = yt.shape[0]
+    T = 0.0
+    for j in range(m - dof, m):
+        proj = 0.0
+        for i in range(m):
+            proj += vec[i, j] * yt[i]
+        T += proj * proj / lam[j]
+    return T
+
+
+# a squared Cholesky pivot of the unit-diagonal system below this: the eigen-formulation
+# decides (a kept direction nearly as flat as the null space)
+_MIN_PIVOT = 1e-8
+
+
+@njit(cache=True, nogil=True)
 def chi2_kernel(
     a: np.ndarray,
     gain: np.ndarray,
@@ -315,24 +415,67 @@ def chi2_kernel(
     nrm: np.ndarray,
     radius: float,
     jr: np.ndarray,
+    design: np.ndarray,
 ) -> float:  # pragma: no cover - compiled
     """T = yᵀ cov(y)⁺ y of :func:`~app.geometry.uncertainty.fit_consistency` on the top
-    3N − 6 directions of cov(y)."""
+    3N − 6 directions of cov(y) (unit-free: y and cov(y) scaled by cov(y)'s diagonal).
+
+    cov(y) = Σ_k M_k C_k M_kᵀ has rank 3N − 6 and its null space is known in closed form:
+    the circle residuals are orthogonal to the fit's design matrix A (``design``, 2N×6; see
+    :func:`_fit_jacobians`), so the null space is A's columns in the circle rows (scaled as
+    y). With U an orthonormal basis of it, (S + UUᵀ)⁻¹ = S⁺ + UUᵀ, so
+    T = zᵀ (S + UUᵀ)⁻¹ z with z = y − UUᵀy: one Cholesky solve instead of an
+    eigendecomposition, equal to the truncated eigen-sum to rounding (tested); a system too
+    flat for it falls back on that sum (:func:`_eigen_chi2`)."""
     n = X.shape[0]
-    S = _residual_cov(a, gain, C, jr)
-    y = np.concatenate((epi, _circle_residuals(X, c, nrm, radius)))
+    S, y = residual_system(a, gain, C, epi, X, c, nrm, radius, jr)
     dof = 3 * n - 6
     if n == 3:  # the circle passes through the 3 points: only the epipolar residuals remain
         S, y = S[:n, :n].copy(), y[:n].copy()
-    scale = np.sqrt(np.diag(S))
-    lam, vec = np.linalg.eigh(S / np.outer(scale, scale))  # unit-free, then the top 3N − 6
     m = len(y)
-    T = 0.0
-    for j in range(m - dof, m):
-        proj = 0.0
+    scale = np.sqrt(np.diag(S))
+    St = np.empty((m, m))
+    for i in range(m):
+        for j in range(m):
+            St[i, j] = S[i, j] / (scale[i] * scale[j])
+    yt = y / scale
+    if m > dof:  # the null space: A's columns in the circle rows, orthonormalised
+        U = np.zeros((m, m - dof))
+        for j in range(m - dof):
+            for r in range(2 * n):
+                U[n + r, j] = design[r, j] * scale[n + r]
+            for q in range(j):  # modified Gram–Schmidt, twice for orthogonality to rounding
+                for _ in range(2):
+                    dot = 0.0
+                    for i in range(m):
+                        dot += U[i, q] * U[i, j]
+                    for i in range(m):
+                        U[i, j] -= dot * U[i, q]
+            nrm2 = 0.0
+            for i in range(m):
+                nrm2 += U[i, j] * U[i, j]
+            inv = 1.0 / math.sqrt(nrm2)
+            for i in range(m):
+                U[i, j] *= inv
+        z = yt.copy()
+        for j in range(m - dof):
+            dot = 0.0
+            for i in range(m):
+                dot += U[i, j] * yt[i]
+            for i in range(m):
+                z[i] -= dot * U[i, j]
+        Sp = St.copy()
         for i in range(m):
-            proj += vec[i, j] * y[i] / scale[i]
-        T += proj * proj / lam[j]
+            for j in range(m):
+                acc = 0.0
+                for q in range(m - dof):
+                    acc += U[i, q] * U[j, q]
+                Sp[i, j] += acc
+    else:
+        z, Sp = yt, St
+    T = _cholesky_quadratic(Sp, z, _MIN_PIVOT)
+    if math.isnan(T) and np.all(np.isfinite(St)) and np.all(np.isfinite(yt)):
+        return _eigen_chi2(St, yt, dof)
     return T
 
 
@@ -375,18 +518,38 @@ def lock_kernel(
     sigma_r: np.ndarray,
     systematic_px: float,
     c: np.ndarray,
-    nrm: np.ndarray,
+    normal: np.ndarray,
     radius: float,
-) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:  # pragma: no cover - compiled
-    """(point covariances N×3×3 and centre covariance 3×3 with σ² + systematic² per image,
-    mm²; the χ² statistic with σ alone; the largest eigenvalue of each point's covariance,
-    then of the centre's, mm²); NaN centre covariance when the fit is degenerate."""
-    _, gain, C, a, epi = stereo_kernel(
-        K_l, dist_l, P_l, K_r, dist_r, P_r, left_px, right_px, X, sigma_l, sigma_r, False
+) -> tuple[int, np.ndarray, np.ndarray, float, np.ndarray]:  # pragma: no cover - compiled
+    """(status, point covariances N×3×3 and centre covariance 3×3 with σ² + systematic² per
+    image, mm²; the χ² statistic with σ alone; the largest eigenvalue of each point's
+    covariance, then of the centre's, mm²). The inputs are checked here, in the order the
+    caller reports them: ``status`` is :data:`LOCK_BAD_SIGMA_LEFT` / ``_RIGHT`` (a σ not
+    positive and finite; nothing computed), :data:`LOCK_BAD_POINTS` (fewer than 3 points or
+    one not finite; nothing computed), :data:`LOCK_DEGENERATE` (the centre covariance or the
+    statistic not finite: no circle through the points) or :data:`LOCK_OK`. ``normal``: the
+    circle's, of any length (made unit here)."""
+    n = X.shape[0]
+    x, y, z = normal[0], normal[1], normal[2]
+    norm = math.sqrt(x * x + y * y + z * z)
+    nrm = np.empty(3)
+    for i in range(3):
+        nrm[i] = normal[i] / norm
+    empty = np.empty((0, 3, 3))
+    for k in range(n):
+        if not (0.0 < sigma_l[k] < np.inf):
+            return LOCK_BAD_SIGMA_LEFT, empty, np.empty((3, 3)), np.nan, np.empty(0)
+    for k in range(n):
+        if not (0.0 < sigma_r[k] < np.inf):
+            return LOCK_BAD_SIGMA_RIGHT, empty, np.empty((3, 3)), np.nan, np.empty(0)
+    if n < 3 or not np.all(np.isfinite(X)):
+        return LOCK_BAD_POINTS, empty, np.empty((3, 3)), np.nan, np.empty(0)
+    # (the point covariances are built below from the gains, with the systematic term)
+    _, gain, C, a, epi = _stereo_terms(
+        K_l, dist_l, P_l, K_r, dist_r, P_r, left_px, right_px, X, sigma_l, sigma_r, False, False
     )
     # C_k = σ² A Aᵀ per image: with σ² + systematic² it scales by (σ² + s²)/σ² per block
     s2 = systematic_px * systematic_px
-    n = X.shape[0]
     cov = np.empty((n, 3, 3))
     Cb = np.zeros((4, 4))
     for k in range(n):
@@ -395,7 +558,7 @@ def lock_kernel(
         Cb[0:2, 0:2] = C[k, 0:2, 0:2] * fl
         Cb[2:4, 2:4] = C[k, 2:4, 2:4] * fr
         cov[k] = _mm(_mm(gain[k], Cb), gain[k].T.copy())
-    jt, jr = ring_terms(X, c, nrm, radius)
+    jt, jr, design = ring_terms(X, c, nrm, radius)
     centre = np.zeros((3, 3))
     for k in range(X.shape[0]):
         jk = jt[0:3, 3 * k : 3 * k + 3].copy()
@@ -404,9 +567,10 @@ def lock_kernel(
     for k in range(n):
         lam[k] = _largest_eigenvalue_sym3(cov[k])
     lam[n] = _largest_eigenvalue_sym3(centre)
-    if not np.all(np.isfinite(jr)):
-        return cov, centre, np.nan, lam
-    return cov, centre, chi2_kernel(a, gain, C, epi, X, c, nrm, radius, jr), lam
+    if not (np.all(np.isfinite(jr)) and np.all(np.isfinite(centre))):
+        return LOCK_DEGENERATE, cov, centre, np.nan, lam
+    T = chi2_kernel(a, gain, C, epi, X, c, nrm, radius, jr, design)
+    return (LOCK_OK if math.isfinite(T) else LOCK_DEGENERATE), cov, centre, T, lam
 
 
 # ---- protection level: the generalised χ² quantile --------------------------------------

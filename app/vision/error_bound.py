@@ -18,7 +18,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from scipy.special import chdtrc
+from scipy.special.cython_special import chdtrc  # scipy.special.chdtrc without the ufunc layer
 
 from app.geometry.calibration import StereoCalibration
 from app.geometry.circle_fit import Circle3D, FitError
@@ -106,7 +106,7 @@ def lock_bound(
     # (≤ 1.23× the exact quantile of :func:`protection_level_mm`, 4× cheaper), from the
     # largest eigenvalues the compiled call gives (led_protection_levels_mm's "eigen" levels)
     levels = eigen_protection_levels_mm(terms.lambda_max_mm2, cfg.p_exceed)
-    p_value = float(chdtrc(terms.dof, terms.chi2))
+    p_value = float(chdtrc(float(terms.dof), terms.chi2))
     return LockBound(
         led_cov_mm2=terms.led_cov_mm2,
         led_pl_mm=levels[:-1],

@@ -10,7 +10,7 @@ import numpy as np
 from app.types import UInt8Array
 from app.vision.blob_kernels import detect_in_boxes, extract_in_mask
 from app.vision.bright_region_kernels import hot_tile_boxes
-from app.vision.local_centroid import LocalCentroidConfig, box_table, local_blob
+from app.vision.local_centroid import LocalCentroidConfig, box_table, local_blobs
 from app.vision.local_centroid_kernels import local_centroids
 from app.vision.preprocess_kernels import frame_summary
 from app.vision.types import Blob, RejectedBlob
@@ -78,13 +78,8 @@ def _blobs(
     if count > gate.max_blobs:
         raise TooManyBlobs(int(count), gate.max_blobs)
     if gray is not None and centroid is not None and centroid.enabled and len(kept):
-        table = local_centroids(gray, box_table(kept), centroid.params()).tolist()
-        blobs = [
-            local_blob((cu, cv), area, (x, y, w, h), pk, m, None, row)
-            for (x, y, w, h, area), (cu, cv, m, pk), row in zip(
-                kept.tolist(), cents.tolist(), table, strict=True
-            )
-        ]
+        table = local_centroids(gray, box_table(kept), centroid.params())
+        blobs = local_blobs(kept.tolist(), cents.tolist(), table)
     else:
         blobs = [
             Blob((cu, cv), area, (x, y, w, h), pk, m)

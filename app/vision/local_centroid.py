@@ -44,6 +44,10 @@ from app.vision.local_centroid_kernels import (
 )
 from app.vision.types import Blob
 
+# the leading columns of a :func:`local_centroids` row that a blob keeps, in this order
+_MEASURED_COLUMNS = 5
+assert (OUT_U, OUT_V, OUT_SIGMA_U, OUT_SIGMA_V, OUT_BACKGROUND) == tuple(range(_MEASURED_COLUMNS))
+
 
 @dataclass(frozen=True)
 class LocalCentroidConfig:
@@ -112,6 +116,23 @@ def local_blob(
         )
     nan = float("nan")
     return Blob(centroid_px, area_px, bbox, peak, mass, color_bgr, (nan, nan), row[OUT_BACKGROUND])
+
+
+def local_blobs(
+    stats: list[list[int]], cents: list[list[float]], table: NDArray[np.float64]
+) -> list[Blob]:
+    """:func:`local_blob` of each blob of a compiled extraction — its (x, y, w, h, area) and
+    (u, v, mass, peak) rows as lists, and its :func:`local_centroids` row — built in one pass
+    (the same records; the per-blob call and the unused columns left out)."""
+    nan = float("nan")
+    return [
+        Blob((u, v), area, (x, y, w, h), pk, m, None, (su, sv), bg)
+        if u == u  # not NaN: measured
+        else Blob((cu, cv), area, (x, y, w, h), pk, m, None, (nan, nan), bg)
+        for (x, y, w, h, area), (cu, cv, m, pk), (u, v, su, sv, bg) in zip(
+            stats, cents, table[:, :_MEASURED_COLUMNS].tolist(), strict=True
+        )
+    ]
 
 
 def with_local_centroids(blobs: list[Blob], table: NDArray[np.float64]) -> list[Blob]:

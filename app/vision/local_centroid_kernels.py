@@ -62,6 +62,12 @@ def ring_median_counts(
         if c == 0:
             continue
         counts[v] = 0
+        if cum + c >= n:  # the last value present: the counts above are all zero
+            if lo < 0:
+                lo = v
+            if hi < 0:
+                hi = v
+            break
         if lo < 0 and cum + c > (n - 1) // 2:
             lo = v
         if hi < 0 and cum + c > n // 2:
@@ -80,13 +86,13 @@ def _measure(
     pad: int,
     params: np.ndarray,
     out: np.ndarray,
-    seen_buf: np.ndarray,
+    state_buf: np.ndarray,
     stack: np.ndarray,
     counts: np.ndarray,
 ) -> bool:  # pragma: no cover - compiled
     """The local centroid of one blob box in a window grown by ``pad`` px into ``out`` (a row
-    of ``OUT_COLUMNS``); False when the support reaches the window's edge. ``seen_buf`` and
-    ``stack``: scratch of at least the window's pixel count (bool; int64, 2 rows), ``counts``:
+    of ``OUT_COLUMNS``); False when the support reaches the window's edge. ``state_buf`` and
+    ``stack``: scratch of at least the window's pixel count (uint8; int64, 2 rows), ``counts``:
     (256,) int64 zeros (:func:`ring_median_counts`)."""
     frac, sat, read_sigma, shot_k, floor_px = params[0], params[1], params[2], params[3], params[4]
     height, width = gray.shape
@@ -110,20 +116,26 @@ def _measure(
     wbase = level if params[5] > 0 else bg
     # 8-connected flood fill from the peak over pixels ≥ level, inside the window
     ww, wh = x1 - x0, y1 - y0
-    # seen[j + 1, i + 1]: window pixel (j, i) taken; a border of True keeps the fill inside
-    seen = seen_buf[: (ww + 2) * (wh + 2)].reshape(wh + 2, ww + 2)
-    seen[:] = False
-    seen[0, :] = True
-    seen[wh + 1, :] = True
-    seen[:, 0] = True
-    seen[:, ww + 1] = True
     # a pixel value g (an integer) is ≥ level ⇔ g ≥ ⌈level⌉
     ilevel = int(math.ceil(level))
+    # state[j + 1, i + 1] of window pixel (j, i): 1 at or above the level and not yet taken,
+    # 2 taken (the support), 0 below the level; a border of 0 keeps the fill inside
+    w2 = ww + 2
+    state = state_buf[: w2 * (wh + 2)]
+    state[:w2] = 0
+    state[(wh + 1) * w2 :] = 0
+    for j in range(wh):
+        row = gray[y0 + j]
+        base = (j + 1) * w2
+        state[base] = 0
+        state[base + w2 - 1] = 0
+        for i in range(ww):
+            state[base + 1 + i] = 1 if row[x0 + i] >= ilevel else 0
     sp = 0
     stack[0, sp] = py - y0
     stack[1, sp] = px - x0
     sp += 1
-    seen[py - y0 + 1, px - x0 + 1] = True
+    state[(py - y0 + 1) * w2 + px - x0 + 1] = 2
     edge = False
     sw = swu = swv = 0.0
     count = 0
@@ -145,15 +157,15 @@ def _measure(
             n_sat += 1
         if i == 0 or j == 0 or i == ww - 1 or j == wh - 1:
             edge = True
+        # the neighbours in the order (dj, di) = (−1, −1), (−1, 0), … (1, 1)
         for dj in (-1, 0, 1):
-            for di in (-1, 0, 1):
-                jj, ii = j + dj, i + di
-                if not seen[jj + 1, ii + 1]:
-                    if gray[y0 + jj, x0 + ii] >= ilevel:
-                        seen[jj + 1, ii + 1] = True
-                        stack[0, sp] = jj
-                        stack[1, sp] = ii
-                        sp += 1
+            k = (j + dj + 1) * w2 + i
+            for di in (0, 1, 2):
+                if state[k + di] == 1:
+                    state[k + di] = 2
+                    stack[0, sp] = j + dj
+                    stack[1, sp] = i + di - 1
+                    sp += 1
     out[OUT_LEVEL] = level
     out[OUT_SATURATED] = n_sat
     out[OUT_AREA] = count
@@ -166,7 +178,7 @@ def _measure(
     vu = vv = 0.0
     for j in range(j_lo, j_hi + 1):  # (in raster order, as over the whole window)
         for i in range(i_lo, i_hi + 1):
-            if seen[j + 1, i + 1]:
+            if state[(j + 1) * w2 + i + 1] == 2:
                 g = float(gray[y0 + j, x0 + i])
                 if g >= sat:
                     continue
@@ -204,7 +216,7 @@ def local_centroids(
         bw, bh = boxes[k, 2], boxes[k, 3]
         pad = _pad(bw, bh) * grow
         big = max(big, (bw + 2 * pad + 2) * (bh + 2 * pad + 2))
-    seen = np.empty(big, np.bool_)
+    state = np.empty(big, np.uint8)
     stack = np.empty((2, big), np.int64)
     counts = np.zeros(256, np.int64)
     for k in range(n):
@@ -214,7 +226,7 @@ def local_centroids(
             out[k, :] = np.nan
             params[0] = max(frac0, ATTEMPTS[a, 0])
             grown = pad * int(ATTEMPTS[a, 1])
-            if _measure(gray, bx, by, bw, bh, grown, params, out[k], seen, stack, counts):
+            if _measure(gray, bx, by, bw, bh, grown, params, out[k], state, stack, counts):
                 break
     params[0] = frac0
     return out

@@ -38,18 +38,36 @@ def subsampled_histogram(
 def _histogram_rows(
     row: np.ndarray, col_step: int, hist: np.ndarray, dhist: np.ndarray
 ) -> None:  # pragma: no cover - compiled
-    """:func:`_histogram_row` of ``row`` into ``hist`` and, in the same loop, the histogram
-    of |I(x + 1) − I(x)| at the same columns (x + 1 inside the row) into ``dhist`` (both
-    (4, 256) interleaved), as :func:`difference_histogram` counts them."""
-    k = 0
+    """Add ``row[::col_step]`` to ``hist`` and, in the same loop, |I(x + 1) − I(x)| at the
+    same columns (x + 1 inside the row) to ``dhist``, as :func:`subsampled_histogram` and
+    :func:`difference_histogram` count them; both (4, 256) int32, one histogram per lane of
+    four consecutive samples: the four increments of a step are independent, so runs of equal
+    values (a flat background, a noise difference of 0 or 1) do not wait on each other's
+    store."""
     last = row.shape[0] - 1
-    for x in range(0, row.shape[0], col_step):
-        a = row[x]
-        hist[k, a] += 1
-        if x < last:
-            b = row[x + 1]
-            dhist[k, a - b if a >= b else b - a] += 1
-        k = (k + 1) & 3
+    s1, s2, s3 = col_step, 2 * col_step, 3 * col_step
+    x = 0
+    while x + s3 < last:  # four samples and their right neighbours, all inside the row
+        a0, b0 = np.int64(row[x]), np.int64(row[x + 1])
+        a1, b1 = np.int64(row[x + s1]), np.int64(row[x + s1 + 1])
+        a2, b2 = np.int64(row[x + s2]), np.int64(row[x + s2 + 1])
+        a3, b3 = np.int64(row[x + s3]), np.int64(row[x + s3 + 1])
+        hist[0, a0] += 1
+        hist[1, a1] += 1
+        hist[2, a2] += 1
+        hist[3, a3] += 1
+        dhist[0, abs(a0 - b0)] += 1
+        dhist[1, abs(a1 - b1)] += 1
+        dhist[2, abs(a2 - b2)] += 1
+        dhist[3, abs(a3 - b3)] += 1
+        x += 4 * col_step
+    while x < last:
+        a, b = np.int64(row[x]), np.int64(row[x + 1])
+        hist[0, a] += 1
+        dhist[0, abs(a - b)] += 1
+        x += col_step
+    if x == last:  # the last column: no right neighbour
+        hist[0, row[x]] += 1
 
 
 @njit(cache=True, nogil=True)
@@ -65,8 +83,9 @@ def frame_summary(
     h, w = gray.shape
     nb = (h + band_rows - 1) // band_rows
     bands = np.zeros((nb, w), np.uint8)
-    hist = np.zeros((4, 256), np.int64)
-    dhist = np.zeros((4, 256), np.int64)
+    # per-lane counts in int32 (a lane holds at most a quarter of the sampled pixels)
+    hist = np.zeros((4, 256), np.int32)
+    dhist = np.zeros((4, 256), np.int32)
     for b in range(nb):
         out = bands[b]
         for y in range(b * band_rows, min(h, (b + 1) * band_rows)):
@@ -76,7 +95,13 @@ def frame_summary(
                     out[x] = row[x]
             if row_step > 0 and y % row_step == 0:
                 _histogram_rows(row, col_step, hist, dhist)
-    return bands, hist[0] + hist[1] + hist[2] + hist[3], dhist[0] + dhist[1] + dhist[2] + dhist[3]
+    hist_sum = np.zeros(256, np.int64)
+    dhist_sum = np.zeros(256, np.int64)
+    for k in range(4):
+        for i in range(256):
+            hist_sum[i] += hist[k, i]
+            dhist_sum[i] += dhist[k, i]
+    return bands, hist_sum, dhist_sum
 
 
 @njit(cache=True, nogil=True)

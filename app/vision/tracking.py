@@ -418,8 +418,9 @@ class StereoTracker:
         peak = float(cv2.minMaxLoc(gray)[1])
         if self.exact_peak and image.ndim == 2:
             # the full frame's peak (a glint may outshine the LEDs): one read-only max
-            # reduction (~15 µs); no gray conversion, threshold, median or labelling
-            peak = max(peak, float(cv2.minMaxLoc(image)[1]))
+            # reduction (numpy's: no minimum or location kept, unlike cv2.minMaxLoc); no gray
+            # conversion, threshold, median or labelling
+            peak = max(peak, float(image.max()))
         bg, sigma = background
         return int(min(255, max(1, round(bg + max(0.25 * (peak - bg), 6.0 * sigma)))))
 
