@@ -10,9 +10,9 @@
 * :mod:`~app.sim.docking.results` — a tick, the outcome, a per-tick log.
 """
 
+from app.control.reference import PHASES  # the reference trajectory's phases
 from app.sim.docking.config import (
     AIRFRAME_GEOMETRY,
-    PHASES,
     PLANT_GUIDANCE,
     AirframeGeometry,
     DockingConfig,

@@ -18,8 +18,6 @@ from app.sim.jsbsim_plant import JsbsimCondition
 from app.sim.plant import DEFAULT_PLANT, PLANTS
 from app.sim.turbulence import LEVELS
 
-PHASES = ("approach", "final", "contact", "station_keeping", "backoff")
-
 
 # guidance per plant. The Aerosonde design model follows the drogue's swing (its modes are
 # 10–30× faster); the A-4 cannot (lateral position bandwidth ≈ 0.5 rad/s against a 1.6 rad/s
