@@ -6,7 +6,7 @@ cares about its time (or its pose) sets just those.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -40,32 +40,6 @@ class FakeSimState:
     camera_pose_T: None = None
 
 
-@dataclass
-class FakeTick:
-    t_s: float
-    phase: str = "approach"
-    drogue_truth_m: np.ndarray = field(default_factory=lambda: np.array([-10.0, 0.0, 1.0]))
-    drogue_normal: np.ndarray = field(default_factory=lambda: np.array([-1.0, 0.0, 0.0]))
-    drogue_measured_m: np.ndarray | None = None
-    drogue_estimate_m: np.ndarray = field(default_factory=lambda: np.array([-10.0, 0.0, 1.0]))
-    probe_tip_m: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    uav_state: np.ndarray = field(default_factory=lambda: np.zeros(12))
-    reference_m: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    control: np.ndarray = field(default_factory=lambda: np.array([0.5, 0.0, 0.1, 0.0]))
-    lock: bool = True
-    lock_reason: str | None = None
-    pose: PoseResult | None = None
-    left_image: np.ndarray | None = None
-    right_image: np.ndarray | None = None
-    led_truth_cam_mm: np.ndarray | None = None
-    captured: bool = False
-    miss_m: float | None = None
-    rel_position_m: np.ndarray = field(default_factory=lambda: np.array([5.0, 0.0, 0.0]))
-    stereo_frame: None = None
-    image_windows_px: None = None
-    camera_pose_T: None = None
-
-
 class FakeSim:
     """Moves the probe 1 m/s along x; done after ``steps`` steps (tests only)."""
 
@@ -88,13 +62,23 @@ class FakeSim:
     def done(self) -> bool:
         return self.k >= self.steps
 
-    def step(self) -> FakeTick:
+    def step(self) -> FakeSimState:
         self.k += 1
         if self.clock is not None and self.step_cost_s:
             self.clock.advance(self.step_cost_s)
         t = self.k * self.dt
-        return FakeTick(
+        return FakeSimState(
             t_s=t,
-            probe_tip_m=np.array([t * self.config.closure_speed_mps, 0.0, 0.0]),
+            phase="approach",
             pose=PoseResult(lock=True),
+            lock=True,
+            drogue_truth_m=np.array([-10.0, 0.0, 1.0]),
+            drogue_normal=np.array([-1.0, 0.0, 0.0]),
+            drogue_estimate_m=np.array([-10.0, 0.0, 1.0]),
+            probe_tip_m=np.array([t * self.config.closure_speed_mps, 0.0, 0.0]),
+            rel_position_m=np.array([5.0, 0.0, 0.0]),
+            reference_m=np.zeros(3),
+            uav_state=np.zeros(12),
+            control=np.array([0.5, 0.0, 0.1, 0.0]),
+            captured=False,
         )
