@@ -34,10 +34,6 @@ def default_mount(plant: str | None = None) -> CameraMount:
 
 def mcap_tick(record: TickRecord, line: bytes, raw: RawFrame | None = None) -> McapTick:
     """The MCAP view of one record (``line``: its JSONL line) and its raw tick's windows."""
-
-    def v3(v: Any) -> tuple[float, float, float] | None:
-        return None if v is None else (float(v[0]), float(v[1]), float(v[2]))
-
     windows = None if raw is None else raw.image_windows_px
     return McapTick(
         seq=record.seq,
@@ -46,9 +42,9 @@ def mcap_tick(record: TickRecord, line: bytes, raw: RawFrame | None = None) -> M
         telemetry_json=line.rstrip(b"\n"),
         pose=record.pose,
         uav_state=None if record.uav_state is None else tuple(record.uav_state),
-        drogue_truth_m=v3(record.drogue_truth_m),
-        drogue_normal=v3(record.drogue_normal),
-        probe_tip_m=v3(record.probe_tip_m),
+        drogue_truth_m=record.drogue_truth_m,
+        drogue_normal=record.drogue_normal,
+        probe_tip_m=record.probe_tip_m,
         image_windows_px=None if windows is None else (list(windows[0]), list(windows[1])),
     )
 
