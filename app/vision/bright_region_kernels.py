@@ -64,20 +64,34 @@ def hot_tile_boxes(
     t = band_rows
     nb = bands.shape[0]
     nt = (w + t - 1) // t
-    hot = np.zeros((nb, nt), np.int64)  # 0: cold, −1: hot unvisited, k ≥ 1: cluster k
+    if threshold > 255:
+        return np.zeros((0, 4), np.int64)  # nothing can reach it
+    hot = np.zeros((nb, nt), np.int32)  # 0: cold, −1: hot unvisited, k ≥ 1: cluster k
+    # a tile is hot when one of its band maxima reaches the threshold; a band row with none
+    # (most of a frame) is passed over after one uint8 SIMD max
+    thr8 = np.uint8(max(threshold, 0))
+    hot_rows = np.zeros(nb, np.bool_)
     for by in range(nb):
+        row = bands[by]
+        m = np.uint8(0)
+        for x in range(w):
+            m = max(m, row[x])
+        if m < thr8:
+            continue
+        hot_rows[by] = True
         for tx in range(nt):
-            m = 0
+            mt = np.uint8(0)
             for x in range(tx * t, min(w, tx * t + t)):
-                if bands[by, x] > m:
-                    m = bands[by, x]
-            if m >= threshold:
+                mt = max(mt, row[x])
+            if mt >= thr8:
                 hot[by, tx] = -1
-    boxes = np.zeros((nb * nt, 4), np.int64)
+    boxes = np.empty((nb * nt, 4), np.int64)  # (bright_box writes every row it is given)
     stack = np.empty((nb * nt, 2), np.int64)
     rect = np.empty(4, np.int64)
     k = 0
     for by in range(nb):
+        if not hot_rows[by]:
+            continue
         for tx in range(nt):
             if hot[by, tx] != -1:
                 continue

@@ -7,9 +7,19 @@ import cv2
 import numpy as np
 import pytest
 
-from app.vision.features import BlobGate, TooManyBlobs, bright_boxes, detect_blobs, extract_blobs
+from app.vision.bright_region_kernels import hot_tile_boxes
+from app.vision.features import (
+    BAND_ROWS,
+    BlobGate,
+    TooManyBlobs,
+    band_maxima,
+    bright_boxes,
+    detect_blobs,
+    extract_blobs,
+)
 from app.vision.preprocess import background_level, binarize, choose_threshold, median_filter
 from tests.support.blob_scenes import blob_scene
+from tests.support.bright_region_reference import hot_tile_boxes_reference
 
 
 def _reference(img: np.ndarray, thr: int, bg: float, gate: BlobGate, ksize: int = 3):  # type: ignore[no-untyped-def]
@@ -52,6 +62,30 @@ def test_bright_boxes_hold_every_bright_pixel() -> None:
         covered[y0:y1, x0:x1] = True
     assert np.all(covered[img >= thr])
     assert covered.mean() < 0.25  # and not the whole frame
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_hot_tile_boxes_equal_the_reference(seed: int) -> None:
+    """The tile scan (a SIMD count per band row, tiles only on rows that reach the threshold)
+    gives the boxes of the plain formulation (tile maxima, scipy's 8-connected labels), at
+    every threshold from below the background to above 255 and at odd image sizes."""
+    rng = np.random.default_rng(seed)
+    checked = 0
+    for _ in range(40):
+        h, w = int(rng.integers(17, 160)), int(rng.integers(17, 220))
+        img = rng.integers(0, 40, (h, w)).astype(np.uint8)
+        for _ in range(int(rng.integers(0, 10))):
+            y, x = int(rng.integers(0, h)), int(rng.integers(0, w))
+            img[y : y + int(rng.integers(1, 9)), x : x + int(rng.integers(1, 9))] = rng.integers(
+                0, 256
+            )
+        bands = np.ascontiguousarray(band_maxima(img))
+        for thr in (-5, 0, 1, 39, 40, 100, 200, 255, 256, 400, int(rng.integers(0, 256))):
+            got = hot_tile_boxes(img, bands, BAND_ROWS, thr)
+            want = hot_tile_boxes_reference(img, bands, BAND_ROWS, thr)
+            np.testing.assert_array_equal(got, want)
+            checked += len(want)
+    assert checked > 100  # boxes were found (the comparison is not of empty lists)
 
 
 def test_too_many_blobs_is_refused_as_before() -> None:
