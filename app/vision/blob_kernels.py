@@ -22,6 +22,7 @@ from app.vision.bright_region_kernels import (
     grow_margin_px,
     hot_tile_boxes,
 )
+from app.vision.local_centroid_kernels import OUT_COLUMNS, OUT_U, measure_box, scratch_cells
 
 # columns of a candidate row passed to :func:`_centroid`
 # label, x, y, w, h, area (image px), region (lx, ly, lx1, ly1) of its box in the label
@@ -343,6 +344,25 @@ def median_runs(
 
 
 @njit(cache=True, nogil=True)
+def _component_peak(
+    gray: np.ndarray, labels: np.ndarray, cand: np.ndarray
+) -> int:  # pragma: no cover
+    """The brightest gray value on a candidate's component itself (``CAND_COLUMNS`` row): the
+    peak :func:`_centroid` reports."""
+    lab_id = cand[0]
+    x, y, w, h = cand[1], cand[2], cand[3], cand[4]
+    lx, ly, ox, oy = cand[6], cand[7], cand[10], cand[11]
+    peak = 0
+    for j in range(h):
+        lrow = labels[ly + y - oy + j]
+        grow = gray[y + j]
+        for i in range(w):
+            if lrow[lx + x - ox + i] == lab_id and grow[x + i] > peak:
+                peak = grow[x + i]
+    return peak
+
+
+@njit(cache=True, nogil=True)
 def _keep_components(
     gray: np.ndarray,
     labels: np.ndarray,
@@ -358,11 +378,20 @@ def _keep_components(
     horiz_buf: np.ndarray,
     comp_row: np.ndarray,
     cover: np.ndarray,
+    local_params: np.ndarray,
+    local: np.ndarray,
+    lstate: np.ndarray,
+    lstack: np.ndarray,
+    lcounts: np.ndarray,
 ) -> None:  # pragma: no cover - compiled
     """Gate the components of ``labels`` (a box at (x0, y0) in the image; ``st``: their
     :func:`label_runs` stats, row 0 unused) and compute eq. 11 for those that pass, appending
     to ``kept``/``cents`` (up to their length) and ``rejected`` (idem); ``counts``: (kept,
-    rejected, passing) so far."""
+    rejected, passing) so far. With ``local_params`` (not empty: the local centroid's
+    parameters) each kept component's local centroid is measured first into ``local``
+    (:func:`~app.vision.local_centroid_kernels.measure_box`; scratch ``lstate``, ``lstack``,
+    ``lcounts``), and eq. 11 only where it is not measured: elsewhere its row holds u, v and
+    mass NaN and the component's peak."""
     h, w = gray.shape
     bh, bw = labels.shape
     st = st[1:]
@@ -385,7 +414,17 @@ def _keep_components(
         cand[6], cand[7], cand[8], cand[9] = 0, 0, bw, bh
         cand[10], cand[11] = x0, y0
         kept[counts[0]] = st[c]
-        _centroid(gray, labels, cand, background, horiz_buf, comp_row, cover, cents[counts[0]])
+        row = cents[counts[0]]
+        if local_params.shape[0] > 0:
+            lrow = local[counts[0]]
+            measure_box(gray, st[c, 0], st[c, 1], st[c, 2], st[c, 3], local_params, lrow,
+                        lstate, lstack, lcounts)  # fmt: skip
+            if lrow[OUT_U] == lrow[OUT_U]:  # measured: eq. 11 is not needed
+                row[0] = row[1] = row[2] = np.nan
+                row[3] = _component_peak(gray, labels, cand)
+                counts[0] += 1
+                continue
+        _centroid(gray, labels, cand, background, horiz_buf, comp_row, cover, row)
         counts[0] += 1
 
 
@@ -417,6 +456,8 @@ def extract_in_mask(
         _keep_components(
             gray, labels, st, x0, y0, background, gate, kept, cents, rejected, counts,
             np.empty((big, big), np.uint8), np.empty(big, np.uint8), np.empty(big, np.int32),
+            np.empty(0), np.empty((0, OUT_COLUMNS)), np.empty(0, np.uint8),
+            np.empty((2, 0), np.int64), np.zeros(256, np.int64),
         )  # fmt: skip
     n_kept, n_rej = counts[0], counts[1]
     return kept[:n_kept], cents[:n_kept], rejected[:n_rej], counts[2]
@@ -433,7 +474,8 @@ def detect_in_boxes(
     gate: np.ndarray,
     max_blobs: int,
     max_rejected: int,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:  # pragma: no cover - compiled
+    local_params: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, np.ndarray]:  # pragma: no cover - compiled
     """The whole lean acquisition of one image in one compiled call: the bright tiles
     (:func:`hot_tile_boxes`) grown and merged (:func:`grow_and_merge_boxes`), then in each box
     eq. 10 + the median filter (:func:`median_runs`), Algorithm 2's labelling
@@ -442,15 +484,21 @@ def detect_in_boxes(
     ``gate``: (min area px, max area px, max aspect, min fill) of ``BlobGate``. Returns (kept
     (k, 5) int64 x, y, w, h, area in image px; their (k, 4) float64 u px, v px, mass, peak;
     the first ``max_rejected`` rejected (x, y, w, h, area) rows; the number of components
-    passing the gate). Boxes in order, components in raster order within a box. Past
-    ``max_blobs`` kept components nothing more is kept (the frame is refused)."""
+    passing the gate; their (k, ``OUT_COLUMNS``) local centroids). Boxes in order, components
+    in raster order within a box. Past ``max_blobs`` kept components nothing more is kept
+    (the frame is refused). ``local_params`` not empty (the local centroid's parameters):
+    each kept blob's local centroid is measured here (``local_centroids(gray, kept[:, :4],
+    local_params)``, the same rows) and eq. 11 only where that is not measured (elsewhere u,
+    v and mass are NaN); empty: eq. 11 for every blob and no local rows."""
     h, w = gray.shape
     kept = np.empty((max_blobs, 5), np.int64)
     cents = np.empty((max_blobs, 4))
     rejected = np.empty((max_rejected, 5), np.int64)
+    local_on = local_params.shape[0] > 0
+    local = np.full((max_blobs if local_on else 0, OUT_COLUMNS), np.nan)
     tiles = hot_tile_boxes(gray, bands, band_rows, threshold)
     if tiles.shape[0] == 0:
-        return kept[:0], cents[:0], rejected[:0], 0
+        return kept[:0], cents[:0], rejected[:0], 0, local[:0]
     boxes = grow_and_merge_boxes(tiles, w, h, ksize // 2 + 2)
     # the pixels ≥ T of each box lie in the tile boxes inside it (boxes do not overlap)
     bright = np.empty((boxes.shape[0], 4), np.int64)
@@ -481,6 +529,16 @@ def detect_in_boxes(
     comp_row = np.empty(big_side, np.uint8)
     cover = np.empty(big_side, np.int32)
     counts = np.zeros(3, np.int64)  # kept, rejected, all passing the gate
+    # the local centroid's scratch (a component's box lies in its box) and its parameters
+    big_local = 0
+    if local_on:
+        for b in range(boxes.shape[0]):
+            cells = scratch_cells(boxes[b, 2] - boxes[b, 0], boxes[b, 3] - boxes[b, 1])
+            big_local = max(big_local, cells)
+    lstate = np.empty(big_local, np.uint8)
+    lstack = np.empty((2, big_local), np.int64)
+    lcounts = np.zeros(256, np.int64)
+    lparams = local_params.copy()
     for b in range(boxes.shape[0]):
         x0, y0 = boxes[b, 0], boxes[b, 1]
         bw, bh = boxes[b, 2] - x0, boxes[b, 3] - y0
@@ -492,10 +550,16 @@ def detect_in_boxes(
         st = label_runs(runs[:count], labels)
         _keep_components(
             gray, labels, st, x0, y0, background, gate, kept, cents, rejected, counts,
-            horiz_buf, comp_row, cover,
+            horiz_buf, comp_row, cover, lparams, local, lstate, lstack, lcounts,
         )  # fmt: skip
     n_kept, n_rej, total = counts[0], counts[1], counts[2]
-    return kept[:n_kept], cents[:n_kept], rejected[:n_rej], total
+    return (
+        kept[:n_kept],
+        cents[:n_kept],
+        rejected[:n_rej],
+        total,
+        local[: n_kept if local_on else 0],
+    )
 
 
 @njit(cache=True, nogil=True)

@@ -10,12 +10,12 @@ import numpy as np
 from app.types import UInt8Array
 from app.vision.blob_kernels import detect_in_boxes, extract_in_mask
 from app.vision.bright_region_kernels import hot_tile_boxes
-from app.vision.local_centroid import LocalCentroidConfig, box_table, local_blobs
-from app.vision.local_centroid_kernels import local_centroids
+from app.vision.local_centroid import LocalCentroidConfig, local_blobs
 from app.vision.preprocess_kernels import frame_summary
 from app.vision.types import Blob, RejectedBlob
 
 MAX_REJECTED_REPORTED = 100
+_NO_PARAMS = np.empty(0)  # detect_in_boxes without local centroids
 ROI_MARGIN_PX = 48  # > the largest centroid margin (0.5·sqrt(max_area_px) + dilation)
 
 Box = tuple[int, int, int, int]  # (x0, y0, x1, y1) px, half-open
@@ -67,19 +67,17 @@ def gate_array(gate: BlobGate) -> np.ndarray:
 def _blobs(
     found: tuple[np.ndarray, np.ndarray, np.ndarray, int],
     gate: BlobGate,
-    gray: UInt8Array | None = None,
-    centroid: LocalCentroidConfig | None = None,
+    local: np.ndarray | None = None,
 ) -> tuple[list[Blob], list[RejectedBlob]]:
     """Blobs and rejected blobs from a compiled extraction's outputs (kept rows, their
     centroids, rejected rows, the number passing the gate); raises ``TooManyBlobs``. With
-    ``centroid`` enabled, each blob is built once with its local-support centroid measured on
-    ``gray`` (:mod:`app.vision.local_centroid`, all blobs in one compiled call)."""
+    ``local`` (the kept blobs' local centroids, :mod:`app.vision.local_centroid`), each blob
+    is built once with its local-support centroid."""
     kept, cents, rej, count = found
     if count > gate.max_blobs:
         raise TooManyBlobs(int(count), gate.max_blobs)
-    if gray is not None and centroid is not None and centroid.enabled and len(kept):
-        table = local_centroids(gray, box_table(kept), centroid.params())
-        blobs = local_blobs(kept.tolist(), cents.tolist(), table)
+    if local is not None and len(kept):
+        blobs = local_blobs(kept.tolist(), cents.tolist(), local)
     else:
         blobs = [
             Blob((cu, cv), area, (x, y, w, h), pk, m)
@@ -172,12 +170,14 @@ def detect_blobs(
     8-connectivity couples neighbouring boxes, and the box edge replicated stands for the
     median filter's border handling at the image edge (inside the image it is background
     anyway). Blobs come box by box, in raster order within a box. ``centroid`` (enabled):
-    each blob with its local-support centroid (``refine_blobs`` of the eq. 11 blobs, the same
-    blobs, built once)."""
+    each blob with its local-support centroid measured in the same call (``refine_blobs`` of
+    the eq. 11 blobs, the same blobs, built once), eq. 11 computed only where the local
+    centroid is not measured (elsewhere the blob's eq. 11 ``mass`` is NaN: not computed)."""
     gate = gate or BlobGate()
     if bands is None:
         bands = band_maxima(gray)
-    found = detect_in_boxes(
+    local_on = centroid is not None and centroid.enabled
+    kept, cents, rej, count, local = detect_in_boxes(
         gray,
         np.ascontiguousarray(bands),
         BAND_ROWS,
@@ -187,8 +187,9 @@ def detect_blobs(
         gate_array(gate),
         gate.max_blobs,
         MAX_REJECTED_REPORTED,
+        centroid.params() if centroid is not None and local_on else _NO_PARAMS,
     )
-    return _blobs(found, gate, gray, centroid)
+    return _blobs((kept, cents, rej, count), gate, local if local_on else None)
 
 
 def _rejected_blobs(st: np.ndarray, gate: BlobGate) -> list[RejectedBlob]:

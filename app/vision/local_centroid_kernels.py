@@ -194,6 +194,44 @@ def _measure(
 
 
 @njit(cache=True, nogil=True)
+def scratch_cells(bw: int, bh: int) -> int:  # pragma: no cover - compiled
+    """Scratch cells :func:`measure_box` needs for a w × h px box (its widest attempt)."""
+    grow = 0
+    for a in range(ATTEMPTS.shape[0]):
+        grow = max(grow, int(ATTEMPTS[a, 1]))
+    pad = _pad(bw, bh) * grow
+    return (bw + 2 * pad + 2) * (bh + 2 * pad + 2)
+
+
+@njit(cache=True, nogil=True)
+def measure_box(
+    gray: np.ndarray,
+    bx: int,
+    by: int,
+    bw: int,
+    bh: int,
+    params: np.ndarray,
+    out: np.ndarray,
+    state: np.ndarray,
+    stack: np.ndarray,
+    counts: np.ndarray,
+) -> None:  # pragma: no cover - compiled
+    """The local centroid of one blob box (x, y, w, h, image px) into ``out`` (a row of
+    ``OUT_COLUMNS``; u, v NaN when not measured), trying ``ATTEMPTS`` in turn. ``params``:
+    :meth:`LocalCentroidConfig.params`, its support fraction restored on return; scratch as
+    :func:`_measure` takes it, of at least :func:`scratch_cells` of the box."""
+    frac0 = params[0]
+    pad = _pad(bw, bh)
+    for a in range(ATTEMPTS.shape[0]):
+        out[:] = np.nan
+        params[0] = max(frac0, ATTEMPTS[a, 0])
+        grown = pad * int(ATTEMPTS[a, 1])
+        if _measure(gray, bx, by, bw, bh, grown, params, out, state, stack, counts):
+            break
+    params[0] = frac0
+
+
+@njit(cache=True, nogil=True)
 def local_centroids(
     gray: np.ndarray, boxes: np.ndarray, params: np.ndarray
 ) -> np.ndarray:  # pragma: no cover - compiled
@@ -206,27 +244,16 @@ def local_centroids(
     n = boxes.shape[0]
     out = np.full((n, OUT_COLUMNS), np.nan)
     params = params.copy()
-    frac0 = params[0]
     # scratch for the largest window an attempt may read
-    grow = 0
-    for a in range(ATTEMPTS.shape[0]):
-        grow = max(grow, int(ATTEMPTS[a, 1]))
     big = 0
     for k in range(n):
-        bw, bh = boxes[k, 2], boxes[k, 3]
-        pad = _pad(bw, bh) * grow
-        big = max(big, (bw + 2 * pad + 2) * (bh + 2 * pad + 2))
+        big = max(big, scratch_cells(boxes[k, 2], boxes[k, 3]))
     state = np.empty(big, np.uint8)
     stack = np.empty((2, big), np.int64)
     counts = np.zeros(256, np.int64)
     for k in range(n):
-        bx, by, bw, bh = boxes[k, 0], boxes[k, 1], boxes[k, 2], boxes[k, 3]
-        pad = _pad(bw, bh)
-        for a in range(ATTEMPTS.shape[0]):
-            out[k, :] = np.nan
-            params[0] = max(frac0, ATTEMPTS[a, 0])
-            grown = pad * int(ATTEMPTS[a, 1])
-            if _measure(gray, bx, by, bw, bh, grown, params, out[k], state, stack, counts):
-                break
-    params[0] = frac0
+        measure_box(
+            gray, boxes[k, 0], boxes[k, 1], boxes[k, 2], boxes[k, 3], params, out[k], state,
+            stack, counts,
+        )  # fmt: skip
     return out

@@ -17,7 +17,9 @@ class Blob:
     area_px: int
     bbox: tuple[int, int, int, int]  # x, y, w, h (px)
     peak: float  # max gray level in the component
-    mass: float  # sum of background-subtracted gray (eq. 11 denominator)
+    # sum of background-subtracted gray (eq. 11 denominator); NaN where a local-support
+    # centroid replaced eq. 11 in the acquisition (eq. 11 not computed)
+    mass: float
     color_bgr: tuple[float, ...] | None = None  # mean (B, G, R) DN over the blob, colour input
     # 1σ centroid noise (u, v) px of the local-support centroid (app.vision.local_centroid);
     # None: eq. 11's centroid, not measured; NaN: the local centroid could not be measured

@@ -100,11 +100,41 @@ def test_too_many_blobs_is_refused_as_before() -> None:
         _reference(img, 100, 10.0, gate)
 
 
+def test_a_blob_whose_local_centroid_fails_keeps_eq11() -> None:
+    """An LED on a bright stripe below the threshold (a sunlit rim edge through it): every
+    support level the local centroid tries runs along the stripe to its window's edge, so it
+    is not measured (σ NaN) and the acquisition computes eq. 11 for that blob (its centroid
+    and mass as without the local centroid), while the LED beside it gets its local centroid
+    and no eq. 11 (mass NaN)."""
+    import math
+
+    from app.vision.local_centroid import LocalCentroidConfig, refine_blobs
+
+    img = np.full((200, 300), 12, np.uint8)
+    img[97:104, :] = 225
+    cv2.circle(img, (150, 100), 5, 250, -1)  # on the stripe
+    cv2.circle(img, (60, 40), 4, 250, -1)  # on the dark background
+    eq11, _ = detect_blobs(img, 230, 12.0, BlobGate())
+    for cfg in (LocalCentroidConfig(), LocalCentroidConfig(support_frac=0.5)):
+        got, _ = detect_blobs(img, 230, 12.0, BlobGate(), centroid=cfg)
+        want = refine_blobs(img, eq11, cfg)
+        assert [b.bbox for b in got] == [(57, 37, 7, 7), (146, 96, 9, 9)]
+        free, on_stripe = got
+        assert free.centroid_px == want[0].centroid_px and math.isnan(free.mass)
+        assert not math.isnan((free.centroid_sigma_px or (math.nan,))[0])
+        assert on_stripe.centroid_px == eq11[1].centroid_px == want[1].centroid_px
+        assert on_stripe.mass == eq11[1].mass > 0
+        assert all(math.isnan(v) for v in on_stripe.centroid_sigma_px or ())
+        assert on_stripe.centroid_sigma_px is not None
+
+
 @pytest.mark.parametrize("n", [0, 5, 40, 300])
 def test_blobs_built_with_local_centroids_equal_refined_eq11_blobs(n: int) -> None:
     """``detect_blobs(..., centroid=cfg)`` builds each blob once with its local-support
     centroid: the same records as refining the eq. 11 blobs afterwards (``refine_blobs``,
-    the reference), field for field; disabled, the eq. 11 blobs as they are."""
+    the reference), field for field, except eq. 11's ``mass``, which is computed only where
+    the local centroid is not measured (NaN elsewhere); disabled, the eq. 11 blobs as they
+    are."""
     import math
 
     from app.vision.local_centroid import LocalCentroidConfig, refine_blobs
@@ -119,9 +149,11 @@ def test_blobs_built_with_local_centroids_equal_refined_eq11_blobs(n: int) -> No
         want = eq11 if cfg is None else refine_blobs(img, eq11, cfg)
         assert got_rej == rej and len(got) == len(want)
         for a, b in zip(got, want, strict=True):
-            for f in ("centroid_px", "area_px", "bbox", "peak", "mass", "color_bgr", "local_bg"):
+            for f in ("centroid_px", "area_px", "bbox", "peak", "color_bgr", "local_bg"):
                 assert getattr(a, f) == getattr(b, f), f
             sa, sb = a.centroid_sigma_px, b.centroid_sigma_px
+            measured = sa is not None and not math.isnan(sa[0])
+            assert math.isnan(a.mass) if measured else a.mass == b.mass
             assert (sa is None) == (sb is None)
             if sa is not None and sb is not None:  # (NaN: not measured, in both)
                 assert all(
