@@ -21,6 +21,7 @@ from app.vision.bright_region_kernels import (
     grow_and_merge_boxes,
     grow_margin_px,
     hot_tile_boxes,
+    touch_rows,
 )
 from app.vision.local_centroid_kernels import OUT_COLUMNS, OUT_U, measure_box, scratch_cells
 
@@ -542,6 +543,8 @@ def detect_in_boxes(
     for b in range(boxes.shape[0]):
         x0, y0 = boxes[b, 0], boxes[b, 1]
         bw, bh = boxes[b, 2] - x0, boxes[b, 3] - y0
+        # (the rows beyond the bright tiles' are read first here: their misses overlapped)
+        x0 += touch_rows(gray, x0, y0, x0 + bw, y0 + bh) >> 62
         count = median_runs(gray, boxes[b], bright[b], threshold, ksize // 2, runs)
         if count == 0:
             continue

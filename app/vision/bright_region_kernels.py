@@ -17,6 +17,23 @@ from numba import njit
 
 
 @njit(cache=True, nogil=True)
+def touch_rows(gray: np.ndarray, x0: int, y0: int, x1: int, y1: int) -> int:  # pragma: no cover
+    """Load the first and last pixel of each row of [x0, x1) × [y0, y1) (clipped to the
+    image) and return their sum: independent loads, so the rows' cache misses overlap before
+    a loop that reads the rows one after the other (a frame just read from a camera is not in
+    the cache). The caller must use the sum, or the compiler drops the loads: ``sum >> 62``
+    is 0 (the sum is ≥ 0 and < 2⁶²) and keeps them."""
+    h, w = gray.shape
+    x0, x1 = max(0, x0), min(w, x1)
+    touch = 0
+    if x1 <= x0:
+        return touch
+    for y in range(max(0, y0), min(h, y1)):
+        touch += gray[y, x0] + gray[y, x1 - 1]
+    return touch
+
+
+@njit(cache=True, nogil=True)
 def bright_box(
     gray: np.ndarray, rect: np.ndarray, threshold: int, out: np.ndarray
 ) -> bool:  # pragma: no cover - compiled
@@ -27,7 +44,7 @@ def bright_box(
     if threshold > 255:
         return False  # nothing can reach it
     thr8 = np.uint8(max(threshold, 0))
-    bx0, by0, bx1, by1 = x1, y1, -1, -1
+    bx0, by0, bx1, by1 = x1 + (touch_rows(gray, x0, y0, x1, y1) >> 62), y1, -1, -1
     for y in range(y0, y1):
         row = gray[y, x0:x1]
         hits = np.int32(0)

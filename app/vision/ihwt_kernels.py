@@ -22,13 +22,30 @@ def describe_kernel(
 ) -> np.ndarray:  # pragma: no cover - compiled
     """:func:`~app.vision.ihwt.describe_points` computed from the image itself: per point, eq. 12's integral
     image over the few px its Haar templates reach only, then eq. 13's box sums (the sums are
-    exact integers: the same descriptor as on the full frame's integral image)."""
+    exact integers: the same descriptor as on the full frame's integral image).
+
+    The window's rows are touched once before they are summed: a frame just read from a
+    camera is not in the cache, and independent loads let the rows' cache misses overlap
+    (summed row after row they come one at a time). The integral image is built from running
+    column sums (each row: the column sums, then their prefix), in scratch sized once."""
     h, w = gray.shape
     n = 4 * SAMPLES_PER_SUBSQUARE
     s = SAMPLES_PER_SUBSQUARE
     out = np.zeros((centers.shape[0], DESCRIPTOR_SIZE))
     xs = np.empty((3, n), np.int64)  # clipped corner columns: minus, centre, plus
     ys = np.empty((3, n), np.int64)
+    # scratch for the largest point's integral image (grown if a clipped one needs more)
+    big_w = big_h = 1
+    for p in range(centers.shape[0]):
+        win = windows[p]
+        step = win / n
+        half = max(1, int(np.floor(step + 0.5)))
+        ext = int(np.ceil(win)) + 2 * half + 4
+        big_w = max(big_w, min(w, ext) + 1)
+        big_h = max(big_h, min(h, ext) + 1)
+    ii_buf = np.empty(big_w * big_h, np.int64)
+    colacc = np.empty(big_w, np.int64)
+    desc = np.empty(DESCRIPTOR_SIZE)
     for p in range(centers.shape[0]):
         win = windows[p]
         step = win / n
@@ -45,14 +62,32 @@ def describe_kernel(
                 xs[d, k] = min(max(xs[d, k], 0), w)
                 ys[d, k] = min(max(ys[d, k], 0), h)
         x_lo, x_hi, y_lo, y_hi = xs[0, 0], xs[2, n - 1], ys[0, 0], ys[2, n - 1]
-        # eq. 12 over [x_lo, x_hi) × [y_lo, y_hi), leading zero row and column
-        ii = np.zeros((y_hi - y_lo + 1, x_hi - x_lo + 1), np.int64)
-        for r in range(y_hi - y_lo):
+        iw, ih = x_hi - x_lo + 1, y_hi - y_lo + 1
+        if iw * ih > ii_buf.shape[0]:
+            ii_buf = np.empty(iw * ih, np.int64)
+            colacc = np.empty(iw, np.int64)
+        ii = ii_buf[: iw * ih].reshape(ih, iw)
+        for c in range(iw):
+            ii[0, c] = 0
+            colacc[c] = 0
+        # touch the window's rows first: independent loads, so their cache misses overlap
+        # (the sums below would take them one row at a time)
+        touch = 0
+        for r in range(ih - 1):
+            touch += gray[y_lo + r, x_lo] + gray[y_lo + r, x_hi - 1]
+        colacc[iw - 1] = touch  # (never summed: keeps the touching loads)
+        for r in range(ih - 1):
+            g = gray[y_lo + r, x_lo:x_hi]
+            for c in range(iw - 1):
+                colacc[c] += g[c]
+            row = ii[r + 1]
             acc = 0
-            for c in range(x_hi - x_lo):
-                acc += gray[y_lo + r, x_lo + c]
-                ii[r + 1, c + 1] = ii[r, c + 1] + acc
-        desc = np.zeros(DESCRIPTOR_SIZE)
+            row[0] = 0
+            for c in range(iw - 1):
+                acc += colacc[c]
+                row[c + 1] = acc
+        for b in range(DESCRIPTOR_SIZE):
+            desc[b] = 0.0
         for j in range(n):
             rm, rc, rp = ys[0, j] - y_lo, ys[1, j] - y_lo, ys[2, j] - y_lo
             for i in range(n):
@@ -60,8 +95,8 @@ def describe_kernel(
                 mm, mc, mp = ii[rm, qm], ii[rm, qc], ii[rm, qp]
                 cm, cp = ii[rc, qm], ii[rc, qp]
                 pm, pc, pp = ii[rp, qm], ii[rp, qc], ii[rp, qp]
-                dx = (mc + pp - mp - pc) - (mm + pc - mc - pm)  # eq. 13: right − left
-                dy = (cm + pp - cp - pm) - (mm + cp - mp - cm)  # bottom − top
+                dx = (mc + pp - mp - pc) - (mm + pc - mc - pm)
+                dy = (cm + pp - cp - pm) - (mm + cp - mp - cm)
                 base = ((j // s) * 4 + i // s) * 4
                 desc[base] += dx
                 desc[base + 1] += abs(dx)
@@ -69,6 +104,9 @@ def describe_kernel(
                 desc[base + 3] += abs(dy)
         norm = np.sqrt(np.sum(desc * desc))
         if norm > 0:
-            desc /= norm
-        out[p] = desc
+            for b in range(DESCRIPTOR_SIZE):
+                out[p, b] = desc[b] / norm
+        else:
+            for b in range(DESCRIPTOR_SIZE):
+                out[p, b] = desc[b]
     return out

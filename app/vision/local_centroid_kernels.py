@@ -14,6 +14,8 @@ import math
 import numpy as np
 from numba import njit
 
+from app.vision.bright_region_kernels import touch_rows
+
 # columns of :func:`local_centroids`' output
 OUT_U, OUT_V, OUT_SIGMA_U, OUT_SIGMA_V, OUT_BACKGROUND, OUT_LEVEL, OUT_SATURATED, OUT_AREA = range(
     8
@@ -98,6 +100,8 @@ def _measure(
     height, width = gray.shape
     x0, y0 = max(0, bx - pad), max(0, by - pad)
     x1, y1 = min(width, bx + bw + pad), min(height, by + bh + pad)
+    # the window's rows loaded first, their cache misses overlapped (0 added)
+    x0 += touch_rows(gray, x0 - 1, y0 - 1, x1 + 1, y1 + 1) >> 62
     out[OUT_X0], out[OUT_Y0], out[OUT_X1], out[OUT_Y1] = x0 - 1, y0 - 1, x1 + 1, y1 + 1
     bg = ring_median_counts(gray, x0, y0, x1, y1, counts)
     # the peak on the blob's own box
