@@ -407,20 +407,24 @@ class StereoTracker:
         return win_l, win_r
 
     def _threshold(
-        self, gray: np.ndarray, image: np.ndarray, background: tuple[float, float], last: int
+        self,
+        gray: np.ndarray,
+        frame_peak: float | None,
+        background: tuple[float, float],
+        last: int,
     ) -> int:
-        """Eq. 10's threshold for the windows of one image (see the module docstring)."""
+        """Eq. 10's threshold for the windows of one image (see the module docstring);
+        ``frame_peak``: the whole frame's maximum where it is read (gray input, exact peak:
+        one read-only max reduction, numpy's, no minimum or location kept; no gray
+        conversion, threshold, median or labelling)."""
         mode = self.config.threshold
         if mode == "otsu":
             return last
         if mode != "auto":
             return choose_threshold(gray, mode, background)
         peak = float(cv2.minMaxLoc(gray)[1])
-        if self.exact_peak and image.ndim == 2:
-            # the full frame's peak (a glint may outshine the LEDs): one read-only max
-            # reduction (numpy's: no minimum or location kept, unlike cv2.minMaxLoc); no gray
-            # conversion, threshold, median or labelling
-            peak = max(peak, float(image.max()))
+        if frame_peak is not None:  # a glint may outshine the LEDs
+            peak = max(peak, frame_peak)
         bg, sigma = background
         return int(min(255, max(1, round(bg + max(0.25 * (peak - bg), 6.0 * sigma)))))
 
@@ -446,6 +450,11 @@ class StereoTracker:
         cols = max(len(win_l), len(win_r))
         if left.ndim != right.ndim or (left.ndim == 3 and left.shape[2] != right.shape[2]):
             raise _Fallback("left and right images have different channel counts")
+        # the whole frames' peaks (gray input, "auto" threshold) read first: the windows are
+        # then copied from the cache, not from memory
+        peaks: tuple[float | None, float | None] = (None, None)
+        if self.exact_peak and left.ndim == 2 and cfg.threshold == "auto":
+            peaks = (float(left.max()), float(right.max()))
         mosaic = np.zeros((2 * side + 1, cols * (side + 1) + 1) + left.shape[2:], np.uint8)
         for wins, image in ((win_l, left), (win_r, right)):
             for w in wins:
@@ -454,8 +463,8 @@ class StereoTracker:
                 ]
         gray = detection_image(mosaic, cfg.colour_detect)
         top, bottom = gray[:side], gray[side + 1 :]
-        thr_l = self._threshold(top, left, st.background[0], st.thresholds[0])
-        thr_r = self._threshold(bottom, right, st.background[1], st.thresholds[1])
+        thr_l = self._threshold(top, peaks[0], st.background[0], st.thresholds[0])
+        thr_r = self._threshold(bottom, peaks[1], st.background[1], st.thresholds[1])
         wins = win_l + win_r
         rows = np.array([[w.mx, w.row, side] for w in wins], np.int64)
         thr = np.array([thr_l] * len(win_l) + [thr_r] * len(win_r), np.int64)
