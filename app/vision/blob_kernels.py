@@ -573,7 +573,8 @@ def window_blobs(
     backgrounds: np.ndarray,
     ksize: int,
     gate: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover - compiled
+    local_params: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover - compiled
     """A tracker's windows: for each square window (x0, y0, side; px of ``gray``) with its
     eq. 10 threshold and background, the pixels ≥ T, the median filter around them
     (:func:`median_runs`; the window's edge replicated), the labelling (:func:`label_runs`),
@@ -581,14 +582,27 @@ def window_blobs(
     touch the window's edge (a component cut by the edge belongs to a neighbour or moved out).
 
     Returns (count (k,) of such components per window, the first one's (k, 5) int64 x, y, w,
-    h, area and (k, 4) float64 u px, v px, mass, peak in ``gray`` px). Only a box around each
-    window's pixels ≥ T (grown by the centroid margin, as the acquisition's boxes) is labelled,
-    so the labels, the supports and the centroids are those of the whole window."""
+    h, area and (k, 4) float64 u px, v px, mass, peak in ``gray`` px, and its (k,
+    ``OUT_COLUMNS``) local centroid). Only a box around each window's pixels ≥ T (grown by
+    the centroid margin, as the acquisition's boxes) is labelled, so the labels, the supports
+    and the centroids are those of the whole window. ``local_params`` as in
+    :func:`detect_in_boxes`: the local centroid measured first (on ``gray``), eq. 11 only
+    where it is not (elsewhere u, v and mass NaN); empty: eq. 11 only, local rows NaN."""
     h, w = gray.shape
     k_all = wins.shape[0]
     counts = np.zeros(k_all, np.int64)
     stats = np.zeros((k_all, 5), np.int64)
     cents = np.zeros((k_all, 4))
+    local = np.full((k_all, OUT_COLUMNS), np.nan)
+    local_on = local_params.shape[0] > 0
+    lparams = local_params.copy()
+    big_local = 0
+    if local_on:
+        for k in range(k_all):
+            big_local = max(big_local, scratch_cells(wins[k, 2], wins[k, 2]))
+    lstate = np.empty(big_local, np.uint8)
+    lstack = np.empty((2, big_local), np.int64)
+    lcounts = np.zeros(256, np.int64)
     r = ksize // 2
     big = 0
     for k in range(k_all):
@@ -636,5 +650,11 @@ def window_blobs(
             cand[6], cand[7], cand[8], cand[9] = 0, 0, bw, bh
             cand[10], cand[11] = box[0], box[1]
             stats[k] = st[c]
+            if local_on:
+                measure_box(gray, sx, sy, sw, sh, lparams, local[k], lstate, lstack, lcounts)
+                if local[k, OUT_U] == local[k, OUT_U]:  # measured: eq. 11 is not needed
+                    cents[k, 0] = cents[k, 1] = cents[k, 2] = np.nan
+                    cents[k, 3] = _component_peak(gray, labels, cand)
+                    continue
             _centroid(gray, labels, cand, backgrounds[k], horiz_buf, comp_row, cover, cents[k])
-    return counts, stats, cents
+    return counts, stats, cents, local

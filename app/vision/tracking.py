@@ -79,8 +79,8 @@ from app.vision.error_bound import (
 from app.vision.features import gate_array
 from app.vision.ihwt import SAMPLES_PER_SUBSQUARE, describe
 from app.vision.ihwt import window_side_px as ihwt_window_side_px
-from app.vision.local_centroid import box_table, local_blob, window_pad_px
-from app.vision.local_centroid_kernels import OUT_X0, OUT_X1, OUT_Y0, OUT_Y1, local_centroids
+from app.vision.local_centroid import local_blob, window_pad_px
+from app.vision.local_centroid_kernels import OUT_U, OUT_V, OUT_X0, OUT_X1, OUT_Y0, OUT_Y1
 from app.vision.matching import epipolar_distances
 from app.vision.pipeline import (
     NavigationPipeline,
@@ -192,6 +192,10 @@ class StereoTracker:
         self._planned: tuple[list[_Window], list[_Window]] | None = None
         self._params: RingParams = self.pipeline.ring_params
         self._gate = gate_array(self.config.gate)
+        # the local centroid's parameters for the windows' compiled call (empty: eq. 11 only)
+        self._local_params = (
+            self.config.centroid.params() if self.config.centroid.enabled else np.empty(0)
+        )
         # _support_half by blob radius (px): a few radii recur frame after frame
         self._support_cache: dict[float, float] = {}
 
@@ -469,16 +473,18 @@ class StereoTracker:
         rows = np.array([[w.mx, w.row, side] for w in wins], np.int64)
         thr = np.array([thr_l] * len(win_l) + [thr_r] * len(win_r), np.int64)
         bgs = [st.background[0][0]] * len(win_l) + [st.background[1][0]] * len(win_r)
-        counts, stats, cents = window_blobs(
-            gray, rows, thr, np.array(bgs, np.float64), cfg.median_ksize, self._gate
+        # with the local-support centroids of all windows' blobs, measured in the same call
+        # (a window with no blob or several is refused below before its row is used)
+        counts, stats, cents, table = window_blobs(
+            gray,
+            rows,
+            thr,
+            np.array(bgs, np.float64),
+            cfg.median_ksize,
+            self._gate,
+            self._local_params,
         )
-        # the local-support centroids of all windows' blobs in one compiled call (a window
-        # with no blob or several is refused below before its row is used)
-        local = (
-            local_centroids(gray, box_table(stats), cfg.centroid.params()).tolist()
-            if cfg.centroid.enabled
-            else None
-        )
+        local = table.tolist() if cfg.centroid.enabled else None
         got: list[dict[int, Blob]] = [{}, {}]
         outside: str | None = None  # the first blob whose local centroid reads outside its window
         for k, ((x, y, w, h, area), (u, v, mass, peak), n) in enumerate(
@@ -493,6 +499,9 @@ class StereoTracker:
                     raise _Fallback(f"LED {win.led_id} not found in its {side_name} window")
                 continue
             # the centroid support and the descriptor window must lie inside the window
+            # (around the local centroid where it is measured: eq. 11 then is not computed)
+            if local is not None and local[k][OUT_U] == local[k][OUT_U]:
+                u, v = local[k][OUT_U], local[k][OUT_V]
             need = self._support_half(equivalent_radius_px(area))
             if (
                 u - need < win.mx
