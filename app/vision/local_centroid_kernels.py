@@ -4,7 +4,8 @@
 the median of a one-pixel ring around its window, support relative to its own peak, the
 weighted mean and its noise): the algorithm is described in :mod:`app.vision.local_centroid`,
 which holds its configuration (``LocalCentroidConfig.params()`` gives ``params``' order) and
-turns the output rows into blobs.
+turns the output rows into blobs. :func:`measure_box` measures one blob: the acquisition's and
+the tracker's labelling calls (:mod:`app.vision.blob_kernels`) call it for each blob they keep.
 """
 
 from __future__ import annotations
