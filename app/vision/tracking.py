@@ -565,14 +565,15 @@ class StereoTracker:
             wf, mw = self.pipeline.window_factor, cfg.min_window_px
             mblobs = [got_l[i] for i in led_ids] + [got_r[i] for i in led_ids]
             desc = describe(gray, mblobs, wf, mw)
-            desc_dist = np.sqrt(np.sum((desc[:n_led] - desc[n_led:]) ** 2, axis=1))
+            desc_dist = np.sqrt(np.sum((desc[:n_led] - desc[n_led:]) ** 2, axis=1)).tolist()
         else:
-            desc_dist = np.full(n_led, -1.0)  # not computed
+            desc_dist = [-1.0] * n_led  # not computed
         # --- epipolar gate and triangulation (as the pipeline)
         xl = undistort_pixels(cal.left, pl)
         xr = undistort_pixels(cal.right, pr)
         epi = np.diagonal(epipolar_distances(self.pipeline.fundamental, xl, xr))  # pairs i ↔ i
-        if np.any(epi > cfg.epipolar_tol_px):
+        epi_f = epi.tolist()
+        if any(e > cfg.epipolar_tol_px for e in epi_f):
             raise _Fallback("a tracked LED pair left the epipolar gate")
         X0 = triangulate_linear(cal.P_left, cal.P_right, xl, xr)
         X, reproj = refine_reprojection(cal.P_left, cal.P_right, xl, xr, X0)
@@ -645,7 +646,7 @@ class StereoTracker:
                 **led_bound_fields(bound, k, sigmas[k]),
             )
             for k, (i, d, e, rp) in enumerate(
-                zip(led_ids, desc_dist.tolist(), epi.tolist(), reproj.tolist(), strict=True)
+                zip(led_ids, desc_dist, epi_f, reproj.tolist(), strict=True)
             )
         ]
         drogue = drogue_with_bound(circle, bound)
