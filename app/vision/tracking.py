@@ -20,7 +20,7 @@
 * The threshold is the pipeline's "auto" rule, bg + max(0.25·(peak − bg), 6σ), with the
   background level and σ of the last acquisition and the peak of the windows and, for gray
   input with ``exact_peak`` (default), of the whole frame (one read-only max reduction per
-  image, read before the windows are cropped: a glint brighter than the LEDs sets the same
+  image, skipped when a window is saturated: a glint brighter than the LEDs sets the same
   threshold as in the full-frame pipeline). BGR input uses the windows' peak only (equal
   whenever the brightest pixel is an LED). An int threshold is used as is; "otsu" keeps the last acquisition's.
 * **Integrity every tracked frame**: every window of a tracked LED holds exactly one LED-like
@@ -413,22 +413,24 @@ class StereoTracker:
     def _threshold(
         self,
         gray: np.ndarray,
-        frame_peak: float | None,
+        frame: np.ndarray | None,
         background: tuple[float, float],
         last: int,
     ) -> int:
         """Eq. 10's threshold for the windows of one image (see the module docstring);
-        ``frame_peak``: the whole frame's maximum where it is read (gray input, exact peak:
-        one read-only max reduction, numpy's, no minimum or location kept; no gray
-        conversion, threshold, median or labelling)."""
+        ``frame``: the gray frame whose whole peak counts (exact peak), else None."""
         mode = self.config.threshold
         if mode == "otsu":
             return last
         if mode != "auto":
             return choose_threshold(gray, mode, background)
         peak = float(cv2.minMaxLoc(gray)[1])
-        if frame_peak is not None:  # a glint may outshine the LEDs
-            peak = max(peak, frame_peak)
+        if frame is not None and peak < 255.0:
+            # a glint may outshine the LEDs: the full frame's peak, one read-only max
+            # reduction (numpy's: no minimum or location kept; no gray conversion,
+            # threshold, median or labelling); not read when a window is saturated (nothing
+            # in the frame is brighter)
+            peak = max(peak, float(frame.max()))
         bg, sigma = background
         return int(min(255, max(1, round(bg + max(0.25 * (peak - bg), 6.0 * sigma)))))
 
@@ -454,11 +456,6 @@ class StereoTracker:
         cols = max(len(win_l), len(win_r))
         if left.ndim != right.ndim or (left.ndim == 3 and left.shape[2] != right.shape[2]):
             raise _Fallback("left and right images have different channel counts")
-        # the whole frames' peaks (gray input, "auto" threshold) read first: the windows are
-        # then copied from the cache, not from memory
-        peaks: tuple[float | None, float | None] = (None, None)
-        if self.exact_peak and left.ndim == 2 and cfg.threshold == "auto":
-            peaks = (float(left.max()), float(right.max()))
         mosaic = np.zeros((2 * side + 1, cols * (side + 1) + 1) + left.shape[2:], np.uint8)
         for wins, image in ((win_l, left), (win_r, right)):
             for w in wins:
@@ -467,8 +464,11 @@ class StereoTracker:
                 ]
         gray = detection_image(mosaic, cfg.colour_detect)
         top, bottom = gray[:side], gray[side + 1 :]
-        thr_l = self._threshold(top, peaks[0], st.background[0], st.thresholds[0])
-        thr_r = self._threshold(bottom, peaks[1], st.background[1], st.thresholds[1])
+        exact = self.exact_peak and left.ndim == 2
+        thr_l = self._threshold(top, left if exact else None, st.background[0], st.thresholds[0])
+        thr_r = self._threshold(
+            bottom, right if exact else None, st.background[1], st.thresholds[1]
+        )
         wins = win_l + win_r
         rows = np.array([[w.mx, w.row, side] for w in wins], np.int64)
         thr = np.array([thr_l] * len(win_l) + [thr_r] * len(win_r), np.int64)

@@ -359,3 +359,41 @@ def test_flight_scale_ring_far_out_stays_tracked(calib) -> None:  # type: ignore
         worst = max(worst, _max_diff_mm(a, b))
     assert modes == ["acquired"] + ["tracked"] * 15, tracker.last_fallback
     assert worst <= TOL_MM
+
+
+def test_saturated_windows_skip_the_full_frame_read(calib) -> None:  # type: ignore[no-untyped-def]
+    """Eq. 10's peak on a tracked frame: the whole frame is read only when no window pixel
+    is saturated (a saturated window already holds the frame's largest value, 255); either
+    way the threshold is the rule's on the frame's true peak."""
+
+    class Frame:
+        def __init__(self, peak: int) -> None:
+            self.peak, self.reads = peak, 0
+
+        def max(self) -> int:
+            self.reads += 1
+            return self.peak
+
+    tracker = StereoTracker(calib)
+    bg = (12.0, 2.0)
+    unsaturated = np.full((20, 20), 12, np.uint8)
+    unsaturated[8:12, 8:12] = 230
+    glint = Frame(250)  # a glint brighter than the LEDs elsewhere in the frame
+    thr = tracker._threshold(unsaturated, glint, bg, 0)  # type: ignore[arg-type]
+    assert glint.reads == 1 and thr == round(12 + 0.25 * (250 - 12))
+    saturated = unsaturated.copy()
+    saturated[9, 9] = 255
+    frame = Frame(255)
+    thr = tracker._threshold(saturated, frame, bg, 0)  # type: ignore[arg-type]
+    assert frame.reads == 0 and thr == round(12 + 0.25 * (255 - 12))
+
+
+def test_saturated_led_sequence_equal(calib) -> None:  # type: ignore[no-untyped-def]
+    """Saturated LEDs (flat tops at 255) and LED-like glints: tracked frames, which then read
+    no whole frame for the peak, equal the full-frame pipeline."""
+    settings = RenderSettings(led_peak=400.0, glints=10)
+    pair = next(iter(_frames(calib, 1000.0, 1, settings)))
+    assert int(pair.left.max()) == 255  # the LEDs saturate (the test can fail)
+    modes, worst = _compare_sequence(calib, 1000.0, 6, settings)
+    assert modes == ["acquired"] + ["tracked"] * 5
+    assert worst <= TOL_MM
