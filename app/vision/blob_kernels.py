@@ -496,7 +496,7 @@ def detect_in_boxes(
     cents = np.empty((max_blobs, 4))
     rejected = np.empty((max_rejected, 5), np.int64)
     local_on = local_params.shape[0] > 0
-    local = np.full((max_blobs if local_on else 0, OUT_COLUMNS), np.nan)
+    local = np.empty((max_blobs if local_on else 0, OUT_COLUMNS))  # (rows written when kept)
     tiles = hot_tile_boxes(gray, bands, band_rows, threshold)
     if tiles.shape[0] == 0:
         return kept[:0], cents[:0], rejected[:0], 0, local[:0]
