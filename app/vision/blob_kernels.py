@@ -23,7 +23,13 @@ from app.vision.bright_region_kernels import (
     hot_tile_boxes,
     touch_rows,
 )
-from app.vision.local_centroid_kernels import OUT_COLUMNS, OUT_U, measure_box, scratch_cells
+from app.vision.local_centroid_kernels import (
+    OUT_COLUMNS,
+    OUT_U,
+    measure_box,
+    scratch,
+    scratch_cells,
+)
 
 # columns of a candidate row passed to :func:`_centroid`
 # label, x, y, w, h, area (image px), region (lx, ly, lx1, ly1) of its box in the label
@@ -364,6 +370,35 @@ def _component_peak(
 
 
 @njit(cache=True, nogil=True)
+def _blob_centroid(
+    gray: np.ndarray,
+    labels: np.ndarray,
+    cand: np.ndarray,
+    background: float,
+    eq11_scratch: tuple[np.ndarray, np.ndarray, np.ndarray],
+    row: np.ndarray,
+    local_params: np.ndarray,
+    lrow: np.ndarray,
+    local_scratch: tuple[np.ndarray, np.ndarray, np.ndarray],
+) -> None:  # pragma: no cover - compiled
+    """A kept candidate's centroids (``CAND_COLUMNS`` row ``cand``): with ``local_params``
+    (not empty) its local centroid into ``lrow`` first
+    (:func:`~app.vision.local_centroid_kernels.measure_box`), and where that is measured
+    ``row`` = (NaN, NaN, NaN, the component's peak); else eq. 11 into ``row``
+    (:func:`_centroid`: u, v, mass, peak)."""
+    if local_params.shape[0] > 0:
+        state, stack, counts = local_scratch
+        measure_box(gray, cand[1], cand[2], cand[3], cand[4], local_params, lrow, state, stack,
+                    counts)  # fmt: skip
+        if lrow[OUT_U] == lrow[OUT_U]:  # measured: eq. 11 is not needed
+            row[0] = row[1] = row[2] = np.nan
+            row[3] = _component_peak(gray, labels, cand)
+            return
+    horiz_buf, comp_row, cover = eq11_scratch
+    _centroid(gray, labels, cand, background, horiz_buf, comp_row, cover, row)
+
+
+@njit(cache=True, nogil=True)
 def _keep_components(
     gray: np.ndarray,
     labels: np.ndarray,
@@ -376,23 +411,17 @@ def _keep_components(
     cents: np.ndarray,
     rejected: np.ndarray,
     counts: np.ndarray,
-    horiz_buf: np.ndarray,
-    comp_row: np.ndarray,
-    cover: np.ndarray,
+    eq11_scratch: tuple[np.ndarray, np.ndarray, np.ndarray],
     local_params: np.ndarray,
     local: np.ndarray,
-    lstate: np.ndarray,
-    lstack: np.ndarray,
-    lcounts: np.ndarray,
+    local_scratch: tuple[np.ndarray, np.ndarray, np.ndarray],
 ) -> None:  # pragma: no cover - compiled
     """Gate the components of ``labels`` (a box at (x0, y0) in the image; ``st``: their
     :func:`label_runs` stats, row 0 unused) and compute eq. 11 for those that pass, appending
     to ``kept``/``cents`` (up to their length) and ``rejected`` (idem); ``counts``: (kept,
-    rejected, passing) so far. With ``local_params`` (not empty: the local centroid's
-    parameters) each kept component's local centroid is measured first into ``local``
-    (:func:`~app.vision.local_centroid_kernels.measure_box`; scratch ``lstate``, ``lstack``,
-    ``lcounts``), and eq. 11 only where it is not measured: elsewhere its row holds u, v and
-    mass NaN and the component's peak."""
+    rejected, passing) so far; each kept component's centroids by :func:`_blob_centroid`
+    (with ``local_params``: its local centroid into ``local``, eq. 11 only where that is not
+    measured)."""
     h, w = gray.shape
     bh, bw = labels.shape
     st = st[1:]
@@ -415,17 +444,10 @@ def _keep_components(
         cand[6], cand[7], cand[8], cand[9] = 0, 0, bw, bh
         cand[10], cand[11] = x0, y0
         kept[counts[0]] = st[c]
-        row = cents[counts[0]]
-        if local_params.shape[0] > 0:
-            lrow = local[counts[0]]
-            measure_box(gray, st[c, 0], st[c, 1], st[c, 2], st[c, 3], local_params, lrow,
-                        lstate, lstack, lcounts)  # fmt: skip
-            if lrow[OUT_U] == lrow[OUT_U]:  # measured: eq. 11 is not needed
-                row[0] = row[1] = row[2] = np.nan
-                row[3] = _component_peak(gray, labels, cand)
-                counts[0] += 1
-                continue
-        _centroid(gray, labels, cand, background, horiz_buf, comp_row, cover, row)
+        k = counts[0]
+        lrow = local[k] if local.shape[0] > 0 else cents[k]  # (no local rows: not written)
+        _blob_centroid(gray, labels, cand, background, eq11_scratch, cents[k], local_params,
+                       lrow, local_scratch)  # fmt: skip
         counts[0] += 1
 
 
@@ -456,9 +478,8 @@ def extract_in_mask(
             big = max(big, max(st[c, 2], st[c, 3]) + 2 * centroid_margin_px(st[c, 4]))
         _keep_components(
             gray, labels, st, x0, y0, background, gate, kept, cents, rejected, counts,
-            np.empty((big, big), np.uint8), np.empty(big, np.uint8), np.empty(big, np.int32),
-            np.empty(0), np.empty((0, OUT_COLUMNS)), np.empty(0, np.uint8),
-            np.empty((2, 0), np.int64), np.zeros(256, np.int64),
+            (np.empty((big, big), np.uint8), np.empty(big, np.uint8), np.empty(big, np.int32)),
+            np.empty(0), np.empty((0, OUT_COLUMNS)), scratch(0),
         )  # fmt: skip
     n_kept, n_rej = counts[0], counts[1]
     return kept[:n_kept], cents[:n_kept], rejected[:n_rej], counts[2]
@@ -536,9 +557,7 @@ def detect_in_boxes(
         for b in range(boxes.shape[0]):
             cells = scratch_cells(boxes[b, 2] - boxes[b, 0], boxes[b, 3] - boxes[b, 1])
             big_local = max(big_local, cells)
-    lstate = np.empty(big_local, np.uint8)
-    lstack = np.empty((2, big_local), np.int64)
-    lcounts = np.zeros(256, np.int64)
+    local_scratch = scratch(big_local)
     lparams = local_params.copy()
     for b in range(boxes.shape[0]):
         x0, y0 = boxes[b, 0], boxes[b, 1]
@@ -553,7 +572,7 @@ def detect_in_boxes(
         st = label_runs(runs[:count], labels)
         _keep_components(
             gray, labels, st, x0, y0, background, gate, kept, cents, rejected, counts,
-            horiz_buf, comp_row, cover, lparams, local, lstate, lstack, lcounts,
+            (horiz_buf, comp_row, cover), lparams, local, local_scratch,
         )  # fmt: skip
     n_kept, n_rej, total = counts[0], counts[1], counts[2]
     return (
@@ -600,9 +619,7 @@ def window_blobs(
     if local_on:
         for k in range(k_all):
             big_local = max(big_local, scratch_cells(wins[k, 2], wins[k, 2]))
-    lstate = np.empty(big_local, np.uint8)
-    lstack = np.empty((2, big_local), np.int64)
-    lcounts = np.zeros(256, np.int64)
+    local_scratch = scratch(big_local)
     r = ksize // 2
     big = 0
     for k in range(k_all):
@@ -650,11 +667,6 @@ def window_blobs(
             cand[6], cand[7], cand[8], cand[9] = 0, 0, bw, bh
             cand[10], cand[11] = box[0], box[1]
             stats[k] = st[c]
-            if local_on:
-                measure_box(gray, sx, sy, sw, sh, lparams, local[k], lstate, lstack, lcounts)
-                if local[k, OUT_U] == local[k, OUT_U]:  # measured: eq. 11 is not needed
-                    cents[k, 0] = cents[k, 1] = cents[k, 2] = np.nan
-                    cents[k, 3] = _component_peak(gray, labels, cand)
-                    continue
-            _centroid(gray, labels, cand, backgrounds[k], horiz_buf, comp_row, cover, cents[k])
+            _blob_centroid(gray, labels, cand, backgrounds[k], (horiz_buf, comp_row, cover),
+                           cents[k], lparams, local[k], local_scratch)  # fmt: skip
     return counts, stats, cents, local

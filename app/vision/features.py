@@ -187,7 +187,7 @@ def detect_blobs(
         gate_array(gate),
         gate.max_blobs,
         MAX_REJECTED_REPORTED,
-        centroid.params() if centroid is not None and local_on else _NO_PARAMS,
+        centroid.kernel_params() if centroid is not None else _NO_PARAMS,
     )
     return _blobs((kept, cents, rej, count), gate, local if local_on else None)
 

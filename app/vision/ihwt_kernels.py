@@ -12,6 +12,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from app.vision.bright_region_kernels import touch_rows
+
 DESCRIPTOR_SIZE = 64
 SAMPLES_PER_SUBSQUARE = 5
 
@@ -70,12 +72,8 @@ def describe_kernel(
         for c in range(iw):
             ii[0, c] = 0
             colacc[c] = 0
-        # touch the window's rows first: independent loads, so their cache misses overlap
-        # (the sums below would take them one row at a time)
-        touch = 0
-        for r in range(ih - 1):
-            touch += gray[y_lo + r, x_lo] + gray[y_lo + r, x_hi - 1]
-        colacc[iw - 1] = touch  # (never summed: keeps the touching loads)
+        # the window's rows touched first (their cache misses overlapped; 0 added)
+        x_lo += touch_rows(gray, x_lo, y_lo, x_hi, y_hi) >> 62
         for r in range(ih - 1):
             g = gray[y_lo + r, x_lo:x_hi]
             for c in range(iw - 1):
@@ -95,8 +93,8 @@ def describe_kernel(
                 mm, mc, mp = ii[rm, qm], ii[rm, qc], ii[rm, qp]
                 cm, cp = ii[rc, qm], ii[rc, qp]
                 pm, pc, pp = ii[rp, qm], ii[rp, qc], ii[rp, qp]
-                dx = (mc + pp - mp - pc) - (mm + pc - mc - pm)
-                dy = (cm + pp - cp - pm) - (mm + cp - mp - cm)
+                dx = (mc + pp - mp - pc) - (mm + pc - mc - pm)  # eq. 13: right − left
+                dy = (cm + pp - cp - pm) - (mm + cp - mp - cm)  # bottom − top
                 base = ((j // s) * 4 + i // s) * 4
                 desc[base] += dx
                 desc[base + 1] += abs(dx)

@@ -74,6 +74,11 @@ class LocalCentroidConfig:
             dtype=np.float64,
         )
 
+    def kernel_params(self) -> NDArray[np.float64]:
+        """:meth:`params` for the labelling calls (``blob_kernels.detect_in_boxes``,
+        ``window_blobs``), empty when disabled (eq. 11 only)."""
+        return self.params() if self.enabled else np.empty(0)
+
 
 def window_pad_px(w: int, h: int) -> int:
     """Margin (px) of the local window around a blob box of w × h px."""

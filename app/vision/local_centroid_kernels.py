@@ -209,6 +209,13 @@ def scratch_cells(bw: int, bh: int) -> int:  # pragma: no cover - compiled
 
 
 @njit(cache=True, nogil=True)
+def scratch(cells: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover
+    """:func:`measure_box`'s scratch for boxes of up to ``cells`` (:func:`scratch_cells`):
+    (state uint8, stack (2, cells) int64, 256-bin counts, zero)."""
+    return np.empty(cells, np.uint8), np.empty((2, cells), np.int64), np.zeros(256, np.int64)
+
+
+@njit(cache=True, nogil=True)
 def measure_box(
     gray: np.ndarray,
     bx: int,
@@ -253,9 +260,7 @@ def local_centroids(
     big = 0
     for k in range(n):
         big = max(big, scratch_cells(boxes[k, 2], boxes[k, 3]))
-    state = np.empty(big, np.uint8)
-    stack = np.empty((2, big), np.int64)
-    counts = np.zeros(256, np.int64)
+    state, stack, counts = scratch(big)
     for k in range(n):
         measure_box(
             gray, boxes[k, 0], boxes[k, 1], boxes[k, 2], boxes[k, 3], params, out[k], state,

@@ -13,8 +13,9 @@
   threshold (per image), the median filter, labelling and the eq. 11 centroids run in one
   compiled call around each window's bright pixels, with each window's local-support
   centroid (:func:`~app.vision.blob_kernels.window_blobs`). Window half-size: max(3·r, 12
-  px, the support) + |velocity| + 2 px (24 px of motion allowance while an LED's velocity is unknown), where the support is
-  the blob, its centroid margin and, with ``describe``, its IHWT descriptor window; a blob
+  px, the support) + |velocity| + 2 px (24 px of motion allowance while an LED's velocity is
+  unknown), where the support is the blob, its centroid margin and, with ``describe``, its
+  IHWT descriptor window; a blob
   whose support is not inside its window sends the frame to acquisition, so the centroids
   and descriptors equal the full-frame ones bit for bit.
 * The threshold is the pipeline's "auto" rule, bg + max(0.25·(peak − bg), 6σ), with the
@@ -22,7 +23,8 @@
   input with ``exact_peak`` (default), of the whole frame (one read-only max reduction per
   image, skipped when a window is saturated: a glint brighter than the LEDs sets the same
   threshold as in the full-frame pipeline). BGR input uses the windows' peak only (equal
-  whenever the brightest pixel is an LED). An int threshold is used as is; "otsu" keeps the last acquisition's.
+  whenever the brightest pixel is an LED). An int threshold is used as is; "otsu" keeps the
+  last acquisition's.
 * **Integrity every tracked frame**: every window of a tracked LED holds exactly one LED-like
   blob (two → acquisition), the pair passes the epipolar gate, triangulates in the depth range
   with a small reprojection error and passes the appearance test; the points fit the ring
@@ -193,9 +195,7 @@ class StereoTracker:
         self._params: RingParams = self.pipeline.ring_params
         self._gate = gate_array(self.config.gate)
         # the local centroid's parameters for the windows' compiled call (empty: eq. 11 only)
-        self._local_params = (
-            self.config.centroid.params() if self.config.centroid.enabled else np.empty(0)
-        )
+        self._local_params = self.config.centroid.kernel_params()
         # _support_half by blob radius (px): a few radii recur frame after frame
         self._support_cache: dict[float, float] = {}
 
