@@ -45,6 +45,12 @@ class DesignWeights:
     # on the INS rather than on the design model's prediction
     observer_model_q: tuple[float, ...]
     meas_sigma: tuple[float, ...] = (0.002, 0.002, 0.002, 0.002, 0.002, 0.002, 0.01, 0.01, 0.01)
+    # the rate-weighted form (app.control.lqr): weights on each command's increment per tick;
+    # ``r`` then weighs the command's size (None: the plain law)
+    r_rate: tuple[float, float, float, float] | None = None
+    # loop-transfer recovery: fictitious process noise on the inputs (B Bᵀ × this, per tick),
+    # so that the observer gives back the state feedback's margins at the plant input
+    observer_input_q: float = 0.0
 
 
 # On the Aerosonde design model: chosen for robustness over the plant spread, not per run —
@@ -83,13 +89,20 @@ AEROSONDE_WEIGHTS = DesignWeights(
 A4_WEIGHTS = DesignWeights(
     q_state=(0.2029, 0.2029, 0.2029, 16.89, 16.89, 16.89, 3.106, 6.034, 19.42, 40.0, 178.0, 178.0),
     q_int=(2.816, 57.4, 57.4),
-    r=(400.0, 825.7, 456.6, 2829.0),
+    # the rate-weighted form: r on the commands' size (throttle ×10, aileron ×3.6, elevator
+    # ×17.5 over the plain design's 400 / 825.7 / 456.6 / 2829), r_rate on their increments per
+    # tick — chosen on the margins of app.control.loop_margins (every loop ≥ 45° and ≥ 6 dB
+    # with the `standard` servo lag, all at once ≥ ±4 dB / 30° and ≥ 160 ms of delay with the
+    # `harsh` lag) and the surfaces' time on their rate limits in calm air with the INS noise
+    # (docs/control.md, "Safety")
+    r=(4000.0, 3000.0, 8000.0, 2829.0),
     error_clip=(np.inf,) * 9 + (0.6, 0.6, 0.6),
     # u v w are not measured: with the Aerosonde's 10 (m/s)² per tick the observer took them
     # from the differentiated position fixes (σ 1 cm at 50 Hz) and that noise flew the tip;
     # 10⁻² on u v w trusts the design model, which is the FDM's own nonlinear aircraft
     # linearised (at most lighter). Calm-air misses before and after: docs/control.md
     observer_model_q=(0.01,) * 3 + (10.0,) * 3 + (0.0,) * 6,
+    r_rate=(2.0e5, 2.0e4, 1.0e4, 2.0e4),
 )
 
 
@@ -106,6 +119,7 @@ class ControllerDesign:
     lqr_kp: FloatArray
     lqr_ki: FloatArray
     lqr_ke: FloatArray | None  # gain on the modelled input lags' deflections (lag-aware design)
+    lqr_ku: FloatArray | None  # gain on the previous command (rate-weighted design)
     lqr_design_lag_s: float | tuple[float, ...]
     obs_gain: FloatArray
     c_meas: FloatArray
@@ -128,6 +142,7 @@ class ControllerDesign:
             ki=self.lqr_ki,
             ke=self.lqr_ke,
             design_lag_s=self.lqr_design_lag_s,
+            ku=self.lqr_ku,
             c_tip=self.c_tip,
             dt=dt,
         )
@@ -193,6 +208,7 @@ def design_controller(
         np.asarray(weights.q_int, dtype=np.float64),
         np.asarray(weights.r, dtype=np.float64),
         design_lag_s=design_lag,
+        r_rate=None if weights.r_rate is None else np.asarray(weights.r_rate, dtype=np.float64),
     )
     c_meas = np.zeros((len(MEASURED_STATES), 12))
     for row, idx in enumerate(MEASURED_STATES):
@@ -200,7 +216,12 @@ def design_controller(
     meas_sigma = np.asarray(weights.meas_sigma, dtype=np.float64)
     # process noise: the gusts (E_d E_dᵀ·4) plus model uncertainty on the velocities and rates
     # (the flown aircraft is not the design model), so the observer leans on the INS
-    q0 = ed @ ed.T * 4.0 + np.diag(weights.observer_model_q) + np.eye(12) * 1e-6
+    q0 = (
+        ed @ ed.T * 4.0
+        + np.diag(weights.observer_model_q)
+        + bd @ bd.T * weights.observer_input_q
+        + np.eye(12) * 1e-6
+    )
     obs = StateObserver(ad, bd, c_meas, q0, np.diag(meas_sigma**2))
     return ControllerDesign(
         model=model,
@@ -212,6 +233,7 @@ def design_controller(
         lqr_kp=ctrl.kp,
         lqr_ki=ctrl.ki,
         lqr_ke=ctrl.ke,
+        lqr_ku=ctrl.ku,
         lqr_design_lag_s=ctrl.design_lag_s,
         obs_gain=obs.gain,
         c_meas=c_meas,

@@ -38,13 +38,15 @@ def closed_loop_matrix(
     gain_scale: float = 1.0,
     ke: FloatArray | None = None,
     design_lag_s: float | tuple[float, ...] = 0.0,
+    ku: FloatArray | None = None,
 ) -> FloatArray:
     """Transition matrix of [x, x̂_{k−1}, u_{k−1..k−1−delay}, ζ, e, ê] (module docstring).
 
     ``design_lag_s`` > 0: the controller models a servo lag of that time constant (the lag-aware
     design, :meth:`app.control.lqr.IntegralLqr.design`): its modelled deflection
     ``ê_k = ê_{k−1} + α_d (u_k − ê_{k−1})`` drives the observer's prediction and enters the
-    feedback through ``ke`` (``u_k = −K_p x̂_k − K_e ê_{k−1} − K_i ζ_k``)."""
+    feedback through ``ke`` (``u_k = −K_p x̂_k − K_e ê_{k−1} − K_i ζ_k``). ``ku``: the
+    rate-weighted form, ``u_k = u_{k−1} − (K_p x̂_k + K_e ê_{k−1} + K_u u_{k−1} + K_i ζ_k)``."""
     ap, bp = plant if plant is not None else (a, b)
     n, m = b.shape
     p = c_tip.shape[0]
@@ -72,7 +74,10 @@ def closed_loop_matrix(
         fb = kp @ xh + ki @ zeta
         if lag_model and ke is not None:
             fb = fb + ke @ e_hat
-        u = -gain_scale * fb
+        if ku is not None:  # rate-weighted form: u_k = u_{k−1} − K z_k (its memory: u_{k−1})
+            u = u_hist[0] - gain_scale * (fb + ku @ u_hist[0])
+        else:
+            u = -gain_scale * fb
         applied = u if d == 0 else u_hist[d - 1]
         e = e_prev + alpha * (applied - e_prev)
         new = np.zeros(size)

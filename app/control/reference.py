@@ -34,6 +34,10 @@ class GuidanceConfig:
     # None: no standoff
     standoff_gap_m: float | None = None
     standoff_slowdown_s: float = 0.8
+    # the commanded gap's rate changes at most this fast (m/s²; None: at once). A receiver's
+    # engine spools at a limited rate: a step in the closure speed asks for more thrust than
+    # it can build, and the throttle then runs to its limit and the closure overshoots
+    accel_limit_mps2: float | None = None
 
 
 class ReferenceGenerator:
@@ -48,6 +52,7 @@ class ReferenceGenerator:
         self.contact_time = 0.0
         self.backoffs = 0
         self.committed = False
+        self.gap_rate = 0.0  # m/s, the commanded gap's rate (negative: closing)
 
     @property
     def holding(self) -> bool:
@@ -59,6 +64,16 @@ class ReferenceGenerator:
             and self.phase in ("approach", "final")
             and self.gap_cmd <= s
         )
+
+    def _shaped_rate(self, dt: float, wanted_rate: float) -> float:
+        """Replace this tick's gap step (``wanted_rate``, already applied to ``gap_cmd``) by
+        one whose rate moves towards it at no more than ``accel_limit_mps2``."""
+        assert self.cfg.accel_limit_mps2 is not None
+        self.gap_cmd -= wanted_rate * dt
+        dv = self.cfg.accel_limit_mps2 * dt
+        self.gap_rate = float(np.clip(wanted_rate, self.gap_rate - dv, self.gap_rate + dv))
+        self.gap_cmd += self.gap_rate * dt
+        return self.gap_rate
 
     def start_backoff(self) -> None:
         self.phase = "backoff"
@@ -112,6 +127,10 @@ class ReferenceGenerator:
             else:
                 self.gap_cmd -= c.closure_speed_mps * dt
                 gap_rate = -c.closure_speed_mps
+        if c.accel_limit_mps2 is not None:
+            gap_rate = self._shaped_rate(dt, gap_rate)
+        else:
+            self.gap_rate = gap_rate
         if self.phase in ("approach", "final"):
             self.phase = "final" if self.gap_cmd <= c.final_gap_m else "approach"
         ref = np.asarray(drogue_pos, float) - np.array([self.gap_cmd, 0.0, 0.0])

@@ -55,7 +55,7 @@ AIRFRAMES = {"A4": "A-4 Skyhawk (JSBSim A4, as shipped)"}
 # servo rate limits (normalised travel per second): JSBSim's A-4 has none (its surfaces follow
 # the command at once); ours, an estimate for hydraulic surface actuators (≈ 60 °/s on the
 # 0.35 rad surfaces) and a throttle lever moved at most its whole range per second
-RATE_NORM_PER_S = (1.0, 3.0, 3.0, 3.0)
+RATE_NORM_PER_S = (0.35, 3.0, 3.0, 3.0)
 SERVO_LAG_S = 0.03  # the design's servo lag on the surfaces (the lag-aware LQR)
 
 

@@ -37,11 +37,32 @@ class PlantGuidance(NamedTuple):
     closure_feedforward: bool  # the closure's steady state and commands fed forward
     abort_margin: float  # break away when the predicted miss exceeds this × capture radius
     swing_lead: float  # lead the probe to this fraction of the swing predicted at the arrival
+    # the closure speed's rate of change (m/s²; None: a step): the A-4's engine spools at a
+    # limited rate (≈ 0.35 throttle/s, measured on its FDM: app.sim.jsbsim_plant)
+    closure_accel_mps2: float | None
 
 
 PLANT_GUIDANCE = {
-    "linear": PlantGuidance(0.0, False, False, False, False, 1.5, 0.0),
-    "jsbsim": PlantGuidance(8.0, True, True, False, True, 3.0, 1.0),
+    "linear": PlantGuidance(
+        smoothing_s=0.0,
+        swing_abort=False,
+        bow_feedforward=False,
+        timed_closure=False,
+        closure_feedforward=False,
+        abort_margin=1.5,
+        swing_lead=0.0,
+        closure_accel_mps2=None,
+    ),
+    "jsbsim": PlantGuidance(
+        smoothing_s=8.0,
+        swing_abort=True,
+        bow_feedforward=True,
+        timed_closure=False,
+        closure_feedforward=True,
+        abort_margin=3.0,
+        swing_lead=1.0,
+        closure_accel_mps2=0.4,
+    ),
 }
 
 
@@ -72,7 +93,9 @@ class DockingConfig:
 
     turbulence: str = "light"  # none | light | moderate | severe
     seed: int = 0
-    closure_speed_mps: float = 1.2
+    # the commanded closure (m/s): inside the latch window 1.0–2.6 m/s (min/max_closure_mps)
+    # with room for the receiver's lag either way
+    closure_speed_mps: float = 1.6
     tick_hz: float = 50.0
     vision: bool = True  # False: the true drogue centre is the measurement
     matcher: str = "epipolar"  # "epipolar" | "paper"
@@ -102,8 +125,10 @@ class DockingConfig:
     ring_radius_m: float = 0.305
     led_diameter_mm: float = 20.0
     ins_noise: bool = True
-    min_closure_mps: float = 0.5
-    max_closure_mps: float = 2.0
+    # the coupling latches at a closure of 1.0–2.6 m/s (≤ 5 kt; slower does not latch):
+    # docs/control.md, ../shared/notes/gnc.md
+    min_closure_mps: float = 1.0
+    max_closure_mps: float = 2.6
     # mounting on the airframe (body frame, m from the CG); None: the plant's airframe's
     # (AIRFRAME_GEOMETRY)
     probe_tip_body_m: tuple[float, float, float] | None = None

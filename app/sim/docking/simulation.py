@@ -89,7 +89,15 @@ class DockingSimulation:
         self.trim = self.plant_design.trim
         self.airframe = self.plant_design.airframe
         self.airspeed = float(self.models.model.airspeed_mps)  # the tanker's speed (m/s)
-        smooth, swing, bow_ff, timed, closure_ff, margin, lead = PLANT_GUIDANCE[config.plant]
+        pg = PLANT_GUIDANCE[config.plant]
+        smooth, swing, bow_ff, timed = (
+            pg.smoothing_s,
+            pg.swing_abort,
+            pg.bow_feedforward,
+            pg.timed_closure,
+        )
+        closure_ff, margin, lead = pg.closure_feedforward, pg.abort_margin, pg.swing_lead
+        self._closure_accel = pg.closure_accel_mps2
         self.smoothing_s = (
             smooth if config.reference_smoothing_s is None else float(config.reference_smoothing_s)
         )
@@ -193,6 +201,7 @@ class DockingSimulation:
             output_error_clip=0.3,
             ke=m.lqr_ke,
             design_lag_s=m.lqr_design_lag_s,
+            ku=m.lqr_ku,
         )
         self.act = Actuators(
             m.model.u_trim,
@@ -210,6 +219,7 @@ class DockingSimulation:
             GuidanceConfig(
                 closure_speed_mps=cfg.closure_speed_mps,
                 standoff_gap_m=cfg.standoff_gap_m if self.timed else None,
+                accel_limit_mps2=self._closure_accel,
             ),
             cfg.start_gap_m,
         )
@@ -441,9 +451,8 @@ class DockingSimulation:
             x_ref[0] = ref_vel[0]
         x_ref[8] = ref_vel[1] / self.airspeed
         x_ref[7] += -ref_vel[2] / self.airspeed
-        u_cmd = self.lqr.control(x_hat, x_ref, ref - m.tip0_b)
-        if self.closure_ff:
-            u_cmd = u_cmd + self._closure_ff[1] * ref_vel[0]
+        u_ff = self._closure_ff[1] * ref_vel[0] if self.closure_ff else None
+        u_cmd = self.lqr.control(x_hat, x_ref, ref - m.tip0_b, u_ff)
         self.u_applied = self.act.apply(u_cmd)  # servo positions (what the observer is told)
         self.lqr.lag_step(self.u_applied)
         self.max_sat = max(self.max_sat, self.act.saturation())
