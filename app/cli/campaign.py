@@ -75,7 +75,7 @@ def run(args: argparse.Namespace) -> int:
     def tick(row: dict) -> None:  # type: ignore[type-arg]
         if bar is not None:
             bar.update(1)
-            bar.set_postfix(captured=row["captured"])
+            bar.set_postfix(outcome=row["outcome"])
 
     try:
         rows = run_campaign(

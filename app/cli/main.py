@@ -25,6 +25,7 @@ SUBCOMMANDS = (
     "track",
     "push",
     "export_mcap",
+    "margins",
 )
 
 

@@ -178,6 +178,7 @@ def run(args: argparse.Namespace) -> int:
         f"plant={cfg.plant} ({sim.airframe}, {t.altitude_ft:.0f} ft, {t.kcas:.0f} KCAS, "
         f"α {t.alpha_deg:.2f}°, throttle {t.throttle:.3f}, {t.weight_lbs:.0f} lb)"
     )
+    print(f"outcome={d['outcome']}" + (f" ({d['reason']})" if d["reason"] else ""))
     print(
         f"captured={d['captured']} miss={show(d['miss_distance_m'], 'cm', 100.0, 1)} "
         f"closure={show(d['closure_speed_mps'], 'm/s')} "

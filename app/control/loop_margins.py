@@ -28,6 +28,7 @@ from dataclasses import dataclass
 import control
 import numpy as np
 
+from app.control.design import ControllerDesign
 from app.control.lqr import has_lag, lag_alpha
 from app.types import FloatArray
 
@@ -200,3 +201,22 @@ def loop_margins(
     loop = loop_transfer(controller, plant_ss(a, b, c_meas, dt, lag_s, delay_ticks))
     per = tuple(_single_loop(loop, i, INPUTS[i], dt) for i in range(loop.ninputs))
     return LoopMargins(per, disk_margin(loop, dt), lag_s, delay_ticks)
+
+
+def design_margins(design: ControllerDesign, dt: float, lag_s: float = 0.0) -> LoopMargins:
+    """:func:`loop_margins` of a designed controller (:mod:`app.control.design`) on its own
+    design model behind a servo lag ``lag_s`` (s)."""
+    k = controller_ss(
+        design.ad,
+        design.bd,
+        design.c_meas,
+        design.obs_gain,
+        design.lqr_kp,
+        design.lqr_ki,
+        design.c_tip,
+        dt,
+        ke=design.lqr_ke,
+        ku=design.lqr_ku,
+        design_lag_s=design.lqr_design_lag_s,
+    )
+    return loop_margins(k, design.ad, design.bd, design.c_meas, dt, lag_s=lag_s)

@@ -17,7 +17,15 @@ import numpy as np
 
 from app.types import FloatArray
 
-PHASES = ("approach", "final", "contact", "station_keeping", "backoff")
+PHASES = (
+    "approach",
+    "final",
+    "contact",
+    "station_keeping",
+    "backoff",
+    "breakaway",  # the run-time assurance's recovery law flies (app.control.recovery)
+    "rejoin",  # back from the break-away's standoff to the pre-contact position
+)
 
 
 @dataclass
@@ -38,6 +46,11 @@ class GuidanceConfig:
     # engine spools at a limited rate: a step in the closure speed asks for more thrust than
     # it can build, and the throttle then runs to its limit and the closure overshoots
     accel_limit_mps2: float | None = None
+    # after a break-away: climb back to the drogue's height and close to this gap (m; the
+    # pre-contact position, 3–4.5 m in practice) at ``rejoin_speed_mps``
+    rejoin_gap_m: float = 5.0
+    rejoin_speed_mps: float = 1.0
+    rejoin_dwell_s: float = 4.0  # stabilised at the pre-contact position this long, then close
 
 
 class ReferenceGenerator:
@@ -53,6 +66,8 @@ class ReferenceGenerator:
         self.backoffs = 0
         self.committed = False
         self.gap_rate = 0.0  # m/s, the commanded gap's rate (negative: closing)
+        self.rejoin_below_m = 0.0  # rejoin: the reference's height below the drogue (m)
+        self.rejoin_dwell = 0.0  # s at the pre-contact position
 
     @property
     def holding(self) -> bool:
@@ -74,6 +89,32 @@ class ReferenceGenerator:
         self.gap_rate = float(np.clip(wanted_rate, self.gap_rate - dv, self.gap_rate + dv))
         self.gap_cmd += self.gap_rate * dt
         return self.gap_rate
+
+    def start_rejoin(self, gap_m: float, below_m: float) -> None:
+        """Take over from the break-away at ``gap_m`` behind and ``below_m`` below the drogue
+        (the reference starts where the probe is and moves back at a bounded speed)."""
+        self.phase = "rejoin"
+        self.gap_cmd = float(gap_m)
+        self.rejoin_below_m = max(float(below_m), 0.0)
+        self.rejoin_dwell = 0.0
+        self.gap_rate = 0.0
+        self.committed = False
+
+    def _rejoin_step(self, dt: float) -> float:
+        """One tick of the rejoin; returns the gap's rate (m/s)."""
+        c = self.cfg
+        step = c.rejoin_speed_mps * dt
+        self.rejoin_below_m = max(self.rejoin_below_m - step, 0.0)
+        rate = 0.0
+        if self.gap_cmd > c.rejoin_gap_m:
+            move = min(step, self.gap_cmd - c.rejoin_gap_m)
+            self.gap_cmd -= move
+            rate = -move / dt
+        if self.rejoin_below_m == 0.0 and self.gap_cmd <= c.rejoin_gap_m + 1e-9:
+            self.rejoin_dwell += dt
+            if self.rejoin_dwell >= c.rejoin_dwell_s:
+                self.phase = "approach"
+        return rate
 
     def start_backoff(self) -> None:
         self.phase = "backoff"
@@ -105,7 +146,11 @@ class ReferenceGenerator:
             vel = np.array([c.push_in_m / c.push_in_time_s if frac < 1 else 0.0, 0.0, 0.0])
             return ref, vel
         gap_rate = 0.0
-        if self.phase == "backoff":
+        below = 0.0
+        if self.phase == "rejoin":
+            gap_rate = self._rejoin_step(dt)
+            below = self.rejoin_below_m
+        elif self.phase == "backoff":
             if self.gap_cmd < c.backoff_gap_m:
                 self.gap_cmd += c.backoff_speed_mps * dt
                 gap_rate = c.backoff_speed_mps
@@ -133,6 +178,6 @@ class ReferenceGenerator:
             self.gap_rate = gap_rate
         if self.phase in ("approach", "final"):
             self.phase = "final" if self.gap_cmd <= c.final_gap_m else "approach"
-        ref = np.asarray(drogue_pos, float) - np.array([self.gap_cmd, 0.0, 0.0])
+        ref = np.asarray(drogue_pos, float) - np.array([self.gap_cmd, 0.0, -below])
         vel = np.asarray(drogue_vel, float) - np.array([gap_rate, 0.0, 0.0])
         return ref, vel

@@ -12,6 +12,7 @@ import csv
 import json
 import math
 import time
+import traceback
 from collections.abc import Callable, Iterable
 from dataclasses import asdict, replace
 from pathlib import Path
@@ -20,10 +21,13 @@ from typing import Any
 import numpy as np
 
 from app.sim.docking import DockingConfig, DockingSimulation, describe_plant
+from app.sim.docking.outcomes import OUTCOMES
 from app.sim.imperfections import resolve
 
 CSV_FIELDS = (
     "seed",
+    "outcome",
+    "reason",
     "captured",
     "miss_distance_m",
     "closure_speed_mps",
@@ -34,15 +38,63 @@ CSV_FIELDS = (
     "wall_time_s",
     "frames_dropped",
     "frames_duplicated",
+    "lateral_speed_mps",
+    "hose_whip_risk",
+    "recoveries",
+    "alpha_min_deg",
+    "alpha_max_deg",
+    "load_factor_min_g",
+    "load_factor_max_g",
+    "bank_max_deg",
+    "kcas_min",
+    "kcas_max",
+    "height_lost_m",
+    "min_tanker_separation_m",
+    "min_hose_separation_m",
+    "traceback",
 )
 
 
+def wilson_interval(successes: int, n: int, z: float = 1.959964) -> tuple[float, float]:
+    """Wilson score interval of a proportion (95 % by default); (0, 1) for n = 0."""
+    if n <= 0:
+        return (0.0, 1.0)
+    p = successes / n
+    denom = 1.0 + z * z / n
+    centre = (p + z * z / (2 * n)) / denom
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / denom
+    return (max(0.0, centre - half), min(1.0, centre + half))
+
+
 def run_one(config: DockingConfig, seed: int) -> dict[str, Any]:
-    """One docking run → a flat row (floats; NaN where undefined)."""
+    """One docking run → a flat row (floats; NaN where undefined). Never raises: an
+    exception makes the row's outcome ``error`` with its traceback, so that no campaign dies
+    of one run."""
     t0 = time.perf_counter()
-    sim = DockingSimulation(replace(config, seed=int(seed)))
-    out = sim.run()
-    row: dict[str, Any] = {"seed": int(seed), **asdict(out)}
+    sim: DockingSimulation | None = None
+    try:
+        sim = DockingSimulation(replace(config, seed=int(seed)))
+        out = sim.run()
+    except Exception:  # recorded, not raised: the campaign carries on
+        return {
+            "seed": int(seed),
+            "outcome": "error",
+            "reason": traceback.format_exc(limit=1).strip().splitlines()[-1],
+            "traceback": traceback.format_exc(),
+            "captured": False,
+            "miss_distance_m": math.nan,
+            "closure_speed_mps": math.nan,
+            "time_to_capture_s": math.nan,
+            "aborts": 0 if sim is None else sim.aborts,
+            "max_control_saturation": math.nan,
+            "sim_time_s": 0.0 if sim is None else sim.t,
+            "wall_time_s": time.perf_counter() - t0,
+            "frames_dropped": 0,
+            "frames_duplicated": 0,
+        }
+    d = asdict(out)
+    envelope = d.pop("envelope")
+    row: dict[str, Any] = {"seed": int(seed), **d, **envelope, "traceback": None}
     row["sim_time_s"] = sim.t
     row["wall_time_s"] = time.perf_counter() - t0
     row["frames_dropped"] = sim.frame_channel.dropped
@@ -60,17 +112,34 @@ def summarise(rows: list[dict[str, Any]], config: DockingConfig | None = None) -
     n = len(rows)
     if n == 0:
         raise ValueError("no runs to summarise")
-    captured = [r for r in rows if r["captured"]]
+    captured = [r for r in rows if r.get("outcome") == "captured"]
+
+    def q(a: np.ndarray, p: float) -> float | None:
+        return float(np.percentile(a, p)) if len(a) else None
+
     miss = _finite(r["miss_distance_m"] for r in captured)
     ttc = _finite(r["time_to_capture_s"] for r in captured)
     wall = _finite(r["wall_time_s"] for r in rows)
     sim_t = _finite(r["sim_time_s"] for r in rows)
 
-    def q(a: np.ndarray, p: float) -> float | None:
-        return float(np.percentile(a, p)) if len(a) else None
-
+    outcomes = {k: sum(1 for r in rows if r.get("outcome") == k) for k in OUTCOMES}
+    departures = outcomes["departure"]
+    lateral = _finite(float(r.get("lateral_speed_mps") or math.nan) for r in captured)
+    closure = _finite(r["closure_speed_mps"] for r in captured)
     summary: dict[str, Any] = {
         "runs": n,
+        "outcomes": outcomes,
+        "capture_rate": len(captured) / n,
+        "capture_rate_ci95": list(wilson_interval(len(captured), n)),
+        "departure_rate": departures / n,
+        "departure_rate_ci95": list(wilson_interval(departures, n)),
+        "rim_strike_rate": outcomes["rim_strike"] / n,
+        "lateral_speed_at_contact_p50_mps": q(lateral, 50),
+        "lateral_speed_at_contact_p95_mps": q(lateral, 95),
+        "closure_at_contact_min_mps": float(closure.min()) if len(closure) else None,
+        "closure_at_contact_max_mps": float(closure.max()) if len(closure) else None,
+        "hose_whip_risk_runs": sum(1 for r in rows if r.get("hose_whip_risk")),
+        "seeds": [int(min(r["seed"] for r in rows)), int(max(r["seed"] for r in rows))],
         "success_rate": len(captured) / n,
         "miss_p50_m": q(miss, 50),
         "miss_p95_m": q(miss, 95),
@@ -78,7 +147,7 @@ def summarise(rows: list[dict[str, Any]], config: DockingConfig | None = None) -
         "abort_rate": sum(1 for r in rows if r["aborts"] > 0) / n,
         "mean_aborts": float(np.mean([r["aborts"] for r in rows])),
         "mean_time_to_capture_s": float(ttc.mean()) if len(ttc) else None,
-        "max_control_saturation": float(max(r["max_control_saturation"] for r in rows)),
+        "max_control_saturation": float(np.nanmax([r["max_control_saturation"] for r in rows])),
         "mean_wall_time_per_run_s": float(wall.mean()) if len(wall) else None,
         "sim_seconds_per_wall_second_per_run": float(sim_t.sum() / wall.sum())
         if len(wall) and wall.sum() > 0
@@ -170,12 +239,13 @@ def write_outputs(
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    miss_cm = 100.0 * _finite(r["miss_distance_m"] for r in rows if r["captured"])
+    miss_cm = 100.0 * _finite(r["miss_distance_m"] for r in rows if r.get("outcome") == "captured")
     fig, ax = plt.subplots(figsize=(6, 4))
     ax.hist(miss_cm, bins=20, color="tab:blue", alpha=0.8)
     ax.set_xlabel("radial miss at capture (cm)")
     ax.set_ylabel("runs")
-    ax.set_title(f"{summary['runs']} runs, success {100 * summary['success_rate']:.1f} %")
+    counts = ", ".join(f"{k} {v}" for k, v in summary.get("outcomes", {}).items() if v)
+    ax.set_title(f"{summary['runs']} runs: {counts}", fontsize=9)
     fig.tight_layout()
     fig.savefig(png_path, dpi=100)
     plt.close(fig)

@@ -76,11 +76,20 @@ class HoseDrogueParams:
 
         Static hose shape with the drag concentrated on the drogue: at arc length ``s`` from the
         drogue the tangent droops by ``atan((m_d + λ s) g / D₀)``; integrate along the hose."""
-        s = np.linspace(0.0, self.hose_length_m, 401)
+        return self.static_nodes_m(400)[-1].copy()
+
+    def static_nodes_m(self, segments: int = 16) -> FloatArray:
+        """The static hose line of :meth:`equilibrium_m` as ``segments + 1`` nodes from the hose
+        exit (the origin, first) to the drogue (last), tanker frame (m)."""
+        s = np.linspace(0.0, self.hose_length_m, segments + 1)  # arc length from the drogue
         ang = np.arctan2((self.drogue_mass_kg + self.hose_mass_per_m * s) * GRAVITY, self.drag_n)
         ds = np.diff(s)
         mid = 0.5 * (ang[1:] + ang[:-1])
-        return np.array([-np.sum(np.cos(mid) * ds), 0.0, np.sum(np.sin(mid) * ds)])
+        # from the drogue towards the exit: each segment rises forward at its droop angle
+        steps = np.column_stack([np.cos(mid) * ds, np.zeros_like(ds), -np.sin(mid) * ds])
+        drogue = -np.sum(steps, axis=0)
+        from_drogue = drogue + np.vstack([np.zeros(3), np.cumsum(steps, axis=0)])
+        return np.asarray(from_drogue[::-1])
 
 
 class HoseDrogue:
@@ -90,6 +99,8 @@ class HoseDrogue:
         self.params = params or HoseDrogueParams()
         self.substeps = substeps
         self.eq_m = self.params.equilibrium_m()
+        self._static_nodes = self.params.static_nodes_m()
+        self._static_nodes[-1] = self.eq_m
         self.reset()
 
     def reset(self, offset_m: FloatArray | None = None) -> None:
@@ -103,6 +114,13 @@ class HoseDrogue:
     @property
     def velocity_mps(self) -> FloatArray:
         return self.v.copy()
+
+    def hose_nodes_m(self) -> FloatArray:
+        """The hose's line now (exit first, drogue last; m): the static shape with the drogue's
+        deflection carried along the hose in proportion to the distance from the exit."""
+        nodes = self._static_nodes
+        frac = np.linspace(0.0, 1.0, len(nodes))[:, None]
+        return np.asarray(nodes + frac * self.d[None, :])
 
     def normal(self) -> FloatArray:
         """Unit normal of the drogue's opening, pointing aft towards the receiver: the hose tangent

@@ -33,6 +33,7 @@ from functools import cached_property
 import numpy as np
 from numpy.typing import NDArray
 
+from app.control.envelope import FlightData
 from app.control.linear_model import ActuatorLimits, LinearModel
 from app.geometry.rotations import euler_to_matrix
 from app.sim.plant import TrimPoint
@@ -54,7 +55,10 @@ INPUT_NAMES = ("throttle", "aileron", "elevator", "rudder")  # normalised comman
 AIRFRAMES = {"A4": "A-4 Skyhawk (JSBSim A4, as shipped)"}
 # servo rate limits (normalised travel per second): JSBSim's A-4 has none (its surfaces follow
 # the command at once); ours, an estimate for hydraulic surface actuators (≈ 60 °/s on the
-# 0.35 rad surfaces) and a throttle lever moved at most its whole range per second
+# 0.35 rad surfaces). The throttle is commanded no faster than the J52 spools: its thrust
+# rises at ≈ 2 200–3 400 lbf/s on this FDM whatever the step (+0.05…+0.2 from trim), and one
+# unit of throttle is ≈ 6 600 lbf, so ≈ 0.35 throttle/s (docs/control.md, "Engine"); the
+# controller's memory of the command (app.control.lqr) then knows what the engine can give
 RATE_NORM_PER_S = (0.35, 3.0, 3.0, 3.0)
 SERVO_LAG_S = 0.03  # the design's servo lag on the surfaces (the lag-aware LQR)
 
@@ -240,6 +244,19 @@ class JsbsimPlant:
                 f["accelerations/rdot-rad_sec2"],
             ],
             dtype=np.float64,
+        )
+
+    def flight_data(self) -> FlightData:
+        """The run-time assurance's view of the flown aircraft, read from JSBSim's own
+        properties (α, normal load factor at the CG, bank, pitch, KCAS, altitude)."""
+        f = self.fdm
+        return FlightData(
+            alpha_deg=float(f["aero/alpha-deg"]),
+            load_factor_g=float(f["accelerations/Nz"]),
+            bank_deg=float(f["attitude/phi-deg"]),
+            pitch_deg=float(f["attitude/theta-deg"]),
+            kcas=float(f["velocities/vc-kts"]),
+            altitude_m=float(f["position/h-sl-ft"]) * FT_M,
         )
 
     @property

@@ -14,11 +14,13 @@ trim, the air's velocity in tanker axes.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Literal, Protocol
 
 import numpy as np
 
+from app.control.envelope import FlightData
 from app.control.linear_model import LinearModel
 from app.types import FloatArray
 
@@ -67,6 +69,10 @@ class ReceiverPlant(Protocol):
         velocity ``air_mps`` (tanker axes); returns the new state."""
         ...
 
+    def flight_data(self) -> FlightData:
+        """α, load factor, bank, pitch, KCAS and altitude now (the envelope monitor's view)."""
+        ...
+
 
 class LinearPlant:
     """The linear model at the tick: ``x⁺ = A_d x + B_d δ + E_d g + c`` (module docstring).
@@ -92,13 +98,34 @@ class LinearPlant:
         self.ad, self.bd, self.ed = discrete if discrete is not None else model.discretise(dt)
         self.offset = np.zeros(12) if offset is None else np.asarray(offset, dtype=np.float64)
         self.x = np.zeros(12)
+        self._w_dot = 0.0
 
     def reset(self, x0: FloatArray) -> FloatArray:
         self.x = np.asarray(x0, dtype=np.float64).copy()
+        self._w_dot = 0.0
         return self.x
 
+    def flight_data(self) -> FlightData:
+        """From the perturbation state about the model's trim: α = atan(w/u) of the body
+        velocity, load factor ``cos θ cos φ + (u q − ẇ)/g``, KCAS scaled with the speed
+        (small perturbations: the design model's own approximations)."""
+        xa = np.asarray(self.model.x_trim, float) + self.x
+        u, w, q, phi, theta = xa[0], xa[2], xa[4], xa[6], xa[7]
+        speed = float(np.linalg.norm(xa[0:3]))
+        trim_speed = float(np.linalg.norm(np.asarray(self.model.x_trim, float)[0:3])) or 1.0
+        return FlightData(
+            alpha_deg=math.degrees(math.atan2(w, u)),
+            load_factor_g=math.cos(theta) * math.cos(phi) + (u * q - self._w_dot) / 9.80665,
+            bank_deg=math.degrees(phi),
+            pitch_deg=math.degrees(theta),
+            kcas=self.trim.kcas * speed / trim_speed,
+            altitude_m=self.trim.altitude_ft * 0.3048 - float(self.x[11]),
+        )
+
     def step(self, u_dev: FloatArray, air_mps: FloatArray) -> FloatArray:
+        w_before = float(self.x[2])
         self.x = self.ad @ self.x + self.bd @ np.asarray(u_dev) + self.ed @ np.asarray(air_mps)
         if self.offset.any():
             self.x = self.x + self.offset
+        self._w_dot = (float(self.x[2]) - w_before) / self.dt
         return self.x

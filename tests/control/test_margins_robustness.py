@@ -172,5 +172,6 @@ def test_hold_gap_on_lost_lock_rides_out_long_frame_drop_bursts() -> None:
         outcomes[hold] = sim.outcome()
         if hold:
             assert unlocked_far > 25  # the bursts did cost the lock for a while
-    assert not outcomes[False].captured and outcomes[False].aborts == 4
+    assert not outcomes[False].captured and outcomes[False].aborts >= 3
+    assert outcomes[False].outcome in ("aborted", "missed")
     assert outcomes[True].captured and outcomes[True].aborts <= 1

@@ -10,6 +10,7 @@ import pytest
 from app.cli.main import main
 from app.sim.campaign import run_campaign, summarise, write_outputs
 from app.sim.docking import DockingConfig
+from app.sim.docking.outcomes import OUTCOMES
 
 
 def test_small_campaign_on_two_dask_workers_writes_csv_json(tmp_path):
@@ -55,6 +56,12 @@ def test_simulate_cli_json_shape(capsys):
     assert code == 0
     out = json.loads(capsys.readouterr().out)
     assert set(out) == {
+        "outcome",
+        "reason",
+        "envelope",
+        "lateral_speed_mps",
+        "hose_whip_risk",
+        "recoveries",
         "captured",
         "miss_distance_m",
         "closure_speed_mps",
@@ -69,6 +76,8 @@ def test_simulate_cli_json_shape(capsys):
         "trim",
     }
     assert out["plant"] == "linear" and "Aerosonde" in out["airframe"]
+    assert out["outcome"] in OUTCOMES
+    assert set(out["envelope"]) >= {"alpha_min_deg", "load_factor_max_g", "height_lost_m"}
     for key in ("altitude_ft", "kcas", "tas_mps", "alpha_deg", "throttle", "weight_lbs"):
         assert isinstance(out["trim"][key], float), key
     assert out["captured"] is True and isinstance(out["miss_distance_m"], float)

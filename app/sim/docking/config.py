@@ -103,7 +103,10 @@ class DockingConfig:
     clutter: int = 0  # clutter glints per frame
     led_dropout: tuple[int, ...] = ()  # LED ids hidden in every frame
     start_gap_m: float = 10.0
-    capture_radius_m: float = 0.305
+    capture_radius_m: float = 0.305  # the drogue's rim (m)
+    # the probe head's radius (m; an estimate for the A-4's nozzle, ≈ 3.5 in across): a
+    # capture needs the head inside the rim less this, a head across the rim is a rim strike
+    probe_head_radius_m: float = 0.045
     camera_hz: float | None = None  # None: a frame every tick
     # --- beyond the brief's list
     # the receiver plant (app.sim.plant): "jsbsim" — the A-4 on JSBSim's nonlinear FDM at
@@ -117,7 +120,9 @@ class DockingConfig:
     air_density: float = 0.909
     start_offset_sigma_m: float = 0.3  # random lateral/vertical start offset (1σ, m)
     station_keep_s: float = 12.0  # refuelling stage after contact (paper: 8–20 s)
-    max_time_s: float = 60.0
+    # a break-away flies out to the safe standoff (≈ 6 s) and back (≈ 10 s) before the next
+    # attempt: four attempts need ≈ 90 s
+    max_time_s: float = 90.0
     max_aborts: int = 3
     coast_limit_s: float = 0.5  # coast on the drogue filter this long, then back off
     bow_wave_force_n: float = 60.0

@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
+from app.control.envelope import EnvelopeExtremes
 from app.sim.receiver import INPUT_NAMES, STATE_NAMES
 from app.types import FloatArray, Rect
 from app.vision.result import PoseResult
@@ -65,6 +66,14 @@ class DockingTick:
 
 @dataclass
 class DockingOutcome:
+    """How a run ended (:mod:`app.sim.docking.outcomes`) and what it measured."""
+
+    outcome: str  # one of app.sim.docking.outcomes.OUTCOMES
+    reason: str | None
+    envelope: EnvelopeExtremes  # the flown state's extremes (the plant's own values)
+    lateral_speed_mps: float  # probe − drogue across the drogue's axis at capture; NaN if none
+    hose_whip_risk: bool  # a crossing above 2.6 m/s closure
+    recoveries: int  # run-time assurance take-overs (break-aways and recoveries)
     captured: bool
     miss_distance_m: float  # radial miss at the capture (or last) crossing; NaN if never crossed
     closure_speed_mps: float  # at that crossing; NaN if never crossed
@@ -77,6 +86,12 @@ class DockingOutcome:
             return float(v) if math.isfinite(v) else None
 
         return {
+            "outcome": self.outcome,
+            "reason": self.reason,
+            "envelope": self.envelope.to_dict(),
+            "lateral_speed_mps": f(self.lateral_speed_mps),
+            "hose_whip_risk": bool(self.hose_whip_risk),
+            "recoveries": int(self.recoveries),
             "captured": bool(self.captured),
             "miss_distance_m": f(self.miss_distance_m),
             "closure_speed_mps": f(self.closure_speed_mps),

@@ -39,13 +39,22 @@ import math
 from dataclasses import replace
 
 import numpy as np
+from numpy.typing import NDArray
 
 from app.control.abort import AlphaBetaTracker, predicted_miss_m, should_abort
 from app.control.bow_wave import BowWaveModel
 from app.control.design import closure_feedforward
 from app.control.drogue_filter import DrogueFilter
+from app.control.envelope import (
+    EnvelopeBounds,
+    EnvelopeExtremes,
+    EnvelopeMonitor,
+    Separation,
+    separation,
+)
 from app.control.lqr import IntegralLqr
 from app.control.observer import StateObserver
+from app.control.recovery import RecoveryLaw
 from app.control.reference import GuidanceConfig, ReferenceGenerator
 from app.geometry.calibration import StereoCalibration
 from app.geometry.rotations import euler_to_matrix, look_at_camera
@@ -53,6 +62,7 @@ from app.resources import load_default_calibration
 from app.sim.camera_sensor import StereoCameraSensor
 from app.sim.docking.config import PLANT_GUIDANCE, DockingConfig
 from app.sim.docking.guidance import SwingGuidance
+from app.sim.docking.outcomes import ContactReport, RtaEvent, RunClassifier
 from app.sim.docking.plant_design import design_for, make_plant
 from app.sim.docking.results import DockingOutcome, DockingTick
 from app.sim.docking.vision import DrogueFrame, camera_sensor, drogue_in_tanker, take_frame
@@ -70,7 +80,23 @@ from app.sim.plant import ReceiverPlant
 from app.sim.receiver import Actuators
 from app.sim.turbulence import DrydenTurbulence
 from app.types import FloatArray, Rect
+from app.vision.result import PoseResult
 
+# the monitor's envelope per plant: the A-4's defaults (app.control.envelope); the Aerosonde
+# design model (an 11 kg UAV, short period ≈ 44 rad/s) trims at α −2.3° and its
+# small-perturbation α and load factor are rough, so its monitor keeps only wide bounds (a
+# small UAV's structural limits; it is not an aircraft anyone flies)
+PLANT_ENVELOPE = {
+    "jsbsim": EnvelopeBounds(),
+    "linear": EnvelopeBounds(
+        alpha_min_deg=-12.0,
+        alpha_max_deg=10.0,
+        load_factor_min_g=-5.0,
+        load_factor_max_g=7.0,
+        kcas_min=100.0,
+        kcas_max=400.0,
+    ),
+}
 SEARCH_GAP_M = 5.0  # closest gap flown on the a-priori drogue position before acquisition
 GUST_HISTORY_TICKS = 64
 REARM_GAP_M = 1.5  # gap (m) the probe must open before another break-away counts as an abort
@@ -231,6 +257,16 @@ class DockingSimulation:
             cfg, self.drogue.params, self.bow_model, self.smoothing_s, self.dt
         )
         self._armed = True  # a break-away now counts as an abort (see _abort)
+        # run-time assurance: the monitor, the recovery law, the run's extremes and outcome
+        self.monitor = EnvelopeMonitor(bounds=PLANT_ENVELOPE[cfg.plant])
+        self.recovery = RecoveryLaw(m.model)
+        self.rta_reason: str | None = None  # why the recovery law flies now (None: the LQR)
+        self.rta_events: list[RtaEvent] = []
+        self.extremes = EnvelopeExtremes()
+        self.start_altitude_m = self._plant.flight_data().altitude_m
+        self.classifier = RunClassifier()
+        self.contact = ContactReport()
+        self.separation_now: Separation | None = None
         self.t = 0.0
         self.k = 0
         self._camera_period = 1.0 / (cfg.camera_hz or cfg.tick_hz)
@@ -319,11 +355,19 @@ class DockingSimulation:
     @property
     def done(self) -> bool:
         cfg = self.config
-        if self._failed or self.t >= cfg.max_time_s - 1e-9:
+        if self.classifier.terminal and self.rta_reason is None:
+            return True  # a terminal event, and the receiver back at the safe standoff
+        if self.classifier.diverged or self.t >= cfg.max_time_s - 1e-9:
             return True
-        return self.captured and self.t >= self.capture_time + cfg.station_keep_s - 1e-9
+        return (
+            self.captured
+            and self.rta_reason is None
+            and self.t >= self.capture_time + cfg.station_keep_s - 1e-9
+        )
 
     def step(self) -> DockingTick:
+        if self.classifier.diverged:
+            raise RuntimeError(f"the run has ended: {self.classifier.reason}")
         cfg, m = self.config, self.models
         dt = self.dt
         frame_pose = self._camera_pose(self.x)  # the pose this tick's frame is taken from
@@ -391,7 +435,7 @@ class DockingSimulation:
                 g.phase,
                 self.filter.ever_initialised,
             )
-        if g.phase in ("approach", "final"):
+        if g.phase in ("approach", "final") and self.rta_reason is None:
             rel = d_hat - tip_hat
             if self.swing_abort and self.swing.mean is not None:
                 # where the drogue's swing about its mean will be at the plane
@@ -440,6 +484,34 @@ class DockingSimulation:
         commit = True
         if self.timed and g.holding and self.swing.mean is not None:
             commit = self.swing.commit_now(d_raw, d_vel_raw, tip_hat, mean_ref, np.asarray(d_hat))
+        if self.rta_reason is not None:
+            # 4'. run-time assurance: the recovery law flies (wings level, power back, drop
+            # aft and below); the LQR's memory follows the servos (bumpless hand-back)
+            d_est = np.asarray(d_raw, float)
+            aft, below = float(d_est[0] - tip_hat[0]), float(tip_hat[2] - d_est[2])
+            speed, sink = float(tip_vel_hat[0]), float(tip_vel_hat[2])
+            self.u_applied = self.act.apply(self.recovery.command(x_hat, speed, sink, aft, below))
+            self.lqr.hand_over(self.u_applied)
+            ref, ref_vel = tip_hat.copy(), np.zeros(3)
+            fd = self._plant.flight_data()
+            if self.recovery.settled(
+                x_hat, speed, sink, aft, below, fd.alpha_deg - self.trim.alpha_deg, fd.load_factor_g
+            ):
+                self._end_rta(tip_hat, d_est)
+            return self._propagate_and_check(
+                frame_pose,
+                z_t,
+                d_hat,
+                ref,
+                lock,
+                lock_reason,
+                pose,
+                left,
+                right,
+                leds,
+                status,
+                exposure_t,
+            )
         ref, ref_vel = g.update(dt, d_hat, d_vel, lock or searching, commit)
         # 4. control (eq. 20)
         x_ref = np.zeros(12)
@@ -455,6 +527,39 @@ class DockingSimulation:
         u_cmd = self.lqr.control(x_hat, x_ref, ref - m.tip0_b, u_ff)
         self.u_applied = self.act.apply(u_cmd)  # servo positions (what the observer is told)
         self.lqr.lag_step(self.u_applied)
+        return self._propagate_and_check(
+            frame_pose,
+            z_t,
+            d_hat,
+            ref,
+            lock,
+            lock_reason,
+            pose,
+            left,
+            right,
+            leds,
+            status,
+            exposure_t,
+        )
+
+    def _propagate_and_check(
+        self,
+        frame_pose: tuple[FloatArray, FloatArray],
+        z_t: FloatArray | None,
+        d_hat: FloatArray,
+        ref: FloatArray,
+        lock: bool,
+        lock_reason: str | None,
+        pose: PoseResult | None,
+        left: NDArray[np.uint8] | None,
+        right: NDArray[np.uint8] | None,
+        leds: FloatArray | None,
+        status: str | None,
+        exposure_t: float | None,
+    ) -> DockingTick:
+        """Steps 5–7 of the tick: propagate, the contact check, the run-time assurance's
+        monitor; then the tick's record."""
+        cfg, dt, g = self.config, self.dt, self.guidance
         self.max_sat = max(self.max_sat, self.act.saturation())
         # 5. propagate plant (the design model, or the perturbed aircraft), gusts, drogue
         # one frozen gust field: the drogue meets it now, the receiver's CG gap / V later
@@ -485,7 +590,11 @@ class DockingSimulation:
         captured_now = False
         miss_now: float | None = None
         d_pos, n = self.drogue.position_m.copy(), self.drogue.normal()
-        if not self.captured:
+        self._monitor(tip, d_pos)
+        if self.classifier.diverged:
+            tip, d_pos = self._prev_tip, self._prev_drogue  # the last finite values
+        elif not self.captured and self.rta_reason is None:
+            # (a crossing while breaking away is not an attempt: the coupling is not flown)
             s_prev = float(self._prev_normal @ (self._prev_tip - self._prev_drogue))
             s_now = float(n @ (tip - d_pos))
             if s_prev > 0.0 >= s_now:
@@ -498,15 +607,28 @@ class DockingSimulation:
                 miss_now = float(np.linalg.norm(radial))
                 closure = (s_prev - s_now) / dt
                 self.miss, self.closure = miss_now, closure
-                ok_speed = cfg.min_closure_mps <= closure <= cfg.max_closure_mps
-                if miss_now < cfg.capture_radius_m and ok_speed:
+                v_rel = ((tip - self._prev_tip) - (d_pos - self._prev_drogue)) / dt
+                lateral = float(np.linalg.norm(v_rel - (v_rel @ n_c) * n_c))
+                kind = self.contact.crossing(
+                    miss_now,
+                    closure,
+                    lateral,
+                    cfg.capture_radius_m,
+                    cfg.probe_head_radius_m,
+                    (cfg.min_closure_mps, cfg.max_closure_mps),
+                )
+                if kind == "captured":
                     self.captured = captured_now = True
                     self.capture_time = self.t
                     g.mark_contact(tip)
+                elif kind == "rim_strike":
+                    self.classifier.mark("rim_strike", self.contact.last_reason)
+                    self.break_away(self.contact.last_reason)
                 else:
-                    self.break_away()
+                    self.classifier.last_miss = self.contact.last_reason
+                    self.break_away(self.contact.last_reason)
         self._prev_tip, self._prev_drogue, self._prev_normal = tip, d_pos, n
-        phase = "contact" if captured_now else g.phase
+        phase = "contact" if captured_now else ("breakaway" if self.rta_reason else g.phase)
         state_abs = self.x.copy()
         state_abs[:9] += self.x_trim[:9]
         return DockingTick(
@@ -535,21 +657,79 @@ class DockingSimulation:
             camera_pose_T=frame_pose,
         )
 
-    def break_away(self) -> None:
-        """Break away: one abort per break-away — none is counted again until the probe has
-        actually opened the gap past ``REARM_GAP_M`` (a receiver slower than its backoff
-        reference is still close for a while; that is the same break-away)."""
+    def break_away(self, reason: str = "break-away") -> None:
+        """Break away as the field flies it: the recovery law (power back, wings level, drop
+        aft and below, stop chasing the drogue) to the safe standoff, then the rejoin. One
+        abort per break-away; after ``max_aborts`` the run is over once at the standoff."""
+        if self.rta_reason is None:
+            self._start_rta(f"break-away: {reason}")
         if not self._armed:
-            self.guidance.start_backoff()
             return
         self._armed = False
         self.aborts += 1
-        self.guidance.start_backoff()
         if self.aborts > self.config.max_aborts:
             self._failed = True
+            self.classifier.mark_aborts_used(self.aborts)
+
+    def _start_rta(self, reason: str) -> None:
+        self.rta_reason = reason
+        self.recovery.reset(self.dt)
+        self.rta_events.append(RtaEvent(self.t, "recovery", reason))
+
+    def _end_rta(self, tip_m: FloatArray, drogue_m: FloatArray) -> None:
+        """At the safe standoff: hand back to the LQR and rejoin (or end the run)."""
+        reason = self.rta_reason or ""
+        self.rta_reason = None
+        self.rta_events.append(RtaEvent(self.t, "hand_back", reason))
+        self._armed = True
+        self.lqr.hand_over(self.u_applied)
+        gap = float(drogue_m[0] - tip_m[0])
+        below = float(tip_m[2] - drogue_m[2])
+        self.guidance.start_rejoin(gap, below)
+
+    def _monitor(self, tip: FloatArray, d_pos: FloatArray) -> None:
+        """Step 7: the run-time assurance's monitor on the flown state (the plant's own
+        values), the separation from the tanker and the hose, and a non-finite state."""
+        if not (np.all(np.isfinite(self.x)) and np.all(np.isfinite(tip))):
+            self.classifier.mark_diverged("the aircraft's state is not finite (diverged)")
+            return
+        fd = self._plant.flight_data()
+        r_tb = self._rot(self.x)
+        nose = self.x[9:12] + r_tb @ self.r_nose_b
+        sep = separation(
+            nose, tip, d_pos, self.drogue.hose_nodes_m(), self.monitor.separation_bounds
+        )
+        self.separation_now = sep
+        self.extremes.add(fd, self.start_altitude_m, sep)
+        why = self.monitor.envelope_violation(fd, self.start_altitude_m)
+        if why is not None:
+            if not fd.finite():
+                self.classifier.mark_diverged(why)
+                return
+            self.classifier.mark("departure", why)
+            if self.rta_reason is None or self.rta_reason.startswith("break-away"):
+                self.rta_reason = None
+                self._start_rta(f"envelope: {why}")
+            return
+        keep_out = self.monitor.keep_out_violation(sep)
+        if keep_out is not None:
+            self.classifier.mark("keep_out", keep_out)
+        if self.rta_reason is None and not self.captured:
+            clearance = self.monitor.break_away_reason(sep)
+            if clearance is not None:
+                self.break_away(clearance)
 
     def outcome(self) -> DockingOutcome:
+        cls, reason = self.classifier.classify(
+            self.captured, self.t >= self.config.max_time_s - 1e-9
+        )
         return DockingOutcome(
+            outcome=cls,
+            reason=reason,
+            envelope=self.extremes,
+            lateral_speed_mps=self.contact.capture_lateral_mps,
+            hose_whip_risk=self.contact.whip_risk,
+            recoveries=sum(1 for e in self.rta_events if e.kind == "recovery"),
             captured=self.captured,
             miss_distance_m=self.miss,
             closure_speed_mps=self.closure,

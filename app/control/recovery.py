@@ -1,0 +1,139 @@
+"""The recovery law of the run-time assurance (and the break-away as the field flies it):
+wings level, power back, pitch a little below trim — the receiver drops aft and below, away
+from the hose, and stops chasing the drogue (../shared/notes/gnc.md, "Break-away").
+
+Simple enough to check by hand. On the perturbation state from trim (φ, θ, p, q, r rad,
+rad/s) with the model's control effectiveness ``L_δa = ∂ṗ/∂δa``, ``M_δe = ∂q̇/∂δe``,
+``N_δr = ∂ṙ/∂δr`` (the linearisation's B matrix):
+
+* throttle: ``δt = clip(k_v (v_c − v_x), −throttle_back, +throttle_back)`` — the receiver's
+  speed relative to the tanker ``v_x`` (tanker frame, m/s) held at ``v_c = −drop_back_mps``
+  until it is ``standoff_aft_m`` behind the drogue, then at 0 (it keeps station there);
+* elevator: ``δe = −(ω_θ² (θ − θ_c) + 2 ζ ω_θ q) / M_δe`` — a pitch attitude hold, with
+  ``θ_c = −(ż_c + k_z e + k_i ∫e) / V``, ``e = ż_c − ż``: the attitude of a descent at
+  ``ż_c = sink_mps`` (down) until it is ``standoff_below_m`` below the drogue, then 0, with
+  a PI correction on the sink rate ``ż`` flown (a lighter aircraft or the tanker's downwash
+  would otherwise turn the descent into a climb);
+* aileron: ``δa = −(ω_φ² (φ − φ_c) + 2 ζ ω_φ p) / L_δa`` with ``φ_c = clip(−k_ψ ψ, ±10°)``
+  — wings level on the tanker's heading (no turn towards the drogue);
+* rudder: ``δr = −(2 ζ ω_ψ r) / N_δr`` — a yaw damper.
+
+Each surface command is clipped to ``± max_fraction`` of its travel. The law is done
+(:meth:`RecoveryLaw.settled`) when the receiver sits at the safe standoff (≥
+``standoff_aft_m`` aft and ≥ ``standoff_below_m`` below the drogue), wings level, rates
+small, moving with the tanker (|v_x|, |ż| < 1 m/s) and — after an envelope recovery —
+back near its trim (α within ±3° of it, load factor 0.7–1.3 g).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from app.control.linear_model import LinearModel
+from app.types import FloatArray
+
+
+@dataclass(frozen=True)
+class RecoveryGains:
+    throttle_back: float = 0.25  # normalised throttle, the most below (or above) trim
+    speed_gain: float = 0.15  # throttle per m/s of speed error
+    drop_back_mps: float = 5.0  # the drop-back speed relative to the tanker
+    sink_mps: float = 2.0  # the descent's sink rate
+    sink_gain: float = 2.0  # k_z (per unit: m/s of sink-rate error per m/s)
+    sink_integral_per_s: float = 0.5  # k_i
+    heading_gain: float = 2.0  # k_ψ (rad of bank per rad of heading)
+    bank_max_deg: float = 10.0
+    omega_roll_rad_s: float = 2.0
+    omega_pitch_rad_s: float = 2.0
+    omega_yaw_rad_s: float = 1.5
+    damping: float = 0.8
+    max_fraction: float = 0.3  # of each command's travel
+    standoff_aft_m: float = 10.0
+    standoff_below_m: float = 3.0
+
+
+class RecoveryLaw:
+    """Hand-checkable attitude hold + power back (module docstring)."""
+
+    def __init__(self, model: LinearModel, gains: RecoveryGains | None = None) -> None:
+        self.gains = g = gains or RecoveryGains()
+        b = np.asarray(model.b, float)
+        self.l_da = float(b[3, 1])
+        self.m_de = float(b[4, 2])
+        self.n_dr = float(b[5, 3])
+        if min(abs(self.l_da), abs(self.m_de), abs(self.n_dr)) < 1e-9:
+            raise ValueError("the model's control effectiveness is zero on a recovery channel")
+        lo = np.asarray(model.limits.lower, float) - np.asarray(model.u_trim, float)
+        hi = np.asarray(model.limits.upper, float) - np.asarray(model.u_trim, float)
+        self.u_max = np.minimum(np.abs(lo), np.abs(hi)) * g.max_fraction
+        self.throttle_floor = float(lo[0])
+        self.airspeed_mps = float(model.airspeed_mps)
+        self.dt = 0.02
+        self.reset()
+
+    def reset(self, dt: float | None = None) -> None:
+        """A new take-over: the sink-rate integrator empty (``dt``: the tick, s)."""
+        if dt is not None:
+            self.dt = float(dt)
+        self.sink_error_integral = 0.0
+
+    def command(
+        self,
+        x_dev: FloatArray,
+        speed_mps: float,
+        sink_rate_mps: float,
+        aft_m: float,
+        below_m: float,
+    ) -> FloatArray:
+        """Command deviation from trim (throttle, aileron, elevator, rudder) for the
+        perturbation state ``x_dev`` (u v w p q r φ θ ψ x y z), the speed relative to the
+        tanker ``speed_mps`` (forward +), the sink rate (down +) and the distances aft of and
+        below the drogue (m)."""
+        g = self.gains
+        p, q, r, phi, theta = x_dev[3], x_dev[4], x_dev[5], x_dev[6], x_dev[7]
+        v_c = -g.drop_back_mps if aft_m < g.standoff_aft_m else 0.0
+        zdot_c = g.sink_mps if below_m < g.standoff_below_m else 0.0
+        err = zdot_c - sink_rate_mps
+        self.sink_error_integral = float(
+            np.clip(self.sink_error_integral + err * self.dt, -10.0, 10.0)
+        )
+        theta_c = -(zdot_c + g.sink_gain * err + g.sink_integral_per_s * self.sink_error_integral)
+        theta_c /= self.airspeed_mps
+        bank_max = math.radians(g.bank_max_deg)
+        phi_c = float(np.clip(-g.heading_gain * x_dev[8], -bank_max, bank_max))
+        wr, wp, wy, z = g.omega_roll_rad_s, g.omega_pitch_rad_s, g.omega_yaw_rad_s, g.damping
+        throttle = float(
+            np.clip(g.speed_gain * (v_c - speed_mps), -g.throttle_back, g.throttle_back)
+        )
+        u = np.array(
+            [
+                max(throttle, self.throttle_floor),
+                -(wr * wr * (phi - phi_c) + 2 * z * wr * p) / self.l_da,
+                -(wp * wp * (theta - theta_c) + 2 * z * wp * q) / self.m_de,
+                -(2 * z * wy * r) / self.n_dr,
+            ]
+        )
+        u[1:] = np.clip(u[1:], -self.u_max[1:], self.u_max[1:])
+        return u
+
+    def settled(
+        self,
+        x_dev: FloatArray,
+        speed_mps: float,
+        sink_rate_mps: float,
+        aft_m: float,
+        below_m: float,
+        alpha_from_trim_deg: float,
+        load_factor_g: float,
+    ) -> bool:
+        """Done (module docstring)."""
+        g = self.gains
+        level = abs(x_dev[6]) < math.radians(5.0)
+        calm = float(np.max(np.abs(x_dev[3:6]))) < math.radians(3.0)
+        steady = abs(speed_mps) < 1.0 and abs(sink_rate_mps) < 1.0
+        trimmed = abs(alpha_from_trim_deg) < 3.0 and 0.7 < load_factor_g < 1.3
+        at_standoff = aft_m >= g.standoff_aft_m and below_m >= g.standoff_below_m
+        return at_standoff and level and calm and steady and trimmed
