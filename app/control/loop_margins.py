@@ -171,8 +171,8 @@ def _single_loop(loop: control.StateSpace, i: int, name: str, dt: float) -> Sing
 def disk_margin(loop: control.StateSpace, dt: float, points: int = 600) -> DiskMargin:
     """Balanced unstructured disk margin of the MIMO loop (module docstring)."""
     w = np.geomspace(1e-3, math.pi / dt * 0.999, points)
-    resp = loop(np.exp(1j * w * dt))  # (m, m, points)
     m = loop.ninputs
+    resp = np.asarray(loop(np.exp(1j * w * dt))).reshape(m, m, len(w))  # SISO: 1-D
     worst, w_worst = 0.0, float(w[0])
     for k in range(len(w)):
         lk = np.asarray(resp[:, :, k]).reshape(m, m)
