@@ -57,6 +57,11 @@ class DockingTick:
     # was taken (before the dynamics step): the 3-D view draws the cameras from it, whatever
     # the airframe's mounting
     camera_pose_T: tuple[FloatArray, FloatArray] | None = None
+    # run-time assurance (app.control.envelope): why the recovery law flies this tick (a
+    # break-away or an envelope recovery; None: the LQR flies)
+    rta_reason: str | None = None
+    # the run's outcome class (app.sim.docking.outcomes.OUTCOMES) on its last tick; else None
+    run_outcome: str | None = None
 
     @property
     def stereo_frame(self) -> StereoFrame | None:

@@ -655,6 +655,8 @@ class DockingSimulation:
             frame_status=status,
             measurement_exposure_t_s=exposure_t,
             camera_pose_T=frame_pose,
+            rta_reason=self.rta_reason,
+            run_outcome=self.outcome().outcome if self.done else None,
         )
 
     def break_away(self, reason: str = "break-away") -> None:
