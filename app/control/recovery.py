@@ -16,7 +16,10 @@ rad/s) with the model's control effectiveness ``L_δa = ∂ṗ/∂δa``, ``M_δe
   would otherwise turn the descent into a climb);
 * aileron: ``δa = −(ω_φ² (φ − φ_c) + 2 ζ ω_φ p) / L_δa`` with ``φ_c = clip(−k_ψ ψ, ±10°)``
   — wings level on the tanker's heading (no turn towards the drogue);
-* rudder: ``δr = −(2 ζ ω_ψ r) / N_δr`` — a yaw damper.
+* rudder: ``δr = −(2 ζ ω_ψ r) / N_δr`` — a yaw damper;
+* speed brakes (:meth:`RecoveryLaw.speedbrake`): out while short of the standoff and faster
+  than the drop-back speed, in otherwise (the A-4's add ΔC_D 0.021: with the engine at idle
+  the receiver then decelerates at ≈ 0.17 g instead of ≈ 0.1 g).
 
 Each surface command is clipped to ``± max_fraction`` of its travel. The law is done
 (:meth:`RecoveryLaw.settled`) when the receiver sits at the safe standoff (≥
@@ -38,10 +41,10 @@ from app.types import FloatArray
 
 @dataclass(frozen=True)
 class RecoveryGains:
-    throttle_back: float = 0.25  # normalised throttle, the most below (or above) trim
+    throttle_back: float = 0.4  # normalised throttle, the most below (or above) trim (≈ idle)
     speed_gain: float = 0.15  # throttle per m/s of speed error
-    drop_back_mps: float = 5.0  # the drop-back speed relative to the tanker
-    sink_mps: float = 2.0  # the descent's sink rate
+    drop_back_mps: float = 8.0  # the drop-back speed relative to the tanker
+    sink_mps: float = 3.0  # the descent's sink rate
     sink_gain: float = 2.0  # k_z (per unit: m/s of sink-rate error per m/s)
     sink_integral_per_s: float = 0.5  # k_i
     heading_gain: float = 2.0  # k_ψ (rad of bank per rad of heading)
@@ -118,6 +121,12 @@ class RecoveryLaw:
         )
         u[1:] = np.clip(u[1:], -self.u_max[1:], self.u_max[1:])
         return u
+
+    def speedbrake(self, speed_mps: float, aft_m: float) -> float:
+        """Speed-brake command (0 in … 1 out) for the speed relative to the tanker and the
+        distance aft of the drogue (m)."""
+        g = self.gains
+        return 1.0 if aft_m < g.standoff_aft_m and speed_mps > -g.drop_back_mps else 0.0
 
     def settled(
         self,

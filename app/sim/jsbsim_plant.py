@@ -246,6 +246,11 @@ class JsbsimPlant:
             dtype=np.float64,
         )
 
+    def set_speedbrake(self, norm: float) -> None:
+        """The A-4's speed brakes (``fcs/speedbrake-cmd-norm``, 0…1; the aircraft file moves
+        them over 1 s and adds ΔC_D 0.021 when out)."""
+        self.fdm["fcs/speedbrake-cmd-norm"] = float(min(max(norm, 0.0), 1.0))
+
     def flight_data(self) -> FlightData:
         """The run-time assurance's view of the flown aircraft, read from JSBSim's own
         properties (α, normal load factor at the CG, bank, pitch, KCAS, altitude)."""

@@ -73,6 +73,10 @@ class ReceiverPlant(Protocol):
         """α, load factor, bank, pitch, KCAS and altitude now (the envelope monitor's view)."""
         ...
 
+    def set_speedbrake(self, norm: float) -> None:
+        """Command the speed brakes (0 in … 1 out), where the airframe has them."""
+        ...
+
 
 class LinearPlant:
     """The linear model at the tick: ``x⁺ = A_d x + B_d δ + E_d g + c`` (module docstring).
@@ -104,6 +108,9 @@ class LinearPlant:
         self.x = np.asarray(x0, dtype=np.float64).copy()
         self._w_dot = 0.0
         return self.x
+
+    def set_speedbrake(self, norm: float) -> None:
+        """The design model has no speed brakes: nothing to do."""
 
     def flight_data(self) -> FlightData:
         """From the perturbation state about the model's trim: α = atan(w/u) of the body

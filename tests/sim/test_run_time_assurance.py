@@ -35,7 +35,7 @@ def test_forced_break_away_at_one_metre_reaches_the_standoff_inside_the_envelope
         below = tick.probe_tip_m[2] - tick.drogue_truth_m[2]
         if reached is None and aft >= 10.0 and below >= 3.0:
             reached = sim.t - t0
-    assert reached is not None and reached <= 10.0  # (the issue asks 6 s: docs/control.md)
+    assert reached is not None and reached <= 6.0  # ≥ 10 m aft and ≥ 3 m below within 6 s
     assert sim.rta_reason is None and sim.guidance.phase == "rejoin"  # handed back
     assert -2.0 < min(alpha) and max(alpha) < 12.0
     assert -0.5 < min(nz) and max(nz) < 3.0

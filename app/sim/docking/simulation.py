@@ -491,6 +491,7 @@ class DockingSimulation:
             aft, below = float(d_est[0] - tip_hat[0]), float(tip_hat[2] - d_est[2])
             speed, sink = float(tip_vel_hat[0]), float(tip_vel_hat[2])
             self.u_applied = self.act.apply(self.recovery.command(x_hat, speed, sink, aft, below))
+            self._plant.set_speedbrake(self.recovery.speedbrake(speed, aft))
             self.lqr.hand_over(self.u_applied)
             ref, ref_vel = tip_hat.copy(), np.zeros(3)
             fd = self._plant.flight_data()
@@ -682,6 +683,7 @@ class DockingSimulation:
         """At the safe standoff: hand back to the LQR and rejoin (or end the run)."""
         reason = self.rta_reason or ""
         self.rta_reason = None
+        self._plant.set_speedbrake(0.0)
         self.rta_events.append(RtaEvent(self.t, "hand_back", reason))
         self._armed = True
         self.lqr.hand_over(self.u_applied)
