@@ -10,6 +10,7 @@ import pytest
 from scipy.stats import binomtest
 
 import app.sim.campaign as campaign
+from app.control.envelope import EnvelopeBounds
 from app.sim.campaign import run_one, summarise, wilson_interval
 from app.sim.docking import DockingConfig, DockingSimulation
 
@@ -100,3 +101,20 @@ def test_wilson_interval_matches_scipy(k: int, n: int) -> None:
     ci = binomtest(k, n).proportion_ci(confidence_level=0.95, method="wilson")
     lo, hi = wilson_interval(k, n)
     assert lo == pytest.approx(ci.low, abs=1e-6) and hi == pytest.approx(ci.high, abs=1e-6)
+
+
+def test_the_envelope_is_a_setting_and_a_crossing_is_a_departure_flown_out() -> None:
+    """A bound set tighter than the flight needs: the monitor hands over at once, the
+    recovery law flies until the receiver is settled at the standoff, and the run is a
+    departure with the reason (never a miss)."""
+    cfg = DockingConfig(vision=False, envelope=EnvelopeBounds(alpha_max_deg=3.6))
+    sim = DockingSimulation(cfg)
+    phases = []
+    while not sim.done:
+        phases.append(sim.step().phase)
+    out = sim.outcome()
+    assert out.outcome == "departure" and "α" in (out.reason or "")
+    assert "breakaway" in phases and sim.rta_events[0].reason.startswith("envelope:")
+    assert sim.rta_reason is None  # handed back only once settled; then the run ended
+    with pytest.raises(ValueError):
+        DockingConfig(envelope=EnvelopeBounds(alpha_min_deg=5.0, alpha_max_deg=4.0)).validate()

@@ -12,6 +12,7 @@ import math
 from dataclasses import dataclass
 from typing import NamedTuple
 
+from app.control.envelope import EnvelopeBounds
 from app.sim.camera_sensor import RENDER_MODES
 from app.sim.imperfections import Imperfections, resolve
 from app.sim.jsbsim_plant import JsbsimCondition
@@ -178,6 +179,9 @@ class DockingConfig:
     swing_lead_gap_m: float = 3.0
     standoff_gap_m: float = 1.5
     commit_radius_m: float = 0.12
+    # the run-time assurance's envelope (app.control.envelope.EnvelopeBounds; None: the
+    # plant's, app.sim.docking.simulation.PLANT_ENVELOPE — the A-4's defaults and sources)
+    envelope: EnvelopeBounds | None = None
 
     def jsbsim_condition(self, fuel_lbs: float | None = None) -> JsbsimCondition:
         """The A-4's condition (``fuel_lbs`` None: the aircraft file's load)."""
@@ -219,6 +223,8 @@ class DockingConfig:
             raise ValueError(f"camera_hz must be in (0, tick_hz], got {self.camera_hz!r}")
         if self.noise_sigma < 0 or self.clutter < 0:
             raise ValueError("noise_sigma and clutter must be >= 0")
+        if self.envelope is not None:
+            self.envelope.validate()
         bad = [i for i in self.led_dropout if not 1 <= int(i) <= self.led_count]
         if bad:
             raise ValueError(f"led_dropout ids must be in 1..{self.led_count}, got {bad}")

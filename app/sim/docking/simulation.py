@@ -258,7 +258,7 @@ class DockingSimulation:
         )
         self._armed = True  # a break-away now counts as an abort (see _abort)
         # run-time assurance: the monitor, the recovery law, the run's extremes and outcome
-        self.monitor = EnvelopeMonitor(bounds=PLANT_ENVELOPE[cfg.plant])
+        self.monitor = EnvelopeMonitor(bounds=cfg.envelope or PLANT_ENVELOPE[cfg.plant])
         self.recovery = RecoveryLaw(m.model)
         self.rta_reason: str | None = None  # why the recovery law flies now (None: the LQR)
         self.rta_events: list[RtaEvent] = []
@@ -445,7 +445,12 @@ class DockingSimulation:
             else:
                 miss_pred = predicted_miss_m(rel, d_vel - tip_vel_hat)
             reason = should_abort(
-                float(rel[0]), miss_pred, cfg.capture_radius_m, not lock, margin=self.abort_margin
+                float(rel[0]),
+                miss_pred,
+                cfg.capture_radius_m,
+                not lock,
+                final_gap_m=g.cfg.final_gap_m,
+                margin=self.abort_margin,
             )
             if (
                 reason is None
