@@ -5,7 +5,7 @@ image, ``calibrateCamera`` × 2 and ``stereoCalibrate`` (k1, k2 model). ``aar-do
 :func:`app.calibration.stereo_calibration.calibrate_checkerboard` (detector cascade, sub-pixel
 window sized to the squares, rig check, robust view dropping, held-out check, report).
 Images are decoded once beforehand (not timed). Sets: Bouguet's real stereo photographs
-(``../shared/data/real/bouguet_stereo``, 13 pairs 640×480, published reference) and the
+(``tests/data/real/bouguet_stereo``, 13 pairs 640×480, published reference) and the
 rendered ``sample_data/checkerboard`` (14 pairs 1280×1024, truth.json).
 
     .venv/bin/python benchmarks/bench_calibration.py [--repeats 5]
@@ -39,7 +39,7 @@ from app.geometry.projection import project_camera
 from app.sim.checkerboard_render import load_truth
 
 REPO = Path(__file__).resolve().parents[1]
-BOUGUET = REPO.parent / "shared" / "data" / "real" / "bouguet_stereo"
+BOUGUET = REPO / "tests" / "data" / "real" / "bouguet_stereo"
 SAMPLE = REPO / "sample_data" / "checkerboard"
 # Bouguet's published stereo result (README of the data set): fc left, fc right, |T|
 BOUGUET_REF = {"fx_l": 533.5, "fy_l": 533.5, "fx_r": 536.8, "fy_r": 536.5, "T": 99.81}

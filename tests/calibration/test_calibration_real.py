@@ -1,7 +1,8 @@
 """Calibration on real photographs: Bouguet's stereo set against its published calibration.
 
-The set (13 pairs, 640×480, 9×6 inner corners, 30 mm squares) lives in ``../shared`` relative
-to the repository root; its README quotes the published stereo result (Bouguet's toolbox).
+The set (13 pairs, 640×480, 9×6 inner corners, 30 mm squares) lives in
+``tests/data/real/bouguet_stereo``; its README quotes the published stereo result (Bouguet's
+toolbox).
 Also here: a pair whose grids are offset by a column (made by cropping the Bouguet images),
 a reversed right grid, an outlier view, the detector fallback and the process pool.
 """
@@ -29,7 +30,7 @@ from app.geometry.projection import project_camera
 from app.sim.checkerboard_render import load_truth
 
 REPO = Path(__file__).resolve().parents[2]
-BOUGUET = REPO.parent / "shared" / "data" / "real" / "bouguet_stereo"
+BOUGUET = REPO / "tests" / "data" / "real" / "bouguet_stereo"
 SAMPLE = REPO / "sample_data" / "checkerboard"
 BOARD = Board(9, 6, 30.0)
 # published (README of the set): fc left 533.5 (533.5), right 536.8 / 536.5; |T| = 99.81 mm;
@@ -40,7 +41,7 @@ REF_CC = {"left": (341.6, 235.2), "right": (326.3, 250.1)}
 
 @pytest.fixture(scope="module")
 def bouguet():
-    assert BOUGUET.is_dir(), f"real data set missing: {BOUGUET} (shared data next to the repo)"
+    assert BOUGUET.is_dir(), f"real data set missing: {BOUGUET}"
     lf = sorted(BOUGUET.glob("left*.jpg"))
     rf = sorted(BOUGUET.glob("right*.jpg"))
     assert len(lf) == len(rf) == 13

@@ -122,7 +122,7 @@ def test_bad_form_values_are_422(client):
     assert r.status_code == 422
 
 
-BOUGUET = REPO.parent / "shared" / "data" / "real" / "bouguet_stereo"
+BOUGUET = REPO / "tests" / "data" / "real" / "bouguet_stereo"
 
 
 def test_real_photographs_report_fields_and_mismatched_pair(client):
