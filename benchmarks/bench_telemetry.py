@@ -64,6 +64,8 @@ class TrivialSource:
             captured=False,
             miss_m=None,
             rel_position_m=z,
+            rta_reason=None,
+            run_outcome=None,
         )
 
 

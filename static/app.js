@@ -17,6 +17,7 @@ let shownSeq = -1; // the worker's message count at the last redraw
 let pulling = false; // a snapshot request is in flight
 let simRunning = null; // from /healthz: false → the banner says STOPPED
 let lastMiss = null; // {miss, captured, run}: the last plane crossing's miss (set on one tick)
+let lastOutcome = null; // {outcome, run}: the last run's outcome class (set on its last tick)
 let series = []; // {t, y, z, lat} of the current run only (from the worker)
 let connState = "connecting";
 let telemetry = null; // the worker
@@ -62,6 +63,7 @@ function connectTelemetry() {
     shownSeq = snap.seq;
     latest = snap.latest;
     lastMiss = snap.lastMiss;
+    lastOutcome = snap.lastOutcome;
     render(changed);
   };
   telemetry.postMessage({ type: "connect", url: proto + location.host + API + "/telemetry" });
@@ -73,9 +75,22 @@ function pullTelemetry() {
   telemetry.postMessage({ type: "snapshot", since: shownSeq });
 }
 
+// the run-time assurance: while its recovery law flies (the record's rta_reason), a banner
+// saying why — RECOVERY (red) for an envelope recovery, BREAK-AWAY (amber) otherwise
+function renderRta(rec) {
+  const rta = $("rta");
+  const reason = rec && rec.source === "sim" && simRunning !== false ? rec.rta_reason : null;
+  rta.hidden = !reason;
+  if (!reason) { rta.textContent = ""; rta.className = "rta"; return; }
+  const envelope = reason.startsWith("envelope:");
+  rta.textContent = (envelope ? "RECOVERY — " : "BREAK-AWAY — ") + reason;
+  rta.className = "rta " + (envelope ? "recovery" : "breakaway");
+}
+
 function renderBanner() {
   const rec = latest;
   const lock = $("lock");
+  renderRta(rec);
   // stopped: STOPPED over the last sim tick or the last upload (an upload in the 3 s before a
   // finished run restarts would otherwise keep its lock on the banner for good)
   if (simRunning === false && (!rec || rec.source === "sim" || rec.source === "upload")) {
@@ -115,6 +130,8 @@ function render(changed) {
   $("t_s").textContent = fmt(rec.t_s, 2);
   $("phase").textContent = rec.phase || "–";
   $("captured").textContent = rec.captured === null || rec.captured === undefined ? "–" : (rec.captured ? "yes" : "no");
+  // the outcome is set on a run's last tick only: show the last run's that ended
+  $("run-outcome").textContent = lastOutcome ? lastOutcome.outcome + " (run " + lastOutcome.run + ")" : "–";
   const r = rec.rel_position_m;
   $("rel-x").textContent = r ? fmt(r[0], 3) : "–";
   $("rel-y").textContent = r ? fmt(r[1], 3) : "–";

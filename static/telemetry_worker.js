@@ -13,6 +13,7 @@ let conn = "connecting";
 let latest = null;
 let seq = 0; // messages taken (the page redraws only when it changed)
 let lastMiss = null; // {miss, captured, run}: the last drogue-plane crossing (set on one tick)
+let lastOutcome = null; // {outcome, run}: the last run's outcome class (set on its last tick)
 let chartRun = null;
 const series = []; // {t, y, z, lat} of the current run only
 
@@ -26,6 +27,7 @@ function connect() {
     seq += 1;
     if (rec.source !== "sim") return;
     if (rec.miss_m !== null && rec.miss_m !== undefined) lastMiss = { miss: rec.miss_m, captured: rec.captured, run: rec.run };
+    if (rec.run_outcome) lastOutcome = { outcome: rec.run_outcome, run: rec.run };
     if (rec.run !== chartRun || (series.length && rec.t_s < series[series.length - 1].t)) {
       series.length = 0; // a new run: its own line, never joined to the last run's
       chartRun = rec.run;
@@ -44,6 +46,6 @@ self.onmessage = (ev) => {
     url = msg.url;
     connect();
   } else if (msg.type === "snapshot") {
-    self.postMessage({ conn, seq, latest, lastMiss, series: msg.since === seq ? null : series });
+    self.postMessage({ conn, seq, latest, lastMiss, lastOutcome, series: msg.since === seq ? null : series });
   }
 };

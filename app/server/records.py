@@ -48,6 +48,8 @@ class SimState(RawFrame, Protocol):
 
     Tanker frame, m; ``control``: the 4 deflections from trim; ``uav_state``: the receiver's
     12 states; ``led_truth_cam_mm``: the LEDs' true positions in the left-camera frame (mm);
+    ``rta_reason``: why the run-time assurance's recovery law flies this tick (None: the normal
+    controller flies); ``run_outcome``: the run's outcome class on its last tick (else None);
     its camera images are the subscribers' raw side of an in-process tick."""
 
     @property
@@ -84,6 +86,10 @@ class SimState(RawFrame, Protocol):
     def miss_m(self) -> float | None: ...
     @property
     def led_truth_cam_mm(self) -> FloatArray | None: ...
+    @property
+    def rta_reason(self) -> str | None: ...
+    @property
+    def run_outcome(self) -> str | None: ...
 
 
 @dataclass(frozen=True)
@@ -263,6 +269,8 @@ def to_record(tick: Tick, *, seq: int, clock_s: float, run: int) -> TickRecord:
         wall_time=time.time(),
         run=run,
         phase=None if sim is None else sim.phase,
+        rta_reason=None if sim is None else sim.rta_reason,
+        run_outcome=None if sim is None else sim.run_outcome,
         pose=tick.pose,
         lock=tick.lock,
         lock_reason=tick.lock_reason,

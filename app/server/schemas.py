@@ -11,6 +11,11 @@ from app.sim.sim_config import STRICT, SimConfig, Turbulence
 from app.vision.result import PoseResult
 
 Vec3 = tuple[float, float, float]
+#: a docking run's outcome class: ``app.sim.docking.outcomes.OUTCOMES`` (kept equal by a test;
+#: not imported here, ``app.sim.docking`` builds the simulation on import)
+RunOutcome = Literal[
+    "captured", "rim_strike", "missed", "aborted", "departure", "keep_out", "error"
+]
 
 
 class Control(BaseModel):
@@ -61,6 +66,17 @@ class TickRecord(BaseModel):
     wall_time: float = Field(description="UNIX time when published (s)")
     run: int = Field(0, description="simulation run counter (increments on reset)")
     phase: str | None = None
+    # run-time assurance (simplex): why the recovery law flies this tick, "break-away: …" or
+    # "envelope: …" (app.control.envelope); None while the normal controller (LQR) flies
+    rta_reason: str | None = Field(
+        None,
+        description="why the run-time assurance's recovery law flies this tick "
+        "('break-away: …' or 'envelope: …'); None while the normal controller flies",
+    )
+    # the run's outcome class, on the last tick of a simulated run only (None on the others)
+    run_outcome: RunOutcome | None = Field(
+        None, description="the run's outcome class, on its last tick only (else None)"
+    )
     pose: PoseResult | None = None
     lock: bool = False
     lock_reason: str | None = None

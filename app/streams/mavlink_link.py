@@ -1,5 +1,7 @@
-"""MAVLink 2 output of the navigation result (``pymavlink``): ``HEARTBEAT`` at 1 Hz and one
-``LANDING_TARGET`` per navigation result (the mapping: :mod:`app.streams.landing_target`).
+"""MAVLink 2 output of the navigation result (``pymavlink``): ``HEARTBEAT`` at 1 Hz, one
+``LANDING_TARGET`` per navigation result (the mapping: :mod:`app.streams.landing_target`) and,
+when asked, a ``STATUSTEXT`` (:meth:`MavlinkLink.send_status`: the run-time assurance's
+hand-overs, :mod:`app.server.mavlink_output`).
 
 The service (``aar-dock serve --mavlink udpout:HOST:PORT``) and ``aar-dock track --mavlink …``
 open one :class:`MavlinkLink` and hand it each result. The link is an onboard component of its
@@ -14,6 +16,7 @@ import logging
 import os
 import threading
 import time
+import unicodedata
 from dataclasses import dataclass
 
 from app.streams.landing_target import LandingTarget
@@ -28,6 +31,32 @@ MAV_TYPE_ONBOARD_CONTROLLER = 18
 MAV_AUTOPILOT_INVALID = 8
 MAV_STATE_ACTIVE = 4
 MAV_COMP_ID_ONBOARD_COMPUTER = 191
+# MAV_SEVERITY (MAVLink common.xml; RFC 5424's levels)
+MAV_SEVERITY_CRITICAL = 2
+MAV_SEVERITY_WARNING = 4
+MAV_SEVERITY_NOTICE = 5
+STATUSTEXT_CHUNK = 50  # bytes of text in one STATUSTEXT
+STATUSTEXT_MAX_BYTES = 200  # a longer text is cut here (at most 5 chunks)
+# what a ground station's ASCII console cannot show, spelled out (the rest: NFKD, then "?")
+_ASCII = str.maketrans(
+    {
+        "α": "alpha",
+        "β": "beta",
+        "φ": "phi",
+        "θ": "theta",
+        "ψ": "psi",
+        "Δ": "d",
+        "°": " deg",
+        "±": "+/-",
+        "−": "-",
+        "–": "-",
+        "—": "-",
+        "≤": "<=",
+        "≥": ">=",
+        "·": ".",
+        "…": "...",
+    }
+)
 _SCHEMES = ("udpout:", "udpin:", "udp:", "tcp:", "tcpin:")
 
 
@@ -51,8 +80,27 @@ class LinkStats:
     heartbeats: int = 0
     targets: int = 0
     targets_valid: int = 0
+    statustexts: int = 0  # texts sent (a chunked one counts once)
     send_errors: int = 0
     last_error: str | None = None
+
+
+def statustext_chunks(text: str) -> list[bytes]:
+    """``text`` as the ``text`` fields of ``STATUSTEXT`` messages: ASCII (Greek letters and
+    symbols spelled out, accents dropped, anything else ``?``), one chunk if it fits in 50
+    bytes, else 50-byte chunks of its first :data:`STATUSTEXT_MAX_BYTES` bytes, the last one
+    shorter — the receiver's end-of-text mark is the null that pads it (an empty chunk
+    follows a text of an exact multiple of 50 bytes)."""
+    plain = unicodedata.normalize("NFKD", text.translate(_ASCII))
+    plain = "".join(ch for ch in plain if not unicodedata.combining(ch))  # é → e
+    data = plain.encode("ascii", "replace")
+    data = data[:STATUSTEXT_MAX_BYTES]
+    if len(data) <= STATUSTEXT_CHUNK:
+        return [data]
+    chunks = [data[i : i + STATUSTEXT_CHUNK] for i in range(0, len(data), STATUSTEXT_CHUNK)]
+    if len(chunks[-1]) == STATUSTEXT_CHUNK:
+        chunks.append(b"")
+    return chunks
 
 
 class MavlinkLink:
@@ -79,6 +127,7 @@ class MavlinkLink:
         )
         self._stop = threading.Event()
         self._failing: str | None = None  # the last send's error while sends keep failing
+        self._status_id = 0  # the id of the last chunked STATUSTEXT (1..65535, then again)
         self._last_log = 0.0
         self._thread = threading.Thread(target=self._beat, name="mavlink-heartbeat", daemon=True)
         self._thread.start()
@@ -144,6 +193,24 @@ class MavlinkLink:
             self._failing = None
         except OSError as exc:
             self._failed("LANDING_TARGET", exc)
+
+    def send_status(self, severity: int, text: str) -> None:
+        """Send ``text`` as ``STATUSTEXT`` with ``severity`` (``MAV_SEVERITY``): one message
+        (``id`` 0) when it fits in 50 bytes, else MAVLink 2 chunks sharing a non-zero ``id``
+        (``chunk_seq`` 0, 1, …; :func:`statustext_chunks`). Never raises on a network error."""
+        chunks = statustext_chunks(text)
+        try:
+            with self._lock:
+                ident = 0
+                if len(chunks) > 1:
+                    self._status_id = self._status_id % 65535 + 1
+                    ident = self._status_id
+                for seq, chunk in enumerate(chunks):
+                    self._conn.mav.statustext_send(severity, chunk, ident, seq)
+            self.stats.statustexts += 1
+            self._failing = None
+        except OSError as exc:
+            self._failed("STATUSTEXT", exc)
 
     def close(self) -> None:
         self._stop.set()

@@ -1,6 +1,7 @@
 """The service's MAVLink 2 output (``Settings.mavlink``): a pymavlink listener on UDP loopback
-gets HEARTBEATs and one LANDING_TARGET per navigation record, equal to the telemetry, and
-``position_valid`` 0 while the lock is forced off (every LED switched off)."""
+gets HEARTBEATs and one LANDING_TARGET per navigation record, equal to the telemetry,
+``position_valid`` 0 while the lock is forced off (every LED switched off), and one STATUSTEXT
+per hand-over of the run-time assurance."""
 
 from __future__ import annotations
 
@@ -120,3 +121,57 @@ def test_a_dead_mavlink_heartbeat_turns_healthz_degraded(
         comp = next(x for x in h["components"] if x["name"] == "mavlink")
         assert h["status"] == "degraded" and comp["status"] == "degraded"
         assert "heartbeat thread stopped" in comp["reason"]
+
+
+def test_each_hand_over_is_one_statustext() -> None:
+    """The run-time assurance's hand-overs as a pymavlink listener gets them: one STATUSTEXT
+    when the recovery law takes over (CRITICAL for an envelope recovery, WARNING for a
+    break-away; a long reason in MAVLink 2 chunks), one NOTICE when it hands back or the run
+    changes; nothing while the reason stays; LANDING_TARGET goes on for every record."""
+    from app.server.mavlink_output import RTA_OFF_TEXT, MavlinkOutput
+    from app.server.schemas import TickRecord
+
+    sev = mavutil.mavlink
+    envelope = "envelope: α 10.2° above 10.0° with the probe 1.2 m from the drogue's rim"
+    plan = [  # (run, rta_reason)
+        (1, None),
+        (1, "break-away: missed the drogue by 0.199 m"),
+        (1, "break-away: missed the drogue by 0.199 m"),
+        (1, None),
+        (1, envelope),
+        (1, envelope),
+        (2, None),  # a new run: the recovery law no longer flies
+        (2, None),
+    ]
+    port = _free_udp_port()
+    rx = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", dialect="common")
+    out = MavlinkOutput(f"udpout:127.0.0.1:{port}", default_mount("jsbsim"))
+    try:
+        for i, (run, reason) in enumerate(plan):
+            rec = TickRecord(seq=i, source="sim", t_s=0.1 * i, clock_s=0.0, wall_time=0.0, run=run)
+            out.on_tick(rec.model_copy(update={"rta_reason": reason}))
+        texts = _drain(rx, "STATUSTEXT", 1.5)
+        stats = out.stats
+    finally:
+        out.close()
+        rx.close()
+    # reassemble the chunks (id ≠ 0: chunk_seq 0, 1, …; id 0: a text of its own)
+    got: list[tuple[int, str]] = []
+    for m in texts:
+        if m.id == 0 or m.chunk_seq == 0:
+            got.append((m.severity, m.text))
+        else:
+            assert got and m.severity == got[-1][0]
+            got[-1] = (m.severity, got[-1][1] + m.text)
+    assert [m.chunk_seq for m in texts if m.id != 0] == [0, 1]  # the envelope's 86 bytes
+    assert got == [
+        (sev.MAV_SEVERITY_WARNING, "RTA break-away: missed the drogue by 0.199 m"),
+        (sev.MAV_SEVERITY_NOTICE, RTA_OFF_TEXT),
+        (
+            sev.MAV_SEVERITY_CRITICAL,
+            "RTA envelope: alpha 10.2 deg above 10.0 deg with the probe 1.2 m from the "
+            "drogue's rim",
+        ),
+        (sev.MAV_SEVERITY_NOTICE, RTA_OFF_TEXT),
+    ]
+    assert stats.statustexts == 4 and stats.targets == len(plan) and stats.send_errors == 0

@@ -182,6 +182,31 @@ def test_recording_without_frames_still_writes_its_mcap(tmp_path: Path) -> None:
     assert sum(t == "/drogue/pose" for t, _, _ in msgs) == 5
 
 
+def test_the_mcap_telemetry_carries_the_run_time_assurance_and_the_outcome(
+    tmp_path: Path,
+) -> None:
+    """A hand-over to the recovery law (``rta_reason``) and the run's outcome (``run_outcome``,
+    last tick) are in ``/telemetry``, read back with the ``mcap`` reader, and its JSON schema
+    names both fields."""
+    reasons = [None, "break-away: missed the drogue by 0.199 m", "envelope: α 10.2° above 10.0°"]
+    rec = Recorder(tmp_path, max_s=60)
+    info = rec.start()
+    for i in range(6):
+        update = {"rta_reason": reasons[min(i, 2)], "run_outcome": "departure" if i == 5 else None}
+        rec.on_tick(fake_record(i).model_copy(update=update), None)
+    rec.stop()
+    with (tmp_path / f"{info.id}.mcap").open("rb") as f:
+        got = [
+            (sch, json.loads(msg.data))
+            for sch, ch, msg in make_reader(f).iter_messages(topics=["/telemetry"])
+        ]
+    assert [m["rta_reason"] for _, m in got] == [reasons[min(i, 2)] for i in range(6)]
+    assert [m["run_outcome"] for _, m in got] == [None] * 5 + ["departure"]
+    schema = json.loads(got[0][0].data)
+    assert {"rta_reason", "run_outcome"} <= set(schema["properties"])
+    assert "departure" in json.dumps(schema["properties"]["run_outcome"])
+
+
 def test_export_mcap_rebuilds_a_recording_on_disk(tmp_path: Path, capsys: Any) -> None:
     _, rec_id = _record_run(tmp_path, 6)
     live = tmp_path / f"{rec_id}.mcap"

@@ -10,7 +10,7 @@ import pytest
 from pymavlink import mavutil
 
 from app.streams.landing_target import LandingTarget, no_target
-from app.streams.mavlink_link import MavlinkLink, check_url
+from app.streams.mavlink_link import MavlinkLink, check_url, statustext_chunks
 
 
 def _free_udp_port() -> int:
@@ -80,3 +80,14 @@ def test_heartbeat_and_landing_targets_reach_a_pymavlink_listener() -> None:
 def test_bad_addresses_are_refused_with_what_is_expected(url: str) -> None:
     with pytest.raises(ValueError, match="udpout:HOST:PORT|HOST:PORT"):
         check_url(url)
+
+
+def test_statustext_chunks_are_ascii_and_end_with_a_short_chunk() -> None:
+    assert statustext_chunks("RTA envelope: α 10.2° above 10.0°") == [
+        b"RTA envelope: alpha 10.2 deg above 10.0 deg"
+    ]
+    assert statustext_chunks("bank ±45° − é") == [b"bank +/-45 deg - e"]
+    assert [len(c) for c in statustext_chunks("x" * 120)] == [50, 50, 20]
+    assert [len(c) for c in statustext_chunks("x" * 100)] == [50, 50, 0]  # the end mark
+    assert statustext_chunks("x" * 50) == [b"x" * 50]  # one message (id 0) needs none
+    assert sum(len(c) for c in statustext_chunks("x" * 1000)) == 200  # cut to 200 bytes

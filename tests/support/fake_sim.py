@@ -33,6 +33,8 @@ class FakeSimState:
     captured: bool | None = None
     miss_m: float | None = None
     led_truth_cam_mm: np.ndarray | None = None
+    rta_reason: str | None = None
+    run_outcome: str | None = None
     left_image: np.ndarray | None = None
     right_image: np.ndarray | None = None
     stereo_frame: None = None

@@ -67,7 +67,8 @@ class _Lost(Exception):
 class ProcessTick(LazyImagePair):
     """A tick from the worker: the simulation's state, its images read on demand, its schedule.
 
-    ``state``: the :class:`DockingTick` (its images ``None``: they are in the ring or inline);
+    ``state``: the :class:`DockingTick` (every field, ``rta_reason`` and ``run_outcome``
+    included; its images ``None``: they are in the ring or inline);
     on the machine's monotonic clock (``time.monotonic``, the same in every process):
     ``deadline_s`` (the worker's deadline this tick serves), ``released_s`` (when the worker
     sent it: its result available), ``received_s`` (when this process had it) and

@@ -18,7 +18,9 @@ Parent → worker:
 Worker → parent, unasked, on its schedule (:data:`STREAM`):
 
 * ``("tick", sid, gen, DockingTick without images, done, sim_ms, ring slot, stamp,
-  inline images | None, deadline_s, released_s, missed_deadlines)``;
+  inline images | None, deadline_s, released_s, missed_deadlines)``: the tick is pickled whole,
+  so every field but its images arrives (the run-time assurance's ``rta_reason`` and the run's
+  ``run_outcome`` with the rest) and the record is built from it as in-process;
 * ``("tickerror", sid, gen, kind, message, traceback)``: the step raised (the schedule ends).
 
 At start-up the worker sends ``("ready", pid, scheduling policy)``. Times are on the
