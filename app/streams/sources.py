@@ -12,6 +12,7 @@ Spec strings (``aar-dock serve --source``, ``AAR_SOURCE``, ``PUT /api/v1/stream/
 
 from __future__ import annotations
 
+import re
 import threading
 import time
 from dataclasses import dataclass
@@ -39,6 +40,7 @@ from app.streams.recording import (
 )
 
 DEFAULT_MAX_SKEW_S = 0.010
+CAMERA_DEVICE = re.compile(r"\d{1,3}|/dev/video\d{1,3}")  # an index or a V4L2 device
 PutResult = Literal["queued", "duplicate", "out_of_order"]
 
 
@@ -89,6 +91,15 @@ def parse_source(text: str) -> SourceSpec:
     parts = [p.strip() for p in rest.split(",")]
     if len(parts) > 2 or not parts[0] or (len(parts) == 2 and not parts[1]):
         raise SourceError(f"{kind} source needs one or two comma-separated inputs, got {rest!r}")
+    if kind == "camera":
+        # a camera is a device: OpenCV's VideoCapture would open an ordinary file too, which
+        # would bypass the folders a file source may be read from (AAR_STREAM_ROOTS)
+        bad = [p for p in parts if not CAMERA_DEVICE.fullmatch(p)]
+        if bad:
+            raise SourceError(
+                f"camera source takes a device index or a /dev/video* path, got {bad[0]!r} "
+                "(files and folders: video:…)"
+            )
     return SourceSpec(kind, parts[0], parts[1] if len(parts) == 2 else "")  # type: ignore[arg-type]
 
 

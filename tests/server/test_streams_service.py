@@ -239,7 +239,7 @@ def test_one_source_at_a_time_sim_start_stops_the_stream(
         wait_until(lambda: len(history_records(c, "sim")) >= 5, 30, "simulated ticks")
         assert len(history_records(c, "video")) == n_video  # the stream thread is gone
         r = c.put("/api/v1/stream/source", json={"source": "camera:/no/such/device.avi"})
-        assert r.status_code == 422 and "no such video file" in r.json()["detail"]
+        assert r.status_code == 422 and "device index or a /dev/video" in r.json()["detail"]
         assert st.loop.running  # a refused source changes nothing
 
 
@@ -270,3 +270,32 @@ def test_a_frame_recording_replays_with_its_own_calibration(tmp_path: Path) -> N
         assert not np.array_equal(service_calib.T, recorded_with.T)
     finally:
         streams.close()
+
+
+def test_every_source_prefix_with_a_path_outside_the_roots_is_refused(tmp_path: Path) -> None:
+    """Issue 33 (source specs): camera:, video: and mcap: naming files outside
+    AAR_STREAM_ROOTS get 422 and no file's pixels are served."""
+    allowed = tmp_path / "allowed"
+    allowed.mkdir()
+    outside = tmp_path / "outside"
+    outside.mkdir()
+    img = np.full((48, 64), 200, np.uint8)
+    for name in ("l.png", "r.png"):
+        cv2.imwrite(str(outside / name), img)
+    (outside / "f.mcap").write_bytes(b"\x89MCAP0\r\n")
+    settings = _settings(tmp_path, stream_roots=[allowed])
+    app = create_app(settings, source_factory=lambda config, calib: _FakeSim())
+    with TestClient(app) as c:
+        for spec in (
+            f"camera:{outside / 'l.png'}",
+            f"camera:{outside / 'l.png'},{outside / 'r.png'}",
+            f"video:{outside / 'l.png'},{outside / 'r.png'}",
+            f"video:{outside}",
+            f"mcap:{outside / 'f.mcap'}",
+            f"video:{allowed}/../outside/l.png,{allowed}/../outside/r.png",
+        ):
+            r = c.put("/api/v1/stream/source", json={"source": spec})
+            assert r.status_code == 422, (spec, r.text)
+            assert c.get("/api/v1/stream").json()["source"] == "sim", spec
+        # nothing from the outside folder was opened: the stream never left the simulation
+        assert not history_records(c, "camera") and not history_records(c, "video")

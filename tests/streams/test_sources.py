@@ -47,7 +47,18 @@ def test_parse_source_specs() -> None:
     assert (s.kind, s.left, s.right, s.text) == ("video", "a.avi", "b.avi", "video:a.avi,b.avi")
     s = parse_source("camera:0")
     assert (s.kind, s.left, s.right) == ("camera", "0", "")
-    for bad in ("rtsp:x", "video:", "video:a,", "camera:1,2,3", "nonsense"):
+    assert parse_source("camera:/dev/video2,/dev/video3").right == "/dev/video3"
+    for bad in (
+        "rtsp:x",
+        "video:",
+        "video:a,",
+        "camera:1,2,3",
+        "nonsense",
+        "camera:/etc/passwd",  # a file is not a camera (it would bypass AAR_STREAM_ROOTS)
+        "camera:0,/tmp/x.png",
+        "camera:/dev/video0/../../tmp/x.png",
+        "camera:../x.avi",
+    ):
         with pytest.raises(SourceError):
             parse_source(bad)
     with pytest.raises(SourceError, match="frame recording"):
