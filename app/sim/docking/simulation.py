@@ -504,35 +504,22 @@ class DockingSimulation:
                 x_hat, speed, sink, aft, below, fd.alpha_deg - self.trim.alpha_deg, fd.load_factor_g
             ):
                 self._end_rta(tip_hat, d_est)
-            return self._propagate_and_check(
-                frame_pose,
-                z_t,
-                d_hat,
-                ref,
-                lock,
-                lock_reason,
-                pose,
-                left,
-                right,
-                leds,
-                status,
-                exposure_t,
-            )
-        ref, ref_vel = g.update(dt, d_hat, d_vel, lock or searching, commit)
-        # 4. control (eq. 20)
-        x_ref = np.zeros(12)
-        x_ref[9:12] = ref - m.tip0_b
-        # flight-path feed-forward: ẏ ≈ V ψ + v, ż ≈ −V θ + w at trim
-        if self.closure_ff:  # the closure's steady state and commands (closure_feedforward)
-            x_ref += self._closure_ff[0] * ref_vel[0]
         else:
-            x_ref[0] = ref_vel[0]
-        x_ref[8] = ref_vel[1] / self.airspeed
-        x_ref[7] += -ref_vel[2] / self.airspeed
-        u_ff = self._closure_ff[1] * ref_vel[0] if self.closure_ff else None
-        u_cmd = self.lqr.control(x_hat, x_ref, ref - m.tip0_b, u_ff)
-        self.u_applied = self.act.apply(u_cmd)  # servo positions (what the observer is told)
-        self.lqr.lag_step(self.u_applied)
+            ref, ref_vel = g.update(dt, d_hat, d_vel, lock or searching, commit)
+            # 4. control (eq. 20)
+            x_ref = np.zeros(12)
+            x_ref[9:12] = ref - m.tip0_b
+            # flight-path feed-forward: ẏ ≈ V ψ + v, ż ≈ −V θ + w at trim
+            if self.closure_ff:  # the closure's steady state and commands (closure_feedforward)
+                x_ref += self._closure_ff[0] * ref_vel[0]
+            else:
+                x_ref[0] = ref_vel[0]
+            x_ref[8] = ref_vel[1] / self.airspeed
+            x_ref[7] += -ref_vel[2] / self.airspeed
+            u_ff = self._closure_ff[1] * ref_vel[0] if self.closure_ff else None
+            u_cmd = self.lqr.control(x_hat, x_ref, ref - m.tip0_b, u_ff)
+            self.u_applied = self.act.apply(u_cmd)  # servo positions (what the observer is told)
+            self.lqr.lag_step(self.u_applied)
         return self._propagate_and_check(
             frame_pose,
             z_t,
