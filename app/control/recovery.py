@@ -14,8 +14,12 @@ rad/s) with the model's control effectiveness ``L_δa = ∂ṗ/∂δa``, ``M_δe
   ``ż_c = sink_mps`` (down) until it is ``standoff_below_m`` below the drogue, then 0, with
   a PI correction on the sink rate ``ż`` flown (a lighter aircraft or the tanker's downwash
   would otherwise turn the descent into a climb);
-* aileron: ``δa = −(ω_φ² (φ − φ_c) + 2 ζ ω_φ p) / L_δa`` with ``φ_c = clip(−k_ψ ψ, ±10°)``
-  — wings level on the tanker's heading (no turn towards the drogue);
+* aileron: ``δa = −(ω_φ² (φ − φ_c) + 2 ζ ω_φ p) / L_δa`` with
+  ``φ_c = clip(−k_ψ ẏ / V, ±10°)`` — wings level on the tanker's track: ``ẏ / V`` is the
+  receiver's track angle relative to the tanker's (small angles; ``ẏ`` its measured sideways
+  speed relative to the tanker, ``V`` the airspeed). Holding the heading alone let a gust's
+  side velocity drift the receiver 15–150 m sideways in a break-away, and the LQR took over
+  with a large side velocity; no turn towards the drogue either way;
 * rudder: ``δr = −(2 ζ ω_ψ r) / N_δr`` — a yaw damper;
 * speed brakes (:meth:`RecoveryLaw.speedbrake`): out while short of the standoff and faster
   than the drop-back speed, in otherwise (the A-4's add ΔC_D 0.021: with the engine at idle
@@ -24,7 +28,7 @@ rad/s) with the model's control effectiveness ``L_δa = ∂ṗ/∂δa``, ``M_δe
 Each surface command is clipped to ``± max_fraction`` of its travel. The law is done
 (:meth:`RecoveryLaw.settled`) when the receiver sits at the safe standoff (≥
 ``standoff_aft_m`` aft and ≥ ``standoff_below_m`` below the drogue), wings level, rates
-small, moving with the tanker (|v_x|, |ż| < 1 m/s) and — after an envelope recovery —
+small, moving with the tanker (|v_x|, |ż| < 1 m/s, and sideways |ẏ| < ``side_speed_max_mps``) and — after an envelope recovery —
 back near its trim (α within ±3° of it, load factor 0.7–1.3 g).
 """
 
@@ -47,7 +51,7 @@ class RecoveryGains:
     sink_mps: float = 3.0  # the descent's sink rate
     sink_gain: float = 2.0  # k_z (per unit: m/s of sink-rate error per m/s)
     sink_integral_per_s: float = 0.5  # k_i
-    heading_gain: float = 2.0  # k_ψ (rad of bank per rad of heading)
+    heading_gain: float = 2.0  # k_ψ (rad of bank per rad of track angle)
     bank_max_deg: float = 10.0
     omega_roll_rad_s: float = 2.0
     omega_pitch_rad_s: float = 2.0
@@ -56,6 +60,7 @@ class RecoveryGains:
     max_fraction: float = 0.3  # of each command's travel
     standoff_aft_m: float = 10.0
     standoff_below_m: float = 3.0
+    side_speed_max_mps: float = 1.5  # hand back only while drifting sideways slower than this
 
 
 class RecoveryLaw:
@@ -90,11 +95,12 @@ class RecoveryLaw:
         sink_rate_mps: float,
         aft_m: float,
         below_m: float,
+        side_speed_mps: float = 0.0,
     ) -> FloatArray:
         """Command deviation from trim (throttle, aileron, elevator, rudder) for the
         perturbation state ``x_dev`` (u v w p q r φ θ ψ x y z), the speed relative to the
-        tanker ``speed_mps`` (forward +), the sink rate (down +) and the distances aft of and
-        below the drogue (m)."""
+        tanker ``speed_mps`` (forward +), the sink rate (down +), the distances aft of and
+        below the drogue (m) and the sideways speed relative to the tanker (m/s, right +)."""
         g = self.gains
         p, q, r, phi, theta = x_dev[3], x_dev[4], x_dev[5], x_dev[6], x_dev[7]
         v_c = -g.drop_back_mps if aft_m < g.standoff_aft_m else 0.0
@@ -106,7 +112,8 @@ class RecoveryLaw:
         theta_c = -(zdot_c + g.sink_gain * err + g.sink_integral_per_s * self.sink_error_integral)
         theta_c /= self.airspeed_mps
         bank_max = math.radians(g.bank_max_deg)
-        phi_c = float(np.clip(-g.heading_gain * x_dev[8], -bank_max, bank_max))
+        track = side_speed_mps / self.airspeed_mps  # rad, relative to the tanker's track
+        phi_c = float(np.clip(-g.heading_gain * track, -bank_max, bank_max))
         wr, wp, wy, z = g.omega_roll_rad_s, g.omega_pitch_rad_s, g.omega_yaw_rad_s, g.damping
         throttle = float(
             np.clip(g.speed_gain * (v_c - speed_mps), -g.throttle_back, g.throttle_back)
@@ -137,12 +144,18 @@ class RecoveryLaw:
         below_m: float,
         alpha_from_trim_deg: float,
         load_factor_g: float,
+        side_speed_mps: float = 0.0,
     ) -> bool:
-        """Done (module docstring)."""
+        """Done (module docstring); ``side_speed_mps``: the receiver's sideways speed relative
+        to the tanker (m/s)."""
         g = self.gains
         level = abs(x_dev[6]) < math.radians(5.0)
         calm = float(np.max(np.abs(x_dev[3:6]))) < math.radians(3.0)
-        steady = abs(speed_mps) < 1.0 and abs(sink_rate_mps) < 1.0
+        steady = (
+            abs(speed_mps) < 1.0
+            and abs(sink_rate_mps) < 1.0
+            and abs(side_speed_mps) < g.side_speed_max_mps
+        )
         trimmed = abs(alpha_from_trim_deg) < 3.0 and 0.7 < load_factor_g < 1.3
         at_standoff = aft_m >= g.standoff_aft_m and below_m >= g.standoff_below_m
         return at_standoff and level and calm and steady and trimmed

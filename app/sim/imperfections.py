@@ -261,16 +261,26 @@ def perturbed_calibration(
     )
 
 
+# m: the tanker's wing semi-span order (a KC-135's is ≈ 20 m), where its tip vortices sit
+SIDEWASH_SPAN_M = 20.0
+
+
 def wake_downwash(d: ImperfectionDraw, cg_m: FloatArray) -> FloatArray:
     """Steady tanker-wake velocity (m/s, tanker axes) at the receiver's CG ``cg_m``.
 
     Downwash ``W·L²/(L² + x²)`` (L = 20 m: full strength close behind the tanker, half at
-    20 m back) plus a sidewash ``k_y·y`` (m/s per m of lateral offset): a placeholder for the
-    tanker's wing-vortex field, with uncertain strength (module docstring).
+    20 m back) plus a sidewash ``k_y·y / (1 + (y/B)²)`` (``k_y`` m/s per m of lateral offset
+    near the centreline, B = ``SIDEWASH_SPAN_M``): a placeholder for the tanker's wing-vortex
+    field, with uncertain strength (module docstring). The sidewash peaks at ``k_y·B/2`` a
+    semi-span out and dies away beyond the vortices; a sidewash growing without bound with
+    the offset (the first placeholder) pushed a receiver drifting sideways in a break-away
+    ever further out (≈ 10 m/s at 130 m).
     """
     x = float(cg_m[0])
+    y = float(cg_m[1])
     w = d.wake_downwash_mps * 400.0 / (400.0 + x * x)
-    return np.array([0.0, d.wake_sidewash_per_m * float(cg_m[1]), w])
+    side = d.wake_sidewash_per_m * y / (1.0 + (y / SIDEWASH_SPAN_M) ** 2)
+    return np.array([0.0, side, w])
 
 
 class FrameChannel:

@@ -494,14 +494,23 @@ class DockingSimulation:
             # aft and below); the LQR's memory follows the servos (bumpless hand-back)
             d_est = np.asarray(d_raw, float)
             aft, below = float(d_est[0] - tip_hat[0]), float(tip_hat[2] - d_est[2])
-            speed, sink = float(tip_vel_hat[0]), float(tip_vel_hat[2])
-            self.u_applied = self.act.apply(self.recovery.command(x_hat, speed, sink, aft, below))
+            speed, side, sink = (float(v) for v in tip_vel_hat)
+            self.u_applied = self.act.apply(
+                self.recovery.command(x_hat, speed, sink, aft, below, side)
+            )
             self._plant.set_speedbrake(self.recovery.speedbrake(speed, aft))
             self.lqr.hand_over(self.u_applied)
             ref, ref_vel = tip_hat.copy(), np.zeros(3)
             fd = self._plant.flight_data()
             if self.recovery.settled(
-                x_hat, speed, sink, aft, below, fd.alpha_deg - self.trim.alpha_deg, fd.load_factor_g
+                x_hat,
+                speed,
+                sink,
+                aft,
+                below,
+                fd.alpha_deg - self.trim.alpha_deg,
+                fd.load_factor_g,
+                side,
             ):
                 self._end_rta(tip_hat, d_est)
         else:
