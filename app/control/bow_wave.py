@@ -1,11 +1,10 @@
 """Bow-wave feed-forward: where the receiver's nose will have pushed the drogue when the probe
 arrives.
 
-The guidance carries its own copy of the reduced-order bow-wave model of
-:mod:`app.sim.hose_drogue` (a force ``F₀ exp(−s/ℓ)`` away from the nose axis and up, ``s`` the
-axial distance nose → drogue) acting on the drogue's lateral/vertical mode (ω, ζ, effective
-mass). Its *nominal* parameters only: a flown bow wave of another strength (the imperfections'
-``bow_scale``) is not known to it.
+The guidance carries its own bow-wave model (:class:`app.control.drogue_model.DrogueModel`: a
+force ``F₀ exp(−s/ℓ)`` away from the nose axis and up, ``s`` the axial distance nose → drogue)
+acting on the drogue's lateral/vertical mode (ω, ζ, effective mass). Its *nominal* parameters
+only: a flown bow wave of another strength, or a drogue of another mass, is not known to it.
 
 * :class:`BowWaveModel` runs the model's response alongside the flight, driven by the estimated
   nose and drogue, so the guidance can split the drogue estimate into the bow-wave push (known)
@@ -20,18 +19,18 @@ import math
 
 import numpy as np
 
+from app.control.drogue_model import DrogueModel
 from app.control.drogue_swing import predict_swing_offset
-from app.sim.hose_drogue import HoseDrogueParams
 from app.types import FloatArray
 
 FORECAST_STEPS = 64  # quadrature points of the forced response over the horizon
 
 
 def bow_force_n(
-    params: HoseDrogueParams, drogue_m: FloatArray, nose_m: FloatArray, nose_axis: FloatArray
+    params: DrogueModel, drogue_m: FloatArray, nose_m: FloatArray, nose_axis: FloatArray
 ) -> FloatArray:
-    """The model's bow-wave force (N, tanker frame) on a drogue at ``drogue_m`` (the formula of
-    :meth:`app.sim.hose_drogue.HoseDrogue.bow_wave_force`)."""
+    """The model's bow-wave force (N, tanker frame) on a drogue at ``drogue_m`` (the formula
+    the simulated drogue uses, written here once more: the guidance shares no code with it)."""
     if params.bow_force_n == 0.0:
         return np.zeros(3)
     rel = np.asarray(drogue_m, float) - np.asarray(nose_m, float)
@@ -47,7 +46,7 @@ class BowWaveModel:
     models it: the drogue's lateral mode ``ẍ + 2ζω ẋ + ω² x = F/m`` driven by the modelled
     force."""
 
-    def __init__(self, params: HoseDrogueParams) -> None:
+    def __init__(self, params: DrogueModel) -> None:
         self.params = params
         self.omega = params.omega_rad_s
         self.zeta = params.damping_ratio

@@ -31,6 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from app.control.drogue_model import DrogueModel
 from app.types import FloatArray
 
 GRAVITY = 9.80665
@@ -70,6 +71,20 @@ class HoseDrogueParams:
     def hang_angle_rad(self) -> float:
         """Droop of the hose tangent at the drogue below the horizontal: drogue weight over drag."""
         return float(np.arctan2(self.drogue_mass_kg * GRAVITY, self.drag_n))
+
+    def guidance_model(self) -> DrogueModel:
+        """These parameters as the guidance's model (:class:`~app.control.drogue_model.
+        DrogueModel`): build it from a *nominal* drogue, never from a run's dispersed one."""
+        rest = self.equilibrium_m()
+        return DrogueModel(
+            omega_rad_s=self.omega_rad_s,
+            damping_ratio=self.damping_ratio,
+            effective_mass_kg=self.effective_mass_kg,
+            bow_force_n=self.bow_force_n,
+            bow_length_m=self.bow_length_m,
+            bow_up_bias_m=self.bow_up_bias_m,
+            rest_m=(float(rest[0]), float(rest[1]), float(rest[2])),
+        )
 
     def equilibrium_m(self) -> FloatArray:
         """Drogue centre at rest in the tanker frame (m; hose exit at the origin).

@@ -187,6 +187,29 @@ def test_geometry_is_the_floor() -> None:
     assert not bad, bad
 
 
+def test_control_knows_nothing_of_the_simulation() -> None:
+    """The controller and the guidance's models (app.control) import nothing of the simulator
+    (app.sim): what the guidance knows of the drogue is its own nominal model
+    (app.control.drogue_model), never the simulated drogue's parameters."""
+    bad = [
+        f"{m}:{line} imports {imported}"
+        for m, tree in MODULES.items()
+        if _starts(m, ("app.control",))
+        for imported, _, line in all_imports(m, tree)
+        if _starts(imported, ("app.sim",))
+    ]
+    assert not bad, bad
+
+
+def test_the_guidance_reads_no_simulated_drogue_parameters() -> None:
+    """The docking guidance (app.sim.docking.guidance) imports no hose–drogue simulator and
+    takes the guidance's own model, not ``HoseDrogueParams``."""
+    tree = MODULES["app.sim.docking.guidance"]
+    imported = [i for i, _, _ in all_imports("app.sim.docking.guidance", tree)]
+    assert not [i for i in imported if _starts(i, ("app.sim.hose_drogue",))]
+    assert "HoseDrogueParams" not in ast.unparse(tree)
+
+
 def test_no_private_name_is_imported_from_another_module() -> None:
     bad = [
         f"{m}:{line} imports {n} from {imported}"

@@ -38,18 +38,20 @@ def test_force_is_the_hose_drogue_models():
         axis = np.array([0.999, 0.0, -0.0447])
         axis /= np.linalg.norm(axis)
         np.testing.assert_allclose(
-            bow_force_n(A4_DROGUE, d.position_m, n, axis), d.bow_wave_force(n, axis), atol=1e-12
+            bow_force_n(A4_DROGUE.guidance_model(), d.position_m, n, axis),
+            d.bow_wave_force(n, axis),
+            atol=1e-12,
         )
 
 
 def test_the_model_run_alongside_reproduces_the_pushed_drogue():
     dt = 0.02
     _, states = _approach(1.2, 4.0, dt)
-    model = BowWaveModel(A4_DROGUE)
+    model = BowWaveModel(A4_DROGUE.guidance_model())
     d = HoseDrogue(A4_DROGUE)
     axis = np.array([1.0, 0.0, 0.0])
     for nose, d_true, _ in states:
-        model.step(dt, bow_force_n(A4_DROGUE, d.position_m, nose, axis))
+        model.step(dt, bow_force_n(A4_DROGUE.guidance_model(), d.position_m, nose, axis))
         d.step(dt, np.zeros(3), d.bow_wave_force(nose, axis))
         np.testing.assert_allclose(model.d, d.d[1:], atol=1e-9)
         np.testing.assert_allclose(d.d, d_true, atol=1e-12)
@@ -66,7 +68,7 @@ def test_forecast_predicts_the_push_at_the_arrival(closure):
     _, states = _approach(closure, arrive, dt)
     k0 = int(round(2.0 / dt))
     nose, d0, v0 = states[k0 - 1]
-    model = BowWaveModel(A4_DROGUE)
+    model = BowWaveModel(A4_DROGUE.guidance_model())
     model.d, model.v = d0[1:].copy(), v0[1:].copy()
     direction = np.array([0.5, -0.3 - A4_DROGUE.bow_up_bias_m])
     direction /= np.linalg.norm(direction)
@@ -78,9 +80,10 @@ def test_forecast_predicts_the_push_at_the_arrival(closure):
 
 
 def test_forecast_without_force_is_the_free_swing_and_zero_horizon_the_present():
-    model = BowWaveModel(HoseDrogueParams(air_density=0.771, airspeed_mps=147.5, bow_force_n=0))
+    params = HoseDrogueParams(air_density=0.771, airspeed_mps=147.5, bow_force_n=0)
+    model = BowWaveModel(params.guidance_model())
     model.d, model.v = np.array([0.2, -0.1]), np.array([0.0, 0.1])
-    d = HoseDrogue(model.params)
+    d = HoseDrogue(params)
     d.reset(np.array([0.0, 0.2, -0.1]))
     d.v = np.array([0.0, 0.0, 0.1])
     for _ in range(50):

@@ -15,9 +15,9 @@ import math
 import numpy as np
 
 from app.control.bow_wave import BowWaveModel, bow_force_n
+from app.control.drogue_model import DrogueModel
 from app.control.drogue_swing import predict_swing_offset
 from app.sim.docking.config import DockingConfig
-from app.sim.hose_drogue import HoseDrogueParams
 from app.types import FloatArray
 
 # timed closure (the A-4): from the hold at the standoff the probe arrives after gap / closure
@@ -37,7 +37,7 @@ class SwingGuidance:
     def __init__(
         self,
         config: DockingConfig,
-        drogue: HoseDrogueParams,
+        drogue: DrogueModel,
         bow_model: BowWaveModel,
         smoothing_s: float,
         dt: float,

@@ -239,8 +239,15 @@ class DockingSimulation:
         self.u_applied = np.zeros(4)
         self.filter = DrogueFilter(history=self._latency_ticks + 1, hold_after_s=cfg.coast_limit_s)
         self.tip_tracker = AlphaBetaTracker(self.dt)
-        # the guidance's bow-wave model: the nominal force (not this run's draw)
-        self.bow_model = BowWaveModel(replace(self.drogue.params, bow_force_n=cfg.bow_wave_force_n))
+        # the guidance's model of the drogue: the nominal hose type at this flight condition
+        # (not this run's draw — its bow-wave strength, or any other dispersion)
+        self.drogue_model = HoseDrogueParams(
+            air_density=trim.air_density_kgm3,
+            airspeed_mps=trim.tas_mps,
+            drogue_radius_m=cfg.ring_radius_m,
+            bow_force_n=cfg.bow_wave_force_n,
+        ).guidance_model()
+        self.bow_model = BowWaveModel(self.drogue_model)
         self.guidance = ReferenceGenerator(
             GuidanceConfig(
                 closure_speed_mps=cfg.closure_speed_mps,
@@ -254,7 +261,7 @@ class DockingSimulation:
         # the gusts the drogue met, newest last: the receiver meets them gap / V later
         self._gust_history: list[FloatArray] = [np.zeros(3)] * GUST_HISTORY_TICKS
         self.swing = SwingGuidance(
-            cfg, self.drogue.params, self.bow_model, self.smoothing_s, self.dt
+            cfg, self.drogue_model, self.bow_model, self.smoothing_s, self.dt
         )
         self._armed = True  # a break-away now counts as an abort (see _abort)
         # run-time assurance: the monitor, the recovery law, the run's extremes and outcome
@@ -419,7 +426,11 @@ class DockingSimulation:
         g = self.guidance
         tip_hat = x_hat[9:12] + self._rot(x_hat) @ self.r_probe_b
         tip_vel_hat = self.tip_tracker.update(tip_hat)
-        d_hat = self.filter.position if self.filter.initialised else self.drogue.eq_m
+        d_hat = (
+            self.filter.position
+            if self.filter.initialised
+            else np.asarray(self.drogue_model.rest_m, float)
+        )
         d_vel = self.filter.velocity if self.filter.initialised else np.zeros(3)
         if not self._armed and float((d_hat - tip_hat)[0]) > REARM_GAP_M:
             self._armed = True
