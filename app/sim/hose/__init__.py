@@ -1,0 +1,1 @@
+"""Multi-body (lumped-mass) hose with its drogue, reel and coupling (issue 32)."""
