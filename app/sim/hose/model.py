@@ -176,7 +176,9 @@ class MultibodyHose:
         return np.asarray(d / np.linalg.norm(d))
 
     # --- the coupling --------------------------------------------------------------------
-    def latch(self, probe_m: FloatArray, stiffness_n_per_m: float, damping_n_s_per_m: float) -> None:
+    def latch(
+        self, probe_m: FloatArray, stiffness_n_per_m: float, damping_n_s_per_m: float
+    ) -> None:
         """The coupling rides on the probe, now at ``probe_m``, from now on: the drogue is held
         to the probe's point by a spring-damper (the coupling's and the basket's compliance)."""
         self.latched = True
