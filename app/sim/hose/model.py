@@ -61,22 +61,23 @@ class FrozenGust:
         self.airspeed = airspeed_mps
         self.dt = dt
         self.size = int(math.ceil(span_m / airspeed_mps / dt)) + 2
-        self.history = np.zeros((self.size, 3))
+        self.history = np.zeros((self.size, 3))  # a ring: the newest at ``self.head``
+        self.head = 0
         self.count = 0
 
     def push(self, gust_mps: FloatArray) -> None:
-        self.history = np.roll(self.history, -1, axis=0)
-        self.history[-1] = np.asarray(gust_mps, float)
+        self.head = (self.head + 1) % self.size
+        self.history[self.head] = gust_mps
         if self.count == 0:
-            self.history[:] = self.history[-1]
+            self.history[:] = self.history[self.head]
         self.count += 1
 
     def __call__(self, points_m: FloatArray, t_s: float) -> FloatArray:
-        lag = np.clip(-points_m[:, 0] / self.airspeed / self.dt, 0.0, self.size - 1.0)
-        k = np.floor(lag).astype(int)
+        lag = np.clip(-points_m[:, 0] / (self.airspeed * self.dt), 0.0, self.size - 2.0)
+        k = lag.astype(np.int64)
         frac = (lag - k)[:, None]
-        newer = self.history[self.size - 1 - k]
-        older = self.history[np.maximum(self.size - 2 - k, 0)]
+        newer = self.history[(self.head - k) % self.size]
+        older = self.history[(self.head - k - 1) % self.size]
         return np.asarray((1.0 - frac) * newer + frac * older)
 
 

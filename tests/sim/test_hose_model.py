@@ -1,0 +1,84 @@
+"""The multi-body hose in time: it rests on its steady shape, its free swing follows the
+linearised modes, a steady cross-wind turns it into the relative wind, and the hooks (gusts
+along the hose, a force on the drogue) act where they should."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from app.sim.hose.atmosphere import flow_from_kcas
+from app.sim.hose.model import FrozenGust, MultibodyHose
+from app.sim.hose.params import DrogueParams, HoseParams
+from app.sim.hose.steady import steady_shape, swing_modes
+
+FLOW = flow_from_kcas(15000, 230)
+DT = 0.02  # the docking loop's tick (DockingConfig.tick_hz = 50)
+
+
+def test_rests_on_its_steady_shape_at_the_tick_rate() -> None:
+    hose = MultibodyHose(FLOW)
+    assert hose.substeps(DT) >= 2  # substepped below the axial stability limit
+    for _ in range(250):
+        tick = hose.step(DT)
+    assert np.abs(hose.nodes_m - hose.steady.nodes_m).max() < 1e-6
+    assert tick.slack_segments == 0 and tick.payout_m == 15.0
+    assert hose.reel_tension_n == pytest.approx(hose.trail_tension_n, rel=1e-6)
+
+
+def test_free_lateral_swing_follows_the_linearised_mode() -> None:
+    hose = MultibodyHose(FLOW)
+    modes = swing_modes(FLOW, HoseParams(), DrogueParams(), hose.steady)
+    hose.vel[-1, 1] = 0.5  # a lateral kick on the drogue
+    y = []
+    for _ in range(int(20.0 / DT)):
+        hose.step(DT)
+        y.append(hose.drogue_m[1])
+    y_arr = np.array(y)
+    t = DT * np.arange(1, len(y_arr) + 1)
+    up = np.flatnonzero((y_arr[:-1] < 0) & (y_arr[1:] >= 0))
+    period = np.mean(np.diff(t[up]))
+    assert 1.0 / period == pytest.approx(modes.lateral.frequency_hz, rel=0.02)
+    # decay of the peaks over the cycles: exp(−ζ ω t)
+    peaks = [np.max(y_arr[a:b]) for a, b in zip(up[:-1], up[1:], strict=False)]
+    rate = -np.polyfit(t[up[:-1]], np.log(peaks), 1)[0]
+    w = 2 * np.pi * modes.lateral.frequency_hz
+    assert rate / w == pytest.approx(modes.lateral.damping_ratio, rel=0.15)
+
+
+def test_steady_cross_wind_turns_the_hose_into_the_relative_wind() -> None:
+    wind = np.array([0.0, 3.0, 0.0])
+    hose = MultibodyHose(FLOW)
+    for _ in range(int(40.0 / DT)):
+        hose.step(DT, air=lambda p, t: np.tile(wind, (len(p), 1)))
+    marched = steady_shape(FLOW, HoseParams(), DrogueParams(), wind_mps=wind)
+    assert np.abs(hose.nodes_m - marched.nodes_m).max() < 0.01
+    # the whole line turns by the wind's angle g/V (drogue ≈ L g / V to the right)
+    assert hose.drogue_m[1] == pytest.approx(-hose.drogue_m[0] * 3.0 / FLOW.airspeed_mps, rel=0.05)
+
+
+def test_frozen_gust_reaches_the_aft_nodes_later() -> None:
+    gust = FrozenGust(100.0, 0.01)
+    for k in range(10):
+        gust.push(np.array([0.0, float(k), 0.0]))
+    points = np.array([[0.0, 0.0, 0.0], [-5.0, 0.0, 0.0], [-2.5, 0.0, 0.0]])
+    out = gust(points, 0.0)
+    # 5 m aft at 100 m/s: 0.05 s = 5 ticks ago; 2.5 m: 2.5 ticks (interpolated)
+    assert out[:, 1] == pytest.approx([9.0, 4.0, 6.5])
+
+
+def test_force_on_the_drogue_moves_it() -> None:
+    hose = MultibodyHose(FLOW)
+    for _ in range(int(30.0 / DT)):
+        hose.step(DT, drogue_force_n=np.array([0.0, 0.0, -60.0]))  # 60 N up (a bow wave)
+    rise = hose.steady.drogue_m[2] - hose.drogue_m[2]
+    assert 0.1 < rise < 1.0
+
+
+def test_bad_tick_is_refused() -> None:
+    hose = MultibodyHose(FLOW)
+    with pytest.raises(ValueError):
+        hose.step(0.0)
+    hose.latch(hose.drogue_m, 2e4, 1500.0)
+    with pytest.raises(ValueError, match="probe"):
+        hose.step(DT)
