@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from app.sim.hose.atmosphere import flow_from_kcas
-from app.sim.hose.model import FrozenGust, MultibodyHose
+from app.sim.hose.model import FrozenGust, MultibodyHose, combined, wake_field
 from app.sim.hose.params import DrogueParams, HoseParams
 from app.sim.hose.steady import steady_shape, swing_modes
 
@@ -82,3 +82,26 @@ def test_bad_tick_is_refused() -> None:
     hose.latch(hose.drogue_m, 2e4, 1500.0)
     with pytest.raises(ValueError, match="probe"):
         hose.step(DT)
+
+
+def test_wake_pushes_the_hose_down_and_fields_add() -> None:
+    wake = wake_field(downwash_mps=2.0, sidewash_per_m=0.0)
+    pts = np.array([[0.0, 0.0, 0.0], [-20.0, 0.0, 0.0]])
+    assert wake(pts, 0.0)[:, 2] == pytest.approx([2.0, 1.0])  # full at the tanker, half at 20 m
+    both = combined(wake, lambda p, t: np.tile([0.0, 1.0, 0.0], (len(p), 1)))
+    assert both(pts, 0.0)[1] == pytest.approx([0.0, 1.0, 1.0])
+    hose = MultibodyHose(FLOW)
+    for _ in range(int(20.0 / DT)):
+        hose.step(DT, air=wake)
+    # the downwash tilts the relative wind down by ≈ w/V: the drogue sinks by ≈ L w / V
+    sink = hose.drogue_m[2] - hose.steady.drogue_m[2]
+    assert 0.1 < sink < 15.0 * 2.0 / FLOW.airspeed_mps * 1.2
+
+
+def test_non_finite_inputs_are_refused() -> None:
+    hose = MultibodyHose(FLOW)
+    with pytest.raises(ValueError, match="finite"):
+        hose.step(DT, drogue_force_n=np.array([np.nan, 0.0, 0.0]))
+    hose.latch(hose.drogue_m, 2e4, 1500.0)
+    with pytest.raises(ValueError, match="probe"):
+        hose.step(DT, probe_m=np.array([0.0, np.inf, 0.0]))

@@ -105,3 +105,16 @@ def test_swing_against_the_pendulum_string_estimate() -> None:
     assert 0.05 < modes.lateral.damping_ratio < 0.15
     assert 0.05 < modes.vertical.damping_ratio < 0.15
     assert modes.vertical.frequency_hz > modes.lateral.frequency_hz
+
+
+def test_swing_converges_as_the_nodes_grow() -> None:
+    flow, d = flow_from_kcas(15000, 230), DrogueParams()
+    f_lat, f_vert = [], []
+    for n in (10, 20, 40):
+        h = HoseParams(segments=n)
+        m = swing_modes(flow, h, d, steady_shape(flow, h, d))
+        f_lat.append(m.lateral.frequency_hz)
+        f_vert.append(m.vertical.frequency_hz)
+    for f in (f_lat, f_vert):
+        assert abs(f[2] - f[1]) < 0.6 * abs(f[1] - f[0]) + 1e-4
+        assert abs(f[2] - f[1]) < 0.01 * f[2]

@@ -14,7 +14,7 @@ q d C_n sin²φ and tangential drag q π d C_t cos²φ (the stream flows aft). B
 At the drogue the hose carries the drogue's drag D = q C_d A and weight W: T cos φ = D,
 T sin φ = W. Positions: d(x, z)/ds = (−cos φ, −sin φ), shifted so that the reel exit is at the
 origin. The lateral swing of the same cable (:func:`lateral_modes`), linearised about this
-shape and discretised by finite differences on a fine grid:
+shape and discretised by finite differences on 200 cells:
 
     μ ÿ = (T y')' − q_n V sin φ ẏ − (q_n V² sin φ cos φ − q_t V² cos² φ) y'   (s from the reel)
     m_d ÿ = −T(L) y'(L) − ½ρ C_d A V ẏ,   y(0) = 0
@@ -90,7 +90,7 @@ def solve(c: Cable, points: int = 2001) -> CableSolution:
     )
 
 
-def lateral_modes(c: Cable, sol: CableSolution, points: int = 400) -> tuple[float, float]:
+def lateral_modes(c: Cable, sol: CableSolution, points: int = 200) -> tuple[float, float]:
     """(frequency Hz, damping ratio) of the slowest lateral mode of the continuous cable."""
     V = c.airspeed_mps
     qn = 0.5 * c.air_density_kgm3 * c.diameter_m * c.cd_normal

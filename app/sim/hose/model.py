@@ -81,6 +81,34 @@ class FrozenGust:
         return np.asarray((1.0 - frac) * newer + frac * older)
 
 
+def combined(*fields: AirField) -> AirField:
+    """One air field from several (their sum): e.g. a :class:`FrozenGust` and the tanker's
+    wake (:func:`wake_field`)."""
+
+    def total(points_m: FloatArray, t_s: float) -> FloatArray:
+        out = np.zeros((len(points_m), 3))
+        for f in fields:
+            out += f(points_m, t_s)
+        return out
+
+    return total
+
+
+def wake_field(downwash_mps: float, sidewash_per_m: float, scale_m: float = 20.0) -> AirField:
+    """The tanker's wake as the closed loop models it at the receiver
+    (:func:`app.sim.imperfections.wake_downwash`: downwash ``W ℓ²/(ℓ² + x²)`` plus a sidewash
+    ``k_y y``), applied at every node of the hose."""
+
+    def wake(points_m: FloatArray, t_s: float) -> FloatArray:
+        x = points_m[:, 0]
+        out = np.zeros((len(points_m), 3))
+        out[:, 1] = sidewash_per_m * points_m[:, 1]
+        out[:, 2] = downwash_mps * scale_m**2 / (scale_m**2 + x * x)
+        return out
+
+    return wake
+
+
 @dataclass(frozen=True)
 class HoseTick:
     """What one tick did: the extremes of the segment tensions over its substeps (N; the
@@ -209,11 +237,15 @@ class MultibodyHose:
         if air is not None:
             air_v += np.asarray(air(self.pos, self.t), float).reshape(n + 1, 3)
         f_d = np.zeros(3) if drogue_force_n is None else np.asarray(drogue_force_n, float)
+        if not (np.isfinite(air_v).all() and f_d.shape == (3,) and np.isfinite(f_d).all()):
+            raise ValueError("the air field and the drogue force must be finite (3-vectors)")
         if self.latched:
             if probe_m is None:
                 raise ValueError("a latched hose needs the probe's position each tick")
             start = self._probe_m.copy()
             end = np.asarray(probe_m, float).copy()
+            if end.shape != (3,) or not np.isfinite(end).all():
+                raise ValueError(f"the probe's position must be a finite 3-vector, got {probe_m!r}")
             self._probe_m = end
         else:
             start = end = self.pos[-1].copy()
