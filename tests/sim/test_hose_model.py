@@ -11,6 +11,7 @@ from app.sim.hose.atmosphere import flow_from_kcas
 from app.sim.hose.model import FrozenGust, MultibodyHose, combined, wake_field
 from app.sim.hose.params import DrogueParams, HoseParams
 from app.sim.hose.steady import steady_shape, swing_modes
+from app.sim.turbulence import DrydenTurbulence
 
 FLOW = flow_from_kcas(15000, 230)
 DT = 0.02  # the docking loop's tick (DockingConfig.tick_hz = 50)
@@ -105,3 +106,20 @@ def test_non_finite_inputs_are_refused() -> None:
     hose.latch(hose.drogue_m, 2e4, 1500.0)
     with pytest.raises(ValueError, match="probe"):
         hose.step(DT, probe_m=np.array([0.0, np.inf, 0.0]))
+
+
+def test_moderate_dryden_turbulence_along_the_hose() -> None:
+    """60 s of moderate Dryden turbulence carried along the hose at the tick: finite, taut, and
+    a lateral drogue motion of the size the reduced-order model gives (σ ≈ 0.35–0.4 m here)."""
+    turb = DrydenTurbulence("moderate", FLOW.airspeed_mps, DT, 15000 * 0.3048, seed=3)
+    gust = FrozenGust(FLOW.airspeed_mps, DT)
+    hose = MultibodyHose(FLOW)
+    y, low = [], np.inf
+    for _ in range(int(60.0 / DT)):
+        gust.push(turb.step())
+        tick = hose.step(DT, gust)
+        y.append(hose.drogue_m[1])
+        low = min(low, tick.min_tension_n)
+    assert np.isfinite(hose.nodes_m).all()
+    assert low > 0.5 * hose.trail_tension_n
+    assert 0.15 < float(np.std(y)) < 0.8
