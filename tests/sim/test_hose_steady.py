@@ -16,7 +16,7 @@ from app.sim.hose.kernels import forces, pack_hose
 from app.sim.hose.params import DrogueParams, HoseParams
 from app.sim.hose.steady import steady_shape, swing_modes
 from app.sim.hose_drogue import HoseDrogueParams
-from tests.support.towed_cable_reference import Cable, lateral_modes, solve
+from tests.support.towed_cable_reference import Cable, lateral_modes, solve, vertical_mode
 
 AFT = np.array([-1.0, 1.0, 1.0])  # tanker frame (x forward) → x aft
 
@@ -118,3 +118,13 @@ def test_swing_converges_as_the_nodes_grow() -> None:
     for f in (f_lat, f_vert):
         assert abs(f[2] - f[1]) < 0.6 * abs(f[1] - f[0]) + 1e-4
         assert abs(f[2] - f[1]) < 0.01 * f[2]
+
+
+def test_vertical_swing_matches_the_continuous_cable_by_shooting() -> None:
+    """The in-plane mode of the continuous inextensible cable, found by shooting from a
+    pendulum-like guess (0.3 Hz, ζ 0.05) that does not come from the model."""
+    flow, h, d = flow_from_kcas(15000, 230), HoseParams(), DrogueParams()
+    modes = swing_modes(flow, h, d, steady_shape(flow, h, d))
+    f_ref, zeta_ref = vertical_mode(_cable(flow, h, d), 0.3, 0.05)
+    assert modes.vertical.frequency_hz == pytest.approx(f_ref, rel=0.02)
+    assert modes.vertical.damping_ratio == pytest.approx(zeta_ref, rel=0.05)

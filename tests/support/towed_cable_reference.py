@@ -13,7 +13,8 @@ q d C_n sin²φ and tangential drag q π d C_t cos²φ (the stream flows aft). B
 
 At the drogue the hose carries the drogue's drag D = q C_d A and weight W: T cos φ = D,
 T sin φ = W. Positions: d(x, z)/ds = (−cos φ, −sin φ), shifted so that the reel exit is at the
-origin. The lateral swing of the same cable (:func:`lateral_modes`), linearised about this
+origin. The in-plane swing (:func:`vertical_mode`) by shooting on the linearised equations.
+The lateral swing of the same cable (:func:`lateral_modes`), linearised about this
 shape and discretised by finite differences on 200 cells:
 
     μ ÿ = (T y')' − q_n V sin φ ẏ − (q_n V² sin φ cos φ − q_t V² cos² φ) y'   (s from the reel)
@@ -28,6 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.integrate import solve_ivp
 from scipy.linalg import eig
+from scipy.optimize import root
 
 G = 9.80665
 
@@ -129,4 +131,100 @@ def lateral_modes(c: Cable, sol: CableSolution, points: int = 200) -> tuple[floa
     vals = eig(a, right=False)
     osc = [v for v in vals if v.imag > 1e-6]
     lam = min(osc, key=abs)
+    return lam.imag / (2 * math.pi), -lam.real / abs(lam)
+
+
+def _aero_xz(c: Cable, phi: float, u: np.ndarray) -> np.ndarray:
+    """Cross-flow drag per metre (x aft, z down) on a cable at angle φ (tangent towards the
+    reel (−cos φ, −sin φ)) in the relative air ``u``."""
+    t = np.array([-math.cos(phi), -math.sin(phi)])
+    ut = float(u @ t)
+    un = u - ut * t
+    qn = 0.5 * c.air_density_kgm3 * c.diameter_m * c.cd_normal
+    qt = 0.5 * c.air_density_kgm3 * math.pi * c.diameter_m * c.cd_tangential
+    return np.asarray(qn * np.linalg.norm(un) * un + qt * abs(ut) * ut * t)
+
+
+def vertical_mode(c: Cable, guess_hz: float, guess_zeta: float) -> tuple[float, float]:
+    """(frequency Hz, damping ratio) of the in-plane swing of the continuous inextensible cable
+    nearest the guess, by shooting: perturbations ρ (displacement), τ (tension), ψ (angle)
+    ∝ e^{λt} obey, with s from the drogue, n̂ = (sin φ, −cos φ),
+
+        ρ' = ψ n̂,   τ' = T φ' ψ + t̂·(μλ²ρ − δf),   (Tψ)' = n̂·(μλ²ρ − δf) − τ φ'
+
+    (δf the drag's change with φ and with the velocity λρ); the drogue's
+    m_d λ² ρ = τ t̂ + T ψ n̂ + δF_d starts them, and λ is the root of det[ρ(L)] = 0 for the two
+    starting displacements (x and z)."""
+    V = c.airspeed_mps
+    mu = c.mass_per_m_kg
+    air = np.array([V, 0.0])  # the stream flows aft
+    q = 0.5 * c.air_density_kgm3 * V**2
+    drag, weight = q * c.drogue_cd * c.drogue_area_m2, c.drogue_mass_kg * G
+    cda = 0.5 * c.air_density_kgm3 * c.drogue_cd * c.drogue_area_m2
+    eps = 1e-6
+
+    def jac(phi: float) -> tuple[np.ndarray, np.ndarray]:
+        d_phi = (_aero_xz(c, phi + eps, air) - _aero_xz(c, phi - eps, air)) / (2 * eps)
+        d_v = np.column_stack(
+            [
+                -(_aero_xz(c, phi, air + e * eps) - _aero_xz(c, phi, air - e * eps)) / (2 * eps)
+                for e in np.eye(2)
+            ]
+        )
+        return d_phi, d_v
+
+    def end_displacement(lam: complex) -> complex:
+        cols = []
+        for rho0 in np.eye(2):
+            t0 = math.hypot(drag, weight)
+            phi0 = math.atan2(weight, drag)
+            tt = np.array([-math.cos(phi0), -math.sin(phi0)])
+            nn = np.array([math.sin(phi0), -math.cos(phi0)])
+            # drogue drag −cda |u| u with u = air − v: its change with v
+            d_fd = cda * V * (np.eye(2) + np.outer(air, air) / V**2)
+            rhs = c.drogue_mass_kg * lam**2 * rho0 + d_fd @ (lam * rho0)
+            tau0, psi0 = complex(rhs @ tt), complex(rhs @ nn) / t0
+
+            def ode(s: float, y: np.ndarray) -> np.ndarray:
+                tension, phi = y[0], y[1]
+                rho = y[2:4] + 1j * y[4:6]
+                tau, psi = y[6] + 1j * y[7], y[8] + 1j * y[9]
+                t_hat = np.array([-math.cos(phi), -math.sin(phi)])
+                n_hat = np.array([math.sin(phi), -math.cos(phi)])
+                dt0 = (
+                    mu * G * math.sin(phi)
+                    + q * math.pi * c.diameter_m * c.cd_tangential * math.cos(phi) ** 2
+                )
+                dphi = (
+                    mu * G * math.cos(phi) - q * c.diameter_m * c.cd_normal * math.sin(phi) ** 2
+                ) / tension
+                d_phi, d_v = jac(phi)
+                df = d_phi * psi + d_v @ (lam * rho)
+                acc = mu * lam**2 * rho - df
+                drho = psi * n_hat
+                dtau = tension * dphi * psi + t_hat @ acc
+                d_tpsi = n_hat @ acc - tau * dphi
+                dpsi = (d_tpsi - dt0 * psi) / tension
+                return np.array(
+                    [dt0, dphi, *drho.real, *drho.imag, dtau.real, dtau.imag, dpsi.real, dpsi.imag]
+                )
+
+            y0 = np.array(
+                [t0, phi0, rho0[0], rho0[1], 0.0, 0.0, tau0.real, tau0.imag, psi0.real, psi0.imag]
+            )
+            sol = solve_ivp(ode, (0.0, c.length_m), y0, rtol=1e-9, atol=1e-11, method="DOP853")
+            y = sol.y[:, -1]
+            cols.append(y[2:4] + 1j * y[4:6])
+        return complex(cols[0][0] * cols[1][1] - cols[0][1] * cols[1][0])
+
+    w = 2 * math.pi * guess_hz / math.sqrt(1 - guess_zeta**2)
+    lam0 = complex(-guess_zeta * w, w * math.sqrt(1 - guess_zeta**2))
+
+    def f(v: np.ndarray) -> list[float]:
+        d = end_displacement(complex(v[0], v[1]))
+        return [d.real, d.imag]
+
+    out = root(f, [lam0.real, lam0.imag], method="hybr")
+    assert out.success, out.message
+    lam = complex(out.x[0], out.x[1])
     return lam.imag / (2 * math.pi), -lam.real / abs(lam)
