@@ -75,3 +75,10 @@ def test_push_in_path_stops_at_the_push_in() -> None:
     assert (f(0.011) - f(0.01)) / 0.001 == pytest.approx(2.0, rel=0.01)
     with pytest.raises(ValueError):
         push_in_path(0.0, 1.0)
+
+
+def test_report_says_where_the_peak_was() -> None:
+    r = push_in(MultibodyHose(FLOW), 1.6, 3.0)
+    # at a gentle push-in the highest tension stays at the reel exit (the trail tension)
+    assert 0.0 < r.peak_tension_at_m < 1.0
+    assert r.peak_tension_n == pytest.approx(r.trail_tension_n, rel=0.01)

@@ -73,7 +73,7 @@ class Coupling:
         self._slack_seen = False
         self._whip = False
         self._peak = 0.0
-        self._peak_seg = 0
+        self._peak_at = math.nan
         self._min = math.inf
         self._slack_time = 0.0
         self._max_slack = 0
@@ -110,8 +110,9 @@ class Coupling:
         tick = self.hose.step(dt, air, drogue_force_n, probe_m if latched else None)
         if not latched:
             return tick
-        self._peak_seg = tick.peak_segment if tick.peak_tension_n > self._peak else self._peak_seg
-        self._peak = max(self._peak, tick.peak_tension_n)
+        if tick.peak_tension_n > self._peak:
+            self._peak = tick.peak_tension_n
+            self._peak_at = (tick.peak_segment + 0.5) * tick.payout_m / self.hose.hose.segments
         self._min = min(self._min, tick.min_tension_n)
         self._pull = max(self._pull, tick.coupling_pull_n)
         self._load = max(self._load, tick.coupling_load_n)
@@ -143,14 +144,13 @@ class Coupling:
     def report(self) -> ContactReport:
         h = self.hose
         latched = self.reason == "latched" or self.released
-        seg = h.hose.length_m / h.hose.segments
         return ContactReport(
             latched=latched,
             reason=self.reason,
             contact_closure_mps=self.closure,
             trail_tension_n=h.trail_tension_n,
             peak_tension_n=self._peak if latched else math.nan,
-            peak_tension_at_m=seg * (self._peak_seg + 0.5) if latched else math.nan,
+            peak_tension_at_m=self._peak_at if latched else math.nan,
             min_tension_n=self._min if latched else math.nan,
             slack_time_s=self._slack_time,
             max_slack_segments=self._max_slack,
