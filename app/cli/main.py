@@ -26,6 +26,7 @@ SUBCOMMANDS = (
     "push",
     "export_mcap",
     "margins",
+    "hose",
 )
 
 
