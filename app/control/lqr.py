@@ -2,9 +2,9 @@
 
 The plant ``x_{k+1} = A_d x_k + B_d u_k`` (zero-order hold at the tick) is augmented with the
 integral of the tracking error ``ζ_{k+1} = ζ_k + Δt (C x_k − y*_k)``; the gain
-``K = [K_p  K_i]`` comes from the discrete algebraic Riccati equation (scipy
-``solve_discrete_are``), the discrete counterpart of eq. 20's ``K = −R⁻¹ Bᵀ P*``, for which
-:func:`continuous_lqr` is also provided. Control law: ``u = −K_p (x̂ − x*) − K_i ζ``.
+``K = [K_p  K_i]`` comes from the discrete algebraic Riccati equation (python-control's
+``dlqr`` on the augmented system), the discrete counterpart of eq. 20's ``K = −R⁻¹ Bᵀ P*``,
+for which :func:`continuous_lqr` (python-control's ``lqr``) is also provided. Control law: ``u = −K_p (x̂ − x*) − K_i ζ``.
 
 Rate-weighted form (``r_rate``, the A-4): the plant is further augmented with the previous
 command ``u_{k−1}`` and the design's input is the increment ``Δu_k`` (:func:`augment_rate`), so
@@ -19,22 +19,24 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import control
 import numpy as np
-from scipy.linalg import solve_continuous_are, solve_discrete_are
 
 from app.types import FloatArray
 
 
 def continuous_lqr(a: FloatArray, b: FloatArray, q: FloatArray, r: FloatArray) -> FloatArray:
-    """Eq. 20: ``K = R⁻¹ Bᵀ P*`` with P* the stabilising CARE solution (u = −K x)."""
-    p = solve_continuous_are(a, b, q, r)
-    return np.asarray(np.linalg.solve(r, b.T @ p))
+    """Eq. 20: ``K = R⁻¹ Bᵀ P*`` with P* the stabilising CARE solution (u = −K x;
+    python-control's ``lqr``)."""
+    k, _, _ = control.lqr(a, b, q, r)
+    return np.asarray(k, float)
 
 
 def discrete_lqr(ad: FloatArray, bd: FloatArray, q: FloatArray, r: FloatArray) -> FloatArray:
-    """``K = (R + Bᵀ P B)⁻¹ Bᵀ P A`` with P the stabilising DARE solution (u = −K x)."""
-    p = solve_discrete_are(ad, bd, q, r)
-    return np.asarray(np.linalg.solve(r + bd.T @ p @ bd, bd.T @ p @ ad))
+    """``K = (R + Bᵀ P B)⁻¹ Bᵀ P A`` with P the stabilising DARE solution (u = −K x;
+    python-control's ``dlqr``)."""
+    k, _, _ = control.dlqr(ad, bd, q, r)
+    return np.asarray(k, float)
 
 
 def augment_lag(

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import control
 import numpy as np
+from scipy.linalg import solve_continuous_are, solve_discrete_are
 
 from app.control.design import AEROSONDE_WEIGHTS, design_controller
 from app.control.lqr import IntegralLqr, augment_integral, continuous_lqr, discrete_lqr
@@ -43,14 +44,20 @@ def test_discrete_integral_lqr_closed_loop_inside_unit_circle():
     assert np.max(np.abs(eig)) < 1.0
 
 
-def test_discrete_lqr_matches_python_control_dlqr():
+def _dare_gain(ad, bd, q, r):
+    """The DARE gain written out from scipy's Riccati solver (independent of python-control,
+    which :func:`discrete_lqr` calls)."""
+    p = solve_discrete_are(ad, bd, q, r)
+    return np.linalg.solve(r + bd.T @ p @ bd, bd.T @ p @ ad)
+
+
+def test_discrete_lqr_is_the_dare_gain():
     m = _models()
     a_aug, b_aug = augment_integral(m.ad, m.bd, m.c_tip, DT)
     q = np.diag(np.concatenate([AEROSONDE_WEIGHTS.q_state, AEROSONDE_WEIGHTS.q_int]))
     r = np.diag(AEROSONDE_WEIGHTS.r)
     k_ours = discrete_lqr(a_aug, b_aug, q, r)
-    k_ctrl, _, _ = control.dlqr(a_aug, b_aug, q, r)
-    assert np.allclose(k_ours, k_ctrl, rtol=1e-5, atol=1e-8)
+    assert np.allclose(k_ours, _dare_gain(a_aug, b_aug, q, r), rtol=1e-5, atol=1e-8)
 
 
 def test_continuous_eq20_gain_places_poles_in_left_half_plane():
@@ -67,8 +74,8 @@ def test_continuous_eq20_gain_places_poles_in_left_half_plane():
     k = continuous_lqr(a, b, q, r)
     eig = np.linalg.eigvals(a - b @ k)
     assert np.max(eig.real) < 0.0
-    k_ctrl, _, _ = control.lqr(a, b, q, r)
-    assert np.allclose(k, k_ctrl, rtol=1e-5, atol=1e-8)
+    p = solve_continuous_are(a, b, q, r)  # eq. 20 written out (scipy, not python-control)
+    assert np.allclose(k, np.linalg.solve(r, b.T @ p), rtol=1e-5, atol=1e-8)
 
 
 def test_continuous_observer_gain_eq19_matches_python_control_lqe():

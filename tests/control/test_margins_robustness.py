@@ -11,9 +11,9 @@ from __future__ import annotations
 from dataclasses import replace
 from functools import cache
 
-import control
 import numpy as np
 import pytest
+from scipy.linalg import solve_discrete_are
 
 from app.control.design import AEROSONDE_WEIGHTS, design_controller
 from app.control.lqr import IntegralLqr, augment_integral, augment_lag, discrete_lqr, lag_alpha
@@ -101,8 +101,9 @@ def test_lag_aware_design_matches_python_control_and_the_margins_loop() -> None:
     a_aug, b_aug = augment_integral(a_l, b_l, np.hstack([m.c_tip, np.zeros((3, 4))]), DT)
     q = np.diag(np.concatenate([np.full(16, 1.0), np.full(3, 10.0)]))
     r = np.diag([300.0, 1e5, 1e5, 1e5])
-    k_ctrl, _, _ = control.dlqr(a_aug, b_aug, q, r)
-    assert np.allclose(discrete_lqr(a_aug, b_aug, q, r), k_ctrl, rtol=1e-5, atol=1e-8)
+    p = solve_discrete_are(a_aug, b_aug, q, r)  # the DARE gain written out (scipy)
+    k_dare = np.linalg.solve(r + b_aug.T @ p @ b_aug, b_aug.T @ p @ a_aug)
+    assert np.allclose(discrete_lqr(a_aug, b_aug, q, r), k_dare, rtol=1e-5, atol=1e-8)
     # separation: with full-state "measurements" and the flown lag equal to the design lag, the
     # margins loop (observer, modelled deflection ê, lagged servos) contains the design
     # closed loop's eigenvalues
