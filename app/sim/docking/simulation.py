@@ -39,7 +39,6 @@ import math
 from dataclasses import replace
 
 import numpy as np
-from numpy.typing import NDArray
 
 from app.control.abort import AlphaBetaTracker, predicted_miss_m, should_abort
 from app.control.bow_wave import BowWaveModel
@@ -63,6 +62,7 @@ from app.sim.camera_sensor import StereoCameraSensor
 from app.sim.docking.config import PLANT_GUIDANCE, DockingConfig
 from app.sim.docking.guidance import SwingGuidance
 from app.sim.docking.outcomes import ContactReport, RtaEvent, RunClassifier
+from app.sim.docking.phases import Aim, Sensing
 from app.sim.docking.plant_design import design_for, make_plant
 from app.sim.docking.results import DockingOutcome, DockingTick
 from app.sim.docking.vision import DrogueFrame, camera_sensor, drogue_in_tanker, take_frame
@@ -70,6 +70,7 @@ from app.sim.hose_drogue import HoseDrogue, HoseDrogueParams
 from app.sim.imperfections import (
     FrameChannel,
     ImperfectionDraw,
+    Imperfections,
     InsErrors,
     draw,
     perturbed_calibration,
@@ -80,7 +81,6 @@ from app.sim.plant import ReceiverPlant
 from app.sim.receiver import Actuators
 from app.sim.turbulence import DrydenTurbulence
 from app.types import FloatArray, Rect
-from app.vision.result import PoseResult
 
 # the monitor's envelope per plant: the A-4's defaults (app.control.envelope); the Aerosonde
 # design model (an 11 kg UAV, short period ≈ 44 rad/s) trims at α −2.3° and its
@@ -215,27 +215,7 @@ class DockingSimulation:
         x0[9:12] = tip_start - m.tip0_b
         self.x = self._plant.reset(x0)
         self.x_trim = m.model.x_trim.copy()
-        self.obs = StateObserver.__new__(StateObserver)
-        self.obs.ad, self.obs.bd, self.obs.c, self.obs.gain = m.ad, m.bd, m.c_meas, m.obs_gain
-        self.obs.reset(self.x)
-        self.lqr = IntegralLqr(
-            kp=m.lqr_kp,
-            ki=m.lqr_ki,
-            c=m.c_tip,
-            dt=self.dt,
-            error_clip=m.error_clip,
-            output_error_clip=0.3,
-            ke=m.lqr_ke,
-            design_lag_s=m.lqr_design_lag_s,
-            ku=m.lqr_ku,
-        )
-        self.act = Actuators(
-            m.model.u_trim,
-            m.model.limits,
-            self.dt,
-            lag_s=imp.actuator_lag_s,
-            rate_scale=imp.actuator_rate_scale,
-        )
+        self._build_controller(imp)
         self.u_applied = np.zeros(4)
         self.filter = DrogueFilter(history=self._latency_ticks + 1, hold_after_s=cfg.coast_limit_s)
         self.tip_tracker = AlphaBetaTracker(self.dt)
@@ -291,6 +271,32 @@ class DockingSimulation:
         self._prev_tip = self.probe_tip()
         self._prev_drogue = self.drogue.position_m.copy()
         self._prev_normal = self.drogue.normal()
+
+    def _build_controller(self, imp: Imperfections) -> None:
+        """The observer (eq. 19), the LQR (eq. 20) from the design, and the servos with this
+        run's imperfections (lag, rate)."""
+        m = self.models
+        self.obs = StateObserver.__new__(StateObserver)
+        self.obs.ad, self.obs.bd, self.obs.c, self.obs.gain = m.ad, m.bd, m.c_meas, m.obs_gain
+        self.obs.reset(self.x)
+        self.lqr = IntegralLqr(
+            kp=m.lqr_kp,
+            ki=m.lqr_ki,
+            c=m.c_tip,
+            dt=self.dt,
+            error_clip=m.error_clip,
+            output_error_clip=0.3,
+            ke=m.lqr_ke,
+            design_lag_s=m.lqr_design_lag_s,
+            ku=m.lqr_ku,
+        )
+        self.act = Actuators(
+            m.model.u_trim,
+            m.model.limits,
+            self.dt,
+            lag_s=imp.actuator_lag_s,
+            rate_scale=imp.actuator_rate_scale,
+        )
 
     def _settle_on_plant_trim(self, seconds: float = 10.0) -> None:
         """A perturbed aircraft does not fly level at the design trim: before the approach it
@@ -373,14 +379,23 @@ class DockingSimulation:
         )
 
     def step(self) -> DockingTick:
+        """One tick: sense → estimate → guide → control → propagate → contact (paper §6,
+        Fig. 13), each phase a method handing a small record to the next."""
         if self.classifier.diverged:
             raise RuntimeError(f"the run has ended: {self.classifier.reason}")
-        cfg, m = self.config, self.models
-        dt = self.dt
         frame_pose = self._camera_pose(self.x)  # the pose this tick's frame is taken from
         # 1. observer on own-state sensors (eq. 19), predicting with the deflection the design
         # model believes acted (the servo position, or its modelled lag: lag-aware design)
         x_hat = self.obs.update(self.lqr.e_hat, self._own_measurement()).copy()
+        sensed = self._sense(x_hat)
+        aim = self._guide(x_hat, sensed.lock)
+        ref = self._control(x_hat, aim)
+        return self._propagate_and_check(frame_pose, sensed, aim.drogue_m, ref)
+
+    def _sense(self, x_hat: FloatArray) -> Sensing:
+        """Step 2: this tick's frame (if due) through the pipeline, and the drogue filter fed
+        the measurements whose latency has passed."""
+        cfg, dt = self.config, self.dt
         # 2. drogue measurement
         self.filter.predict(dt)
         z_t = r_t = None
@@ -422,6 +437,22 @@ class DockingSimulation:
                 self._last_reason = "gated"
         lock = self.filter.initialised and self.filter.coast_time_s <= cfg.coast_limit_s
         lock_reason = None if lock else (self._last_reason or "coast limit")
+        return Sensing(
+            frame_status=status,
+            pose=pose,
+            left=left,
+            right=right,
+            led_truth_cam_mm=leds,
+            measurement_m=z_t,
+            exposure_t_s=exposure_t,
+            lock=lock,
+            lock_reason=lock_reason,
+        )
+
+    def _guide(self, x_hat: FloatArray, lock: bool) -> Aim:
+        """Step 3: the guidance's view of the drogue (bow wave split off, smoothed, led to the
+        swing), the break-away checks, and the timed closure's commit."""
+        cfg = self.config
         # 3. guidance + breakaway
         g = self.guidance
         tip_hat = x_hat[9:12] + self._rot(x_hat) @ self.r_probe_b
@@ -500,10 +531,25 @@ class DockingSimulation:
         commit = True
         if self.timed and g.holding and self.swing.mean is not None:
             commit = self.swing.commit_now(d_raw, d_vel_raw, tip_hat, mean_ref, np.asarray(d_hat))
+        return Aim(
+            tip_m=tip_hat,
+            tip_vel_mps=tip_vel_hat,
+            drogue_raw_m=np.asarray(d_raw, float),
+            drogue_m=np.asarray(d_hat, float),
+            drogue_vel_mps=np.asarray(d_vel, float),
+            closing=bool(lock or searching),
+            commit=commit,
+        )
+
+    def _control(self, x_hat: FloatArray, aim: Aim) -> FloatArray:
+        """Step 4: the LQR on the reference (eq. 20) or, while the run-time assurance has
+        control, the recovery law; returns the probe tip's reference (m)."""
+        m, dt, g = self.models, self.dt, self.guidance
+        tip_hat, tip_vel_hat = aim.tip_m, aim.tip_vel_mps
         if self.rta_reason is not None:
             # 4'. run-time assurance: the recovery law flies (wings level, power back, drop
             # aft and below); the LQR's memory follows the servos (bumpless hand-back)
-            d_est = np.asarray(d_raw, float)
+            d_est = aim.drogue_raw_m
             aft, below = float(d_est[0] - tip_hat[0]), float(tip_hat[2] - d_est[2])
             speed, side, sink = (float(v) for v in tip_vel_hat)
             self.u_applied = self.act.apply(
@@ -525,7 +571,7 @@ class DockingSimulation:
             ):
                 self._end_rta(tip_hat, d_est)
         else:
-            ref, ref_vel = g.update(dt, d_hat, d_vel, lock or searching, commit)
+            ref, ref_vel = g.update(dt, aim.drogue_m, aim.drogue_vel_mps, aim.closing, aim.commit)
             # 4. control (eq. 20)
             x_ref = np.zeros(12)
             x_ref[9:12] = ref - m.tip0_b
@@ -540,35 +586,14 @@ class DockingSimulation:
             u_cmd = self.lqr.control(x_hat, x_ref, ref - m.tip0_b, u_ff)
             self.u_applied = self.act.apply(u_cmd)  # servo positions (what the observer is told)
             self.lqr.lag_step(self.u_applied)
-        return self._propagate_and_check(
-            frame_pose,
-            z_t,
-            d_hat,
-            ref,
-            lock,
-            lock_reason,
-            pose,
-            left,
-            right,
-            leds,
-            status,
-            exposure_t,
-        )
+        return ref
 
     def _propagate_and_check(
         self,
         frame_pose: tuple[FloatArray, FloatArray],
-        z_t: FloatArray | None,
+        sensed: Sensing,
         d_hat: FloatArray,
         ref: FloatArray,
-        lock: bool,
-        lock_reason: str | None,
-        pose: PoseResult | None,
-        left: NDArray[np.uint8] | None,
-        right: NDArray[np.uint8] | None,
-        leds: FloatArray | None,
-        status: str | None,
-        exposure_t: float | None,
     ) -> DockingTick:
         """Steps 5–7 of the tick: propagate, the contact check, the run-time assurance's
         monitor; then the tick's record."""
@@ -649,24 +674,26 @@ class DockingSimulation:
             phase=phase,
             drogue_truth_m=d_pos,
             drogue_normal=n,
-            drogue_measured_m=None if z_t is None else np.asarray(z_t),
+            drogue_measured_m=(
+                None if sensed.measurement_m is None else np.asarray(sensed.measurement_m)
+            ),
             drogue_estimate_m=np.asarray(d_hat),
             probe_tip_m=tip,
             uav_state=state_abs,
             reference_m=np.asarray(ref),
             control=self.u_applied.copy(),
-            lock=bool(lock),
-            lock_reason=lock_reason,
-            pose=pose,
-            left_image=left,
-            right_image=right,
-            led_truth_cam_mm=leds,
+            lock=bool(sensed.lock),
+            lock_reason=sensed.lock_reason,
+            pose=sensed.pose,
+            left_image=sensed.left,
+            right_image=sensed.right,
+            led_truth_cam_mm=sensed.led_truth_cam_mm,
             captured=self.captured,
             miss_m=miss_now,
             rel_position_m=d_pos - tip,
             image_windows_px=self._image_windows,
-            frame_status=status,
-            measurement_exposure_t_s=exposure_t,
+            frame_status=sensed.frame_status,
+            measurement_exposure_t_s=sensed.exposure_t_s,
             camera_pose_T=frame_pose,
             rta_reason=self.rta_reason,
             run_outcome=self.outcome().outcome if self.done else None,
