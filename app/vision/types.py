@@ -59,23 +59,3 @@ class Match:
     right_index: int
     descriptor_distance: float  # eq. 14
     epipolar_px: float  # symmetric distance to the epipolar lines, undistorted px
-
-
-@dataclass(frozen=True)
-class TriangulatedPoint:
-    """A matched point in the world (left camera) frame."""
-
-    xyz_mm: tuple[float, float, float]
-    reprojection_px: float  # RMS over both images after refinement
-
-
-@dataclass(frozen=True)
-class DroguePose:
-    """Drogue (refuelling cone sleeve) rim circle in the left-camera frame (paper §5.2)."""
-
-    center_mm: tuple[float, float, float]
-    normal: tuple[float, float, float]  # unit, pointing from the drogue towards the cameras
-    radius_mm: float
-    rms_mm: float  # RMS 3-D distance of the LEDs from the fitted circle
-    plane_rms_mm: float  # RMS distance of the LEDs from the fitted plane
-    inliers: tuple[int, ...]  # indices of the points used
