@@ -25,6 +25,10 @@ Sources and rationale of each value: ``docs/models.md`` ("Imperfections").
 * **INS errors**: per-run constant biases (rates ``ins_gyro_bias_rad_s``, attitude
   ``ins_att_bias_rad``, position ``ins_pos_bias_m``, 1σ each axis) plus a position random walk
   (``ins_pos_walk_m_sqrt_s``, m/√s), on top of the white noise.
+* **Hose and drogue**: the flown hose's length, linear mass and cross-flow drag and the
+  drogue's mass and drag coefficient are each scaled by ``1 + U(−hose_frac, hose_frac)`` (the
+  guidance keeps the nominal hose type's model and identifies the swing online:
+  :mod:`app.control.swing_identifier`).
 * **Tanker wake and bow wave**: the bow-wave force on the drogue is scaled by
   ``U(bow_scale)``; the receiver flies through a steady tanker downwash of strength
   ``U(0, wake_downwash_mps)`` (m/s, down) that grows as it closes on the tanker
@@ -68,6 +72,7 @@ class Imperfections:
     bow_scale: tuple[float, float] = (1.0, 1.0)
     wake_downwash_mps: float = 0.0
     wake_sidewash_per_m: float = 0.0
+    hose_frac: float = 0.0  # ± uniform on hose length, mass, drag and drogue mass, drag
 
     def validate(self) -> None:
         for f in fields(self):
@@ -82,8 +87,8 @@ class Imperfections:
             raise ValueError("drop_prob and duplicate_prob must be in [0, 1)")
         if self.drop_burst_mean < 1:
             raise ValueError("drop_burst_mean must be >= 1 frame")
-        if self.aero_frac >= 1 or self.mass_frac >= 1:
-            raise ValueError("aero_frac and mass_frac must be < 1")
+        if self.aero_frac >= 1 or self.mass_frac >= 1 or self.hose_frac >= 1:
+            raise ValueError("aero_frac, mass_frac and hose_frac must be < 1")
         if self.actuator_rate_scale <= 0:
             raise ValueError("actuator_rate_scale must be > 0")
         if self.bow_scale[0] > self.bow_scale[1]:
@@ -120,6 +125,7 @@ STANDARD = Imperfections(
     bow_scale=(0.5, 1.5),
     wake_downwash_mps=1.0,
     wake_sidewash_per_m=0.05,
+    hose_frac=0.3,
 )
 HARSH = Imperfections(
     name="harsh",
@@ -141,6 +147,7 @@ HARSH = Imperfections(
     bow_scale=(0.5, 2.0),
     wake_downwash_mps=2.0,
     wake_sidewash_per_m=0.1,
+    hose_frac=0.3,
 )
 PRESETS: dict[str, Imperfections] = {"none": NONE, "standard": STANDARD, "harsh": HARSH}
 
@@ -156,6 +163,10 @@ def resolve(value: str | Imperfections) -> Imperfections:
 
 
 # ------------------------------------------------------------------------------ one run
+# the hose and drogue quantities ``hose_frac`` disperses (factors in ImperfectionDraw.hose_scale)
+HOSE_FACTORS = ("hose_length", "hose_mass", "hose_drag", "drogue_mass", "drogue_drag")
+
+
 @dataclass
 class ImperfectionDraw:
     """One run's concrete imperfections (drawn from the run's seed)."""
@@ -170,6 +181,7 @@ class ImperfectionDraw:
     calib_rot_axis: FloatArray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
     calib_focal: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)  # δfx δfy L, R (frac)
     calib_pp_px: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)  # δu0 δv0 L, R
+    hose_scale: dict[str, float] = field(default_factory=lambda: dict.fromkeys(HOSE_FACTORS, 1.0))
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -180,6 +192,7 @@ class ImperfectionDraw:
             "bow_scale": self.bow_scale,
             "wake_downwash_mps": self.wake_downwash_mps,
             "wake_sidewash_per_m": self.wake_sidewash_per_m,
+            "hose_scale": dict(self.hose_scale),
         }
 
 
@@ -227,6 +240,10 @@ def draw(imp: Imperfections, seed: int) -> ImperfectionDraw:
     out.calib_rot_axis = axis / np.linalg.norm(axis)
     out.calib_focal = tuple(float(v) for v in rng.normal(0.0, imp.calib_focal_frac, 4))  # type: ignore[assignment]
     out.calib_pp_px = tuple(float(v) for v in rng.normal(0.0, imp.calib_pp_px, 4))  # type: ignore[assignment]
+    # the hose's own stream, so that adding it left every earlier draw unchanged
+    hose_rng = np.random.default_rng([int(seed), STREAM, 2])
+    h = imp.hose_frac
+    out.hose_scale = {k: 1.0 + float(hose_rng.uniform(-h, h)) for k in HOSE_FACTORS}
     return out
 
 

@@ -326,3 +326,49 @@ def test_a_doubtful_calibration_still_locks_with_the_error_bound(plant: str) -> 
     assert len(locked) >= 0.9 * len(frames), {t.lock_reason for t in frames if not t.pose.lock}
     pl = [t.pose.drogue.protection_level_mm for t in locked if t.pose.drogue is not None]
     assert pl and all(p is not None and p > 1.0 for p in pl)  # mm: the doubt widens them
+
+
+# ------------------------------------------------------------------ hose and drogue
+def test_the_hose_and_drogue_are_dispersed_and_the_guidance_keeps_the_nominal_model() -> None:
+    """``standard`` and ``harsh`` scale the flown hose's length and mass and the drogue's mass
+    and drag by up to ±30 % (its own random stream: every earlier draw is unchanged); the
+    guidance's model stays the nominal hose type's, and its swing is identified in flight."""
+    none = draw(NONE, 11)
+    assert set(none.hose_scale.values()) == {1.0}
+    draws = [draw(HARSH, s) for s in range(200)]
+    for key in ("hose_length", "hose_mass", "hose_drag", "drogue_mass", "drogue_drag"):
+        v = np.array([d.hose_scale[key] for d in draws])
+        assert v.min() >= 0.7 and v.max() <= 1.3 and v.max() - v.min() > 0.5
+    ref = draw(replace(STANDARD, hose_frac=0.0), 5).to_dict()
+    del ref["hose_scale"]
+    now = draw(STANDARD, 5).to_dict()
+    del now["hose_scale"]
+    assert now == ref  # the hose's draw changed nothing else of the run
+    sim = DockingSimulation(
+        DockingConfig(turbulence="light", imperfections="standard", seed=3, vision=False)
+    )
+    flown = sim.drogue.params
+    scale = sim.imp_draw.hose_scale
+    assert flown.hose_length_m == pytest.approx(15.0 * scale["hose_length"])
+    assert flown.drogue_mass_kg == pytest.approx(29.5 * scale["drogue_mass"])
+    assert flown.omega_rad_s != pytest.approx(sim.drogue_model.omega_rad_s, rel=0.05)
+    nominal = DockingSimulation(
+        DockingConfig(turbulence="light", imperfections="none", seed=3, vision=False)
+    ).drogue.params
+    assert sim.drogue_model.omega_rad_s == pytest.approx(nominal.omega_rad_s)
+
+
+def test_the_guidance_identifies_the_flown_swing_from_its_own_estimates() -> None:
+    """A dispersed drogue that swings 24 % faster than the nominal model (seed 3): after 30 s
+    of moderate turbulence the guidance's identified ω is within 6 % of the flown drogue's
+    (``HoseDrogueParams.omega_rad_s``, which the guidance never reads)."""
+    sim = DockingSimulation(
+        DockingConfig(turbulence="moderate", imperfections="standard", seed=3, vision=False)
+    )
+    truth = sim.drogue.params.omega_rad_s
+    assert truth / sim.drogue_model.omega_rad_s - 1 > 0.15
+    while sim.t < 30.0 and not sim.done:
+        sim.step()
+    est = sim.swing.swing_estimate
+    assert est.identified
+    assert est.omega_rad_s == pytest.approx(truth, rel=0.06)

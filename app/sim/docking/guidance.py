@@ -17,6 +17,7 @@ import numpy as np
 from app.control.bow_wave import BowWaveModel, bow_force_n
 from app.control.drogue_model import DrogueModel
 from app.control.drogue_swing import predict_swing_offset
+from app.control.swing_identifier import SwingEstimate, SwingIdentifier
 from app.sim.docking.config import DockingConfig
 from app.types import FloatArray
 
@@ -31,8 +32,10 @@ SWING_FULL_SMOOTHING_M = 0.1  # m RMS of the swing from which the full smoothing
 
 class SwingGuidance:
     """The swing's state over one run: its mean (``mean``, None until the first smoothed
-    reference), the smoothed reference and the swing's mean square about the mean (m²), and
-    the guidance's bow-wave model (the nominal force, not the run's draw)."""
+    reference), the smoothed reference and the swing's mean square about the mean (m²), the
+    swing's frequency and damping identified online from the drogue estimates
+    (:class:`~app.control.swing_identifier.SwingIdentifier`, the nominal model's until
+    identified), and the guidance's bow-wave model (the nominal force, not the run's draw)."""
 
     def __init__(
         self,
@@ -50,14 +53,17 @@ class SwingGuidance:
         self.mean: FloatArray | None = None  # the drogue's mean (smoothing_s)
         self.ref_smooth: tuple[FloatArray, FloatArray] | None = None
         self.var = 0.0  # its swing's mean square about that mean (m²)
+        self.identifier = SwingIdentifier(drogue, dt)
+        self.swing_estimate: SwingEstimate = self.identifier.estimate()
 
     def smoothed_reference(
-        self, drogue: FloatArray, drogue_vel: FloatArray
+        self, drogue: FloatArray, drogue_vel: FloatArray, measured: bool = True
     ) -> tuple[FloatArray, FloatArray]:
         """The drogue position and velocity the guidance follows: laterally and vertically
         low-passed with a time constant that grows with the drogue's swing — ``smoothing_s``
         once its RMS about the mean reaches ``SWING_FULL_SMOOTHING_M``, none for a drogue at
-        rest (whose slow moves, e.g. the bow wave's push, are then followed)."""
+        rest (whose slow moves, e.g. the bow wave's push, are then followed). The swing about
+        the mean feeds the online identification while ``measured`` (the drogue in sight)."""
         dt = self.dt
         if self.mean is None or self.ref_smooth is None:
             self.mean = drogue.copy()
@@ -66,6 +72,8 @@ class SwingGuidance:
         mean[1:] += (1.0 - math.exp(-dt / self.smoothing_s)) * (drogue[1:] - mean[1:])
         mean[0] = drogue[0]
         dev2 = float(np.sum((drogue[1:] - mean[1:]) ** 2))
+        self.identifier.update(drogue[1:] - mean[1:], measured)
+        self.swing_estimate = self.identifier.estimate()
         self.var += (1.0 - math.exp(-dt / SWING_VAR_S)) * (dev2 - self.var)
         tau = self.smoothing_s * min(1.0, math.sqrt(self.var) / SWING_FULL_SMOOTHING_M)
         a = 1.0 - math.exp(-dt / tau) if tau > 1e-6 else 1.0
@@ -90,10 +98,10 @@ class SwingGuidance:
         plus the bow wave's push forecast for then (``bow_at``, y z), against the probe tip
         carried by its own velocity."""
         cfg = self.config
-        p = self.drogue
+        sw = self.swing_estimate
         horizon = max(gap_m, 0.0) / cfg.closure_speed_mps
         swing = predict_swing_offset(
-            (drogue - mean)[1:], drogue_vel[1:], p.omega_rad_s, p.damping_ratio, horizon
+            (drogue - mean)[1:], drogue_vel[1:], sw.omega_rad_s, sw.damping_ratio, horizon
         )
         if bow_at is not None:
             swing = swing + bow_at
@@ -105,13 +113,13 @@ class SwingGuidance:
     ) -> FloatArray:
         """The drogue's swing about its mean (y, z; m) predicted for the probe's arrival (the
         gap to the tip over the closure speed): where the lead puts the probe."""
-        p = self.drogue
+        sw = self.swing_estimate
         horizon = max(float((drogue - tip)[0]), 0.0) / self.config.closure_speed_mps
         return predict_swing_offset(
             (drogue - mean)[1:],
             drogue_vel[1:],
-            p.omega_rad_s,
-            p.damping_ratio,
+            sw.omega_rad_s,
+            sw.damping_ratio,
             horizon,
         )
 
@@ -164,13 +172,13 @@ class SwingGuidance:
         (``COMMIT_LAG_S``). ``drogue``, ``drogue_vel``: the estimate without the modelled bow
         wave's push where the feed-forward is on."""
         cfg = self.config
-        p = self.drogue
+        sw = self.swing_estimate
         mean = self.mean
         assert mean is not None
         gap = max(float((drogue - tip)[0]), 0.0)
         horizon = gap / cfg.closure_speed_mps + COMMIT_LAG_S
         at = mean[1:] + predict_swing_offset(
-            (drogue - mean)[1:], drogue_vel[1:], p.omega_rad_s, p.damping_ratio, horizon
+            (drogue - mean)[1:], drogue_vel[1:], sw.omega_rad_s, sw.damping_ratio, horizon
         )
         tip_at = mean_ref[1:] + (tip - ref)[1:] * math.exp(-horizon / TIP_RETURN_S)
         return bool(np.linalg.norm(at - tip_at) < cfg.commit_radius_m)

@@ -200,8 +200,13 @@ class DockingSimulation:
         self.turb = DrydenTurbulence(
             cfg.turbulence, trim.tas_mps, self.dt, trim.altitude_ft * 0.3048, seed=cfg.seed
         )
+        hs = self.imp_draw.hose_scale  # this run's hose and drogue (the guidance's: nominal)
         self.drogue = HoseDrogue(
             HoseDrogueParams(
+                hose_length_m=HoseDrogueParams.hose_length_m * hs["hose_length"],
+                hose_mass_per_m=HoseDrogueParams.hose_mass_per_m * hs["hose_mass"],
+                drogue_mass_kg=HoseDrogueParams.drogue_mass_kg * hs["drogue_mass"],
+                drogue_cd=HoseDrogueParams.drogue_cd * hs["drogue_drag"],
                 air_density=trim.air_density_kgm3,
                 airspeed_mps=trim.tas_mps,
                 drogue_radius_m=cfg.ring_radius_m,
@@ -248,6 +253,7 @@ class DockingSimulation:
         self.monitor = EnvelopeMonitor(bounds=cfg.envelope or PLANT_ENVELOPE[cfg.plant])
         self.recovery = RecoveryLaw(m.model)
         self.rta_reason: str | None = None  # why the recovery law flies now (None: the LQR)
+        self._rta_station_y_m: float | None = None  # its lateral station (tanker frame, m)
         self.rta_events: list[RtaEvent] = []
         self.extremes = EnvelopeExtremes()
         self.start_altitude_m = self._plant.flight_data().altitude_m
@@ -512,7 +518,7 @@ class DockingSimulation:
         d_raw, d_vel_raw = np.asarray(d_hat, float), np.asarray(d_vel, float)
         if self.smoothing_s > 0:
             d_hat, d_vel = self.swing.smoothed_reference(
-                np.asarray(d_hat, float), np.asarray(d_vel, float)
+                np.asarray(d_hat, float), np.asarray(d_vel, float), lock
             )
         mean_ref = np.asarray(d_hat, float).copy()  # the reference without the bow wave's push
         if (
