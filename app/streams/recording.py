@@ -37,8 +37,9 @@ from app.streams.frames import (
     SourceError,
     SourceStats,
     StereoFrame,
-    ensure_gray_or_bgr,
 )
+from app.vision.io import read_image
+from app.vision.preprocess import ImageError
 
 if TYPE_CHECKING:
     from app.geometry.calibration import StereoCalibration
@@ -291,10 +292,10 @@ class FrameRecordingSource(RecordedPairs):
         self.index += 1
         imgs = []
         for side in ("left", "right"):
-            img = cv2.imread(str(self.directory / e[side]), cv2.IMREAD_UNCHANGED)
-            if img is None:
-                raise SourceError(f"cannot decode {e[side]}")
-            imgs.append(ensure_gray_or_bgr(img))
+            try:
+                imgs.append(read_image(self.directory / e[side]))
+            except ImageError as exc:
+                raise SourceError(f"cannot decode {e[side]} ({exc})") from None
         frame = StereoFrame(
             left=imgs[0],
             right=imgs[1],
