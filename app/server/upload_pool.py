@@ -118,8 +118,11 @@ def process_upload(
     calibration: dict[str, Any],
     matcher: str,
     expected: tuple[int, int] | None,
+    drogue: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
-    """Decode + size check + pipeline (in a worker). Never raises for a bad upload."""
+    """Decode + size check + pipeline (in a worker) for the configured drogue (its
+    ``DrogueProfile.to_dict()``; None: the paper's ring). Never raises for a bad upload."""
+    from app.vision.drogue import PAPER_DROGUE, DrogueProfile
     from app.vision.pipeline import NavigationPipeline, PipelineConfig
 
     try:
@@ -133,7 +136,9 @@ def process_upload(
     except UploadError as exc:
         return {"status": exc.status, "detail": exc.detail}
     calib = _calibration(json.dumps(calibration, sort_keys=True))
-    pipeline = NavigationPipeline(calib, PipelineConfig(matcher=matcher))  # type: ignore[arg-type]
+    profile = PAPER_DROGUE if drogue is None else DrogueProfile.from_dict(drogue)
+    config = profile.pipeline_config(PipelineConfig(matcher=matcher))  # type: ignore[arg-type]
+    pipeline = NavigationPipeline(calib, config)
     try:
         result = pipeline.process(left_img, right_img)
     except Exception as exc:  # the contract is a 4xx with a detail, never a 500

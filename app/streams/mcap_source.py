@@ -23,6 +23,7 @@ from app.streams.frames import (
     StereoFrame,
 )
 from app.streams.mcap_log import TOPIC_FRAME, McapLogError, iter_messages, read_metadata
+from app.vision.drogue import DrogueProfile, DrogueProfileError
 from app.vision.io import decode_image
 from app.vision.preprocess import ImageError
 
@@ -58,6 +59,20 @@ def _decode(data: bytes, what: str) -> np.ndarray:
         return decode_image(data, what)
     except ImageError as exc:
         raise SourceError(f"cannot decode {what} ({exc})") from None
+
+
+def mcap_drogue(path: str | Path) -> DrogueProfile | None:
+    """The drogue profile in an MCAP log's metadata (``drogue``), or ``None``."""
+    try:
+        text = read_metadata(path).get("drogue")
+    except McapLogError as exc:
+        raise SourceError(str(exc)) from None
+    if not text:
+        return None
+    try:
+        return DrogueProfile.from_json(text, f"{str(path)!r}: its drogue metadata")
+    except DrogueProfileError as exc:
+        raise SourceError(str(exc)) from None
 
 
 class McapRecordingSource(RecordedPairs):

@@ -27,7 +27,7 @@ from app.streams.frames import (
     SourceStats,
     StereoFrame,
 )
-from app.streams.mcap_source import McapRecordingSource, is_mcap
+from app.streams.mcap_source import McapRecordingSource, is_mcap, mcap_drogue
 from app.streams.pairing import TimestampPairer
 from app.streams.protocol import PushMessage
 from app.streams.readers import CaptureReader, open_reader
@@ -35,8 +35,10 @@ from app.streams.recording import (
     FrameRecordingSource,
     is_frame_recording,
     recording_calibration,
+    recording_drogue,
 )
 from app.types import UInt8Array
+from app.vision.drogue import DrogueProfile
 from app.vision.io import decode_image
 from app.vision.preprocess import ImageError
 
@@ -142,9 +144,11 @@ class VideoSource:
         self._recording: FrameRecordingSource | McapRecordingSource | None = None
         self._pairer: TimestampPairer | None = None
         self.calibration: Any = None  # a frame recording's own calibration, if it has one
+        self.drogue: DrogueProfile | None = None  # and its own drogue profile
         if not right and is_mcap(left):
             self._recording = McapRecordingSource(left)
             self.calibration = self._recording.calibration
+            self.drogue = mcap_drogue(left)
         elif not right:
             if not is_frame_recording(left):
                 raise SourceError(
@@ -153,6 +157,7 @@ class VideoSource:
                 )
             self._recording = FrameRecordingSource(left)
             self.calibration = recording_calibration(left)
+            self.drogue = recording_drogue(left)
         else:
             self._open_pair()
 
