@@ -186,6 +186,7 @@ async function pollHealth() {
     const h = await api("GET", "/healthz");
     $("tick-rate").textContent = fmt(h.tick_rate_hz, 1);
     $("dropped").textContent = h.dropped_ticks;
+    if (h.drogue) $("drogue").textContent = h.drogue.label;
     // degraded: which part and why (a stream that failed and restarts, a stopped tick loop)
     const bad = (h.components || []).filter((c) => c.status !== "ok");
     const health = $("health");

@@ -81,13 +81,14 @@ def _fail(message: str) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    import cv2
-    import numpy as np
 
     from app.calibration.board import Board, CheckerboardError, pair_name, parse_board
+    from app.calibration.corners import to_gray
     from app.calibration.report_plot import write_report_png
     from app.calibration.stereo_calibration import calibrate_checkerboard
     from app.geometry.calibration import CalibrationError
+    from app.vision.io import read_image
+    from app.vision.preprocess import ImageError
 
     left_files = sorted(Path(p) for p in glob.glob(args.left))
     right_files = sorted(Path(p) for p in glob.glob(args.right))
@@ -110,10 +111,10 @@ def run(args: argparse.Namespace) -> int:
         rights: list[UInt8Array] = []
         for lf, rf in zip(left_files, right_files, strict=True):
             for f, dest in ((lf, lefts), (rf, rights)):
-                img = cv2.imread(str(f), cv2.IMREAD_GRAYSCALE)
-                if img is None:
-                    raise CheckerboardError(f"cannot read image {f}")
-                dest.append(np.asarray(img, dtype=np.uint8))
+                try:
+                    dest.append(to_gray(read_image(f)))
+                except ImageError as exc:
+                    raise CheckerboardError(f"cannot read image {f} ({exc})") from None
         result = calibrate_checkerboard(
             names,
             lefts,

@@ -14,6 +14,7 @@ from typing import Any, Literal
 from app.geometry.calibration import StereoCalibration
 from app.streams.mcap_log import FrameInfo, McapLogWriter, McapTick, encode_pair
 from app.streams.processor import StreamTick
+from app.vision.drogue import DrogueProfile
 from app.vision.result import PoseResult
 
 
@@ -35,7 +36,11 @@ class TrackMcap:
     """Writes each pair of a ``track`` run (images, calibration, annotations, pose, row)."""
 
     def __init__(
-        self, path: str | Path, calibration: StereoCalibration, jpeg_quality: int | None = None
+        self,
+        path: str | Path,
+        calibration: StereoCalibration,
+        jpeg_quality: int | None = None,
+        drogue: DrogueProfile | None = None,
     ) -> None:
         if jpeg_quality is not None and not 1 <= jpeg_quality <= 100:
             raise ValueError(f"--mcap-jpeg must be 1..100, got {jpeg_quality}")
@@ -48,6 +53,7 @@ class TrackMcap:
             telemetry_schema=row_schema(),
             threaded=False,
             overwrite=True,  # as track's JSONL
+            drogue=drogue,
         )
 
     def write(self, row: dict[str, Any], tick: StreamTick) -> None:

@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import argparse
 import sys
+from dataclasses import replace
+
+from app.cli.drogue_options import add_drogue_options, drogue_from_args
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -22,10 +25,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--calib", help="calibration JSON (default: the bundled paper calibration)")
     p.add_argument("--json", action="store_true", help="print the result contract as JSON")
     p.add_argument("--matcher", choices=["epipolar", "paper"], default="epipolar")
-    p.add_argument("--ring-radius-mm", type=float, default=75.0)
-    p.add_argument("--leds", type=int, default=5, help="LEDs on the ring")
+    add_drogue_options(p, "the paper's 75 mm ring with five 5 mm green LEDs")
+    p.add_argument("--leds", type=int, help="LEDs on the ring, replacing the profile's")
     p.add_argument(
-        "--led-diameter-mm", type=float, default=5.0, help="LED size (for the appearance test)"
+        "--led-diameter-mm",
+        type=float,
+        help="LED size (for the appearance test), replacing the profile's",
     )
     p.add_argument("--threshold", default="auto", help="'auto', 'otsu' or a gray level 1..255")
     p.set_defaults(func=run)
@@ -62,6 +67,7 @@ def _summary(result) -> str:  # type: ignore[no-untyped-def]
 def run(args: argparse.Namespace) -> int:
     from app.geometry.calibration import CalibrationError, StereoCalibration
     from app.resources import MissingDataError, load_default_calibration, sample_pair, sample_pairs
+    from app.vision.drogue import PAPER_DROGUE, DrogueProfileError
     from app.vision.io import check_pair, read_image
     from app.vision.pipeline import NavigationPipeline, PipelineConfig
     from app.vision.preprocess import ImageError
@@ -89,15 +95,22 @@ def run(args: argparse.Namespace) -> int:
         left = read_image(left_path)
         right = read_image(right_path)
         check_pair(left, right, left_path, right_path)
-        config = PipelineConfig(
-            threshold=threshold,  # type: ignore[arg-type]
-            matcher=args.matcher,
-            ring_radius_mm=args.ring_radius_mm,
-            led_count=args.leds,
-            led_diameter_mm=args.led_diameter_mm,
+        drogue = drogue_from_args(args, PAPER_DROGUE)
+        if args.leds is not None:
+            drogue = replace(drogue, led_count=args.leds, led_angles_deg=None)
+        if args.led_diameter_mm is not None:
+            drogue = replace(drogue, led_diameter_mm=args.led_diameter_mm)
+        config = drogue.pipeline_config(
+            PipelineConfig(threshold=threshold, matcher=args.matcher)  # type: ignore[arg-type]
         )
         result = NavigationPipeline(calib, config).process(left, right)
-    except (CalibrationError, ImageError, MissingDataError, ValueError) as exc:
+    except (
+        CalibrationError,
+        DrogueProfileError,
+        ImageError,
+        MissingDataError,
+        ValueError,
+    ) as exc:
         print(f"aar-dock process: error: {exc}", file=sys.stderr)
         return 2
     if args.json:

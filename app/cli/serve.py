@@ -6,6 +6,8 @@ import argparse
 import sys
 from typing import Any
 
+from app.cli.drogue_options import add_drogue_options
+
 MAX_HEADER_BYTES = 16 * 1024  # a request's headers (h11_max_incomplete_event_size)
 
 
@@ -54,6 +56,9 @@ def register(subparsers: Any) -> None:
         "no authentication: loopback unless --foxglove-host says otherwise)",
     )
     p.add_argument("--foxglove-host", help="its interface (AAR_FOXGLOVE_HOST, 127.0.0.1)")
+    add_drogue_options(  # AAR_DROGUE, AAR_RING_RADIUS_MM
+        p, "AAR_DROGUE, else the paper's 75 mm ring (the simulation: a 24-inch basket)"
+    )
     p.set_defaults(func=run)
 
 
@@ -89,6 +94,8 @@ def settings_from_args(args: argparse.Namespace) -> Any:
         ("mavlink", "mavlink"),
         ("foxglove_port", "foxglove_port"),
         ("foxglove_host", "foxglove_host"),
+        ("drogue", "drogue"),
+        ("ring_radius_mm", "ring_radius_mm"),
     ):
         value = getattr(args, flag, None)
         if value is not None:
@@ -108,6 +115,7 @@ def run(args: argparse.Namespace) -> int:
     from pydantic import ValidationError
 
     from app.geometry.calibration import CalibrationError, StereoCalibration
+    from app.vision.drogue import DrogueProfileError
 
     try:
         settings = settings_from_args(args)
@@ -119,9 +127,11 @@ def run(args: argparse.Namespace) -> int:
         return 2
     try:
         StereoCalibration.load(settings.calibration)
-    except CalibrationError as exc:
+        drogue = settings.drogue_profile()
+    except (CalibrationError, DrogueProfileError) as exc:
         print(f"aar-dock serve: {exc}", file=sys.stderr)
         return 2
+    print(f"aar-dock: drogue: {drogue.label}", flush=True)
     if settings.source.strip() not in ("", "sim", "push"):
         from app.streams.frames import SourceError
         from app.streams.sources import open_source, parse_source

@@ -13,6 +13,8 @@ import time
 from pathlib import Path
 from typing import Any, TextIO
 
+from app.cli.drogue_options import add_drogue_options, drogue_from_args
+
 
 def register(subparsers: Any) -> None:
     p = subparsers.add_parser(
@@ -49,6 +51,7 @@ def register(subparsers: Any) -> None:
         help="left/right pairing tolerance (default 10 ms)",
     )
     p.add_argument("--matcher", choices=("epipolar", "paper"), default="epipolar")
+    add_drogue_options(p, "the recording's, else the paper's 75 mm ring")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument(
         "--mavlink",
@@ -185,6 +188,7 @@ def run(args: argparse.Namespace) -> int:
     from app.streams.frames import SourceError
     from app.streams.processor import StreamProcessor
     from app.streams.sources import SourceOptions, VideoSource
+    from app.vision.drogue import PAPER_DROGUE, DrogueProfileError
     from app.vision.pipeline import PipelineConfig
 
     try:
@@ -200,7 +204,14 @@ def run(args: argparse.Namespace) -> int:
     except SourceError as exc:
         print(f"aar-dock track: {exc}", file=sys.stderr)
         return 2
-    processor = StreamProcessor(calib, PipelineConfig(matcher=args.matcher))
+    try:  # --drogue, else the recording's own, else the paper's ring; --ring-radius-mm on top
+        drogue = drogue_from_args(args, source.drogue or PAPER_DROGUE)
+    except DrogueProfileError as exc:
+        source.close()
+        print(f"aar-dock track: {exc}", file=sys.stderr)
+        return 2
+    print(f"aar-dock track: drogue: {drogue.label}", file=sys.stderr)
+    processor = StreamProcessor(calib, drogue.pipeline_config(PipelineConfig(matcher=args.matcher)))
     mavlink = None
     if args.mavlink:
         try:
@@ -214,7 +225,7 @@ def run(args: argparse.Namespace) -> int:
         from app.cli.mcap_output import TrackMcap
 
         try:
-            mcap = TrackMcap(args.mcap, calib, args.mcap_jpeg)
+            mcap = TrackMcap(args.mcap, calib, args.mcap_jpeg, drogue)
         except (OSError, ValueError) as exc:
             source.close()
             print(f"aar-dock track: cannot write {args.mcap}: {exc}", file=sys.stderr)

@@ -20,6 +20,7 @@ from app.server.settings import Settings
 from app.server.telemetry import TelemetryHub
 from app.server.telemetry_bus import TelemetryBus
 from app.server.tick_loop import TickLoop
+from app.vision.drogue import PAPER_DROGUE, DrogueProfile
 
 if TYPE_CHECKING:  # each imported where it runs (viser, the worker pools: optional parts)
     from app.server.foxglove_output import FoxgloveOutput
@@ -59,8 +60,11 @@ class UploadProcessor:
     concurrent requests share no state.
     """
 
-    def __init__(self, calibration: StereoCalibration) -> None:
+    def __init__(
+        self, calibration: StereoCalibration, drogue: DrogueProfile = PAPER_DROGUE
+    ) -> None:
         self._calibration = calibration
+        self.drogue = drogue  # the configured drogue (AAR_DROGUE, AAR_RING_RADIUS_MM)
         self._lock = threading.Lock()
         self.count = 0
         self._last_images: float | None = None
@@ -91,7 +95,8 @@ class UploadProcessor:
         if calibration is None:
             with self._lock:
                 calibration = self._calibration
-        return NavigationPipeline(calibration, PipelineConfig(matcher=matcher))  # type: ignore[arg-type]
+        config = PipelineConfig(matcher=matcher)  # type: ignore[arg-type]
+        return NavigationPipeline(calibration, self.drogue.pipeline_config(config))
 
 
 @dataclass

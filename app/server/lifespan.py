@@ -105,7 +105,11 @@ def build_state(
 
         upload_pool = UploadPool(settings.max_concurrent_uploads)
     loop = TickLoop(
-        SimConfig(tick_hz=settings.tick_hz, plant=settings.sim_plant),
+        SimConfig(
+            tick_hz=settings.tick_hz,
+            plant=settings.sim_plant,
+            drogue=settings.sim_drogue_profile(),
+        ),
         calib,
         source_factory=backend.factory,
         clock=clock,
@@ -129,7 +133,7 @@ def build_state(
         bus=loop.bus,
         hub=hub,
         calibrations=CalibrationStore(calib),
-        uploads=UploadProcessor(calib),
+        uploads=UploadProcessor(calib, settings.drogue_profile()),
         recorder=recorder,
         streams=StreamService(loop, calib, settings, loop.bus),
         upload_pool=upload_pool,

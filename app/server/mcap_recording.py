@@ -15,6 +15,7 @@ from app.server.schemas import TickRecord
 from app.sim.rig_mount import CameraMount
 from app.streams.frames import RawFrame
 from app.streams.mcap_log import EncodedPair, McapLogWriter, McapStats, McapTick, frame_info
+from app.vision.drogue import DrogueProfile
 
 
 def telemetry_schema() -> dict[str, Any]:
@@ -53,11 +54,19 @@ class RecordingMcap:
     """The MCAP log of one recording (written by its own thread, never blocking a tick)."""
 
     def __init__(
-        self, path: Path, calibration: StereoCalibration | None, mount: CameraMount | None
+        self,
+        path: Path,
+        calibration: StereoCalibration | None,
+        mount: CameraMount | None,
+        drogue: DrogueProfile | None = None,
     ) -> None:
         self.path = path
         self.writer = McapLogWriter(
-            path, calibration=calibration, telemetry_schema=telemetry_schema(), mount=mount
+            path,
+            calibration=calibration,
+            telemetry_schema=telemetry_schema(),
+            mount=mount,
+            drogue=drogue,
         )
 
     def on_record(self, record: TickRecord, line: bytes, raw: RawFrame | None = None) -> None:

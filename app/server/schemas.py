@@ -8,6 +8,7 @@ from pydantic import BaseModel, Field
 
 # the simulation's configuration lives in the core (the 3-D view uses it without the web layer)
 from app.sim.sim_config import STRICT, SimConfig, Turbulence
+from app.vision.drogue import DrogueProfile
 from app.vision.result import PoseResult
 
 Vec3 = tuple[float, float, float]
@@ -146,6 +147,31 @@ class HealthComponent(BaseModel):
     reason: str | None = None
 
 
+class DrogueInfo(BaseModel):
+    """A drogue profile (app/vision/drogue.py) as ``/healthz`` and the page show it."""
+
+    label: str
+    name: str
+    ring_radius_mm: float
+    led_count: int
+    led_diameter_mm: float
+    colour: str
+    led_angles_deg: list[float] | None = None
+
+    @classmethod
+    def of(cls, drogue: DrogueProfile) -> DrogueInfo:
+        angles = None if drogue.led_angles_deg is None else list(drogue.led_angles_deg)
+        return cls(
+            label=drogue.label,
+            name=drogue.name,
+            ring_radius_mm=drogue.ring_radius_mm,
+            led_count=drogue.led_count,
+            led_diameter_mm=drogue.led_diameter_mm,
+            colour=drogue.colour,
+            led_angles_deg=angles,
+        )
+
+
 class Health(BaseModel):
     status: Literal["ok", "degraded"]
     source: str = Field("sim", description="the active source: sim, push, video:..., camera:...")
@@ -165,6 +191,14 @@ class Health(BaseModel):
     errors: int = 0
     last_error: str | None = None
     viser: bool
+    drogue: DrogueInfo | None = Field(
+        None, description="the drogue the active source's navigation looks for"
+    )
+    configured_drogue: DrogueInfo | None = Field(
+        None,
+        description="the configured drogue (AAR_DROGUE, AAR_RING_RADIUS_MM; else the paper's "
+        "ring): what uploads, cameras and pushed pairs are searched for",
+    )
 
 
 class ServiceConfig(BaseModel):

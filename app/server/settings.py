@@ -28,7 +28,7 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 from pydantic import Field, field_validator
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
@@ -36,6 +36,9 @@ from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 from app import resources as paths
 from app.sim.plant import DEFAULT_PLANT
 from app.sim.sim_config import Plant
+
+if TYPE_CHECKING:
+    from app.vision.drogue import DrogueProfile
 
 LOCAL_HOSTS = ("localhost", "127.0.0.1", "::1")
 WILDCARD_BIND = ("0.0.0.0", "::", "")
@@ -284,6 +287,36 @@ class Settings(BaseSettings):
     foxglove_image_hz: float = Field(
         5.0, ge=0, le=60, description="stereo pairs per second sent to Foxglove (JPEG)"
     )
+
+    drogue: Path | None = Field(
+        None,
+        description="the drogue's profile, one JSON file (app/vision/drogue.py): ring radius, "
+        "LED count and angles, LED diameter, colour; None: the paper's 75 mm ring for camera, "
+        "video, push and upload frames, and a 24-inch basket for the simulated stream",
+    )
+    ring_radius_mm: float | None = Field(
+        None,
+        gt=0.0,
+        le=10_000.0,
+        description="the drogue's ring radius (mm), replacing the profile's",
+    )
+
+    def drogue_profile(self) -> DrogueProfile:
+        """The drogue camera, video, pushed and uploaded frames are searched for: the profile
+        file (else the paper's ring), its radius replaced by ``ring_radius_mm``
+        (``DrogueProfileError`` for a bad file)."""
+        from app.vision.drogue import PAPER_DROGUE, resolve_drogue
+
+        return resolve_drogue(self.drogue, self.ring_radius_mm, PAPER_DROGUE)
+
+    def sim_drogue_profile(self) -> DrogueProfile:
+        """The drogue the simulated stream flies: the configured one if any, else its 24-inch
+        basket."""
+        from app.vision.drogue import BASKET_24IN
+
+        if self.drogue is None and self.ring_radius_mm is None:
+            return BASKET_24IN
+        return self.drogue_profile()
 
     @field_validator("mavlink")
     @classmethod

@@ -96,6 +96,9 @@ def docking_config(config: SimConfig) -> DockingConfig:
         noise_sigma=config.noise_sigma,
         clutter=config.clutter,
         led_dropout=tuple(config.led_dropout),
+        led_count=config.drogue.led_count,
+        ring_radius_m=config.drogue.ring_radius_mm / 1000.0,
+        led_diameter_mm=config.drogue.led_diameter_mm,
     )
 
 

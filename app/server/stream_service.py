@@ -48,6 +48,7 @@ from app.streams.sources import (
     open_source,
     parse_source,
 )
+from app.vision.drogue import DrogueProfile
 
 if TYPE_CHECKING:
     from app.geometry.calibration import StereoCalibration
@@ -83,6 +84,8 @@ class StreamService:
         self.bus = loop.bus if bus is None else bus
         self.settings = settings
         self._calibration = calibration
+        self.drogue = settings.drogue_profile()  # the configured drogue (AAR_DROGUE)
+        self.active_drogue = self.drogue  # the running stream's (a recording's own)
         self._lock = threading.RLock()  # switching, stopping, restarting (joins threads)
         self._flock = threading.Lock()  # the failure fields (taken by the stream thread)
         self.source: FrameSourceT | None = None
@@ -187,7 +190,9 @@ class StreamService:
         calibration = getattr(source, "calibration", None) or self._calibration
         if calibration is not self._calibration:
             log.info("%s: using the recording's own calibration", source.spec)
-        self.processor = StreamProcessor(calibration)
+        # ... and with the drogue it was recorded with
+        self.active_drogue = getattr(source, "drogue", None) or self.drogue
+        self.processor = StreamProcessor(calibration, self.active_drogue.pipeline_config())
         self.spec = source.spec
         with self._flock:
             self.state = "running"
@@ -335,6 +340,14 @@ class StreamService:
         """Why the run ``generation`` failed (None: it did not)."""
         with self._flock:
             return self._failed.get(generation)
+
+    def drogue_in_use(self) -> DrogueProfile:
+        """The drogue the active source's navigation looks for: the simulation's while it is
+        the source, else the stream's (a recording's own, or the configured one)."""
+        with self._flock:
+            if self._parsed is None:
+                return self.loop.config.drogue
+        return self.active_drogue
 
     def health(self) -> SourceHealth | None:
         """The active stream's health; None while the simulation is the source."""

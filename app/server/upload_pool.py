@@ -34,7 +34,6 @@ from concurrent.futures.process import BrokenProcessPool
 from functools import lru_cache
 from typing import Any
 
-import cv2
 import numpy as np
 
 log = logging.getLogger(__name__)
@@ -56,28 +55,16 @@ class UploadWorkerCrashed(RuntimeError):
 
 
 def decode_upload_image(data: bytes, name: str) -> np.ndarray:
-    """Bytes (PNG/JPEG/BMP/TIFF) → uint8 grey image; ``UploadError(400)`` if not an image."""
-    if not data:
-        raise UploadError(400, f"{name}: empty file")
+    """Bytes (PNG/JPEG/BMP/TIFF) → the pipeline's grey or BGR image (the package's one
+    decoder, :func:`app.vision.io.decode_image`: colour is kept where the camera has it);
+    ``UploadError(400)`` if not an image."""
+    from app.vision.io import decode_image
+    from app.vision.preprocess import ImageError
+
     try:
-        img = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
-    except cv2.error:
-        img = None
-    if img is None or img.size == 0:
-        raise UploadError(
-            400, f"{name}: could not decode the image (corrupt, or not PNG/JPEG/BMP/TIFF)"
-        )
-    if img.dtype == np.uint16:
-        img = np.right_shift(img, 8).astype(np.uint8)
-    elif img.dtype != np.uint8:
-        raise UploadError(400, f"{name}: unsupported pixel type {img.dtype} (8 or 16 bit)")
-    if img.ndim == 3:
-        code = {4: cv2.COLOR_BGRA2GRAY, 3: cv2.COLOR_BGR2GRAY}.get(img.shape[2])
-        if code is None:
-            img = img[:, :, 0]
-        else:
-            img = cv2.cvtColor(img, code)
-    return np.ascontiguousarray(img)
+        return decode_image(data, name)
+    except ImageError as exc:
+        raise UploadError(400, str(exc)) from None
 
 
 def check_pair_sizes(
@@ -131,8 +118,11 @@ def process_upload(
     calibration: dict[str, Any],
     matcher: str,
     expected: tuple[int, int] | None,
+    drogue: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
-    """Decode + size check + pipeline (in a worker). Never raises for a bad upload."""
+    """Decode + size check + pipeline (in a worker) for the configured drogue (its
+    ``DrogueProfile.to_dict()``; None: the paper's ring). Never raises for a bad upload."""
+    from app.vision.drogue import PAPER_DROGUE, DrogueProfile
     from app.vision.pipeline import NavigationPipeline, PipelineConfig
 
     try:
@@ -146,7 +136,9 @@ def process_upload(
     except UploadError as exc:
         return {"status": exc.status, "detail": exc.detail}
     calib = _calibration(json.dumps(calibration, sort_keys=True))
-    pipeline = NavigationPipeline(calib, PipelineConfig(matcher=matcher))  # type: ignore[arg-type]
+    profile = PAPER_DROGUE if drogue is None else DrogueProfile.from_dict(drogue)
+    config = profile.pipeline_config(PipelineConfig(matcher=matcher))  # type: ignore[arg-type]
+    pipeline = NavigationPipeline(calib, config)
     try:
         result = pipeline.process(left_img, right_img)
     except Exception as exc:  # the contract is a 4xx with a detail, never a 500

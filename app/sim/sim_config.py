@@ -12,6 +12,7 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from app.sim.plant import DEFAULT_PLANT
+from app.vision.drogue import BASKET_24IN, DrogueProfile
 
 Turbulence = Literal["none", "light", "moderate", "severe"]
 Plant = Literal["jsbsim", "linear"]
@@ -42,6 +43,11 @@ class SimConfig(BaseModel):
     tick_hz: float = Field(30.0, ge=1.0, le=120.0)
     matcher: Literal["epipolar", "paper"] = "epipolar"
     vision: bool = True
+    drogue: DrogueProfile = Field(
+        BASKET_24IN,
+        description="the drogue flown and looked for (app/vision/drogue.py; the service's "
+        "AAR_DROGUE / AAR_RING_RADIUS_MM, else a 24-inch basket); not settable here",
+    )
 
     @field_validator("led_dropout")
     @classmethod

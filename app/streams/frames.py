@@ -12,6 +12,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from app.types import FloatArray, Rect, UInt8Array
+from app.vision.io import sensor_image
+from app.vision.preprocess import ImageError
 
 SourceKind = Literal["video", "camera", "push"]
 
@@ -135,25 +137,13 @@ class FrameSource(Protocol):
 
 
 def ensure_gray_or_bgr(image: NDArray[np.generic]) -> UInt8Array:
-    """8-bit gray or BGR as the pipeline takes it: a BGR frame whose three channels are
-    equal (a grey camera through a video codec) becomes gray; BGRA loses alpha."""
-    img = np.asarray(image)
-    if img.dtype != np.uint8:
-        if img.dtype == np.uint16:
-            img = (img >> 8).astype(np.uint8)
-        else:
-            raise SourceError(f"unsupported image type {img.dtype}")
-    if img.ndim == 3 and img.shape[2] == 4:
-        img = np.ascontiguousarray(img[:, :, :3])
-    if img.ndim == 3 and img.shape[2] == 1:
-        img = img[:, :, 0]
-    if img.ndim == 3 and img.shape[2] == 3:
-        b, g, r = img[:, :, 0], img[:, :, 1], img[:, :, 2]
-        if np.array_equal(b, g) and np.array_equal(g, r):
-            return np.ascontiguousarray(b)
-    if img.ndim not in (2, 3):
-        raise SourceError(f"unsupported image shape {img.shape}")
-    return img
+    """8-bit gray or BGR as the pipeline takes it (:func:`app.vision.io.sensor_image`: a BGR
+    frame whose three channels are equal becomes gray; BGRA loses alpha); ``SourceError``
+    otherwise."""
+    try:
+        return sensor_image(image, "frame")
+    except ImageError as exc:
+        raise SourceError(str(exc)) from None
 
 
 class RecordedPairs:

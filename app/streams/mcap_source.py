@@ -13,7 +13,6 @@ import json
 from collections.abc import Iterator
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from app.geometry.calibration import CalibrationError, StereoCalibration
@@ -22,9 +21,11 @@ from app.streams.frames import (
     SourceError,
     SourceStats,
     StereoFrame,
-    ensure_gray_or_bgr,
 )
 from app.streams.mcap_log import TOPIC_FRAME, McapLogError, iter_messages, read_metadata
+from app.vision.drogue import DrogueProfile, DrogueProfileError
+from app.vision.io import decode_image
+from app.vision.preprocess import ImageError
 
 IMAGE_TOPICS = {"/camera/left/image": "left", "/camera/right/image": "right"}
 
@@ -54,10 +55,24 @@ def mcap_calibration(path: str | Path) -> StereoCalibration | None:
 
 
 def _decode(data: bytes, what: str) -> np.ndarray:
-    img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
-    if img is None:
-        raise SourceError(f"cannot decode {what}")
-    return ensure_gray_or_bgr(img)
+    try:
+        return decode_image(data, what)
+    except ImageError as exc:
+        raise SourceError(f"cannot decode {what} ({exc})") from None
+
+
+def mcap_drogue(path: str | Path) -> DrogueProfile | None:
+    """The drogue profile in an MCAP log's metadata (``drogue``), or ``None``."""
+    try:
+        text = read_metadata(path).get("drogue")
+    except McapLogError as exc:
+        raise SourceError(str(exc)) from None
+    if not text:
+        return None
+    try:
+        return DrogueProfile.from_json(text, f"{str(path)!r}: its drogue metadata")
+    except DrogueProfileError as exc:
+        raise SourceError(str(exc)) from None
 
 
 class McapRecordingSource(RecordedPairs):

@@ -17,6 +17,8 @@ import numpy as np
 
 from app.streams.frames import SourceError, ensure_gray_or_bgr
 from app.types import UInt8Array
+from app.vision.io import read_image
+from app.vision.preprocess import ImageError
 
 IMAGE_SUFFIXES = (".png", ".bmp", ".tif", ".tiff", ".jpg", ".jpeg", ".pgm", ".ppm")
 
@@ -68,11 +70,12 @@ class ImageSequenceReader:
             return None
         i = self.index
         self.index += 1
-        img = cv2.imread(str(self.files[i]), cv2.IMREAD_UNCHANGED)
-        if img is None:
-            raise SourceError(f"cannot decode {self.files[i]}")
+        try:
+            img = read_image(self.files[i])
+        except ImageError as exc:
+            raise SourceError(f"cannot decode {self.files[i]} ({exc})") from None
         t = self.times[i] if self.times is not None else i / self.fps
-        return t, ensure_gray_or_bgr(img)
+        return t, img
 
     def close(self) -> None:
         self.index = len(self.files)

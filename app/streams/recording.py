@@ -4,6 +4,7 @@ Layout of a frame recording directory (``<recording id>.frames`` next to the tel
 
     meta.json        {"format": "aar-dock-frames/1", "status": "recording"|"complete"|"failed", ...}
     calibration.json the StereoCalibration the live pipeline used
+    drogue.json      the DrogueProfile it looked for (app.vision.drogue)
     frames.jsonl     one line per pair: {"i", "seq", "t_s", "t_left_s", "t_right_s",
                      "exposure_ms", "left", "right", "record_seq"}
     left/000000.png, right/000000.png, ...
@@ -37,8 +38,10 @@ from app.streams.frames import (
     SourceError,
     SourceStats,
     StereoFrame,
-    ensure_gray_or_bgr,
 )
+from app.vision.drogue import DrogueProfile, DrogueProfileError
+from app.vision.io import read_image
+from app.vision.preprocess import ImageError
 
 if TYPE_CHECKING:
     from app.geometry.calibration import StereoCalibration
@@ -82,6 +85,7 @@ class FrameRecordingWriter:
         queue_pairs: int = 16,
         source: str | None = None,
         on_pair: Callable[[dict[str, Any], bytes, bytes], None] | None = None,
+        drogue: DrogueProfile | None = None,
     ) -> None:
         """``on_pair(index line, left PNG, right PNG)``: called (in the writer's thread) once a
         pair is on disk, with the very bytes written (the MCAP log takes them from here)."""
@@ -108,6 +112,8 @@ class FrameRecordingWriter:
                 self.directory / "calibration.json",
                 json.dumps(calibration.to_dict(), indent=2).encode(),
             )
+        if drogue is not None:
+            _atomic_write(self.directory / "drogue.json", drogue.to_json().encode())
         self._write_meta("recording")
         self._thread = threading.Thread(target=self._run, name="frame-recorder", daemon=True)
         self._thread.start()
@@ -270,6 +276,18 @@ def recording_calibration(directory: str | Path) -> StereoCalibration | None:
     return exact_calibration(data)
 
 
+def recording_drogue(directory: str | Path) -> DrogueProfile | None:
+    """The drogue profile stored with a frame recording, or ``None`` (an older recording);
+    ``SourceError`` for a bad one."""
+    path = Path(directory) / "drogue.json"
+    if not path.is_file():
+        return None
+    try:
+        return DrogueProfile.load(path)
+    except DrogueProfileError as exc:
+        raise SourceError(str(exc)) from None
+
+
 class FrameRecordingSource(RecordedPairs):
     """A frame recording as a source (``video:DIR``): the stored pairs with their times."""
 
@@ -291,10 +309,10 @@ class FrameRecordingSource(RecordedPairs):
         self.index += 1
         imgs = []
         for side in ("left", "right"):
-            img = cv2.imread(str(self.directory / e[side]), cv2.IMREAD_UNCHANGED)
-            if img is None:
-                raise SourceError(f"cannot decode {e[side]}")
-            imgs.append(ensure_gray_or_bgr(img))
+            try:
+                imgs.append(read_image(self.directory / e[side]))
+            except ImageError as exc:
+                raise SourceError(f"cannot decode {e[side]} ({exc})") from None
         frame = StereoFrame(
             left=imgs[0],
             right=imgs[1],

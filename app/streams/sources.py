@@ -18,7 +18,6 @@ import time
 from dataclasses import dataclass
 from typing import Any, Literal
 
-import cv2
 import numpy as np
 
 from app.streams.frames import (
@@ -27,9 +26,8 @@ from app.streams.frames import (
     SourceKind,
     SourceStats,
     StereoFrame,
-    ensure_gray_or_bgr,
 )
-from app.streams.mcap_source import McapRecordingSource, is_mcap
+from app.streams.mcap_source import McapRecordingSource, is_mcap, mcap_drogue
 from app.streams.pairing import TimestampPairer
 from app.streams.protocol import PushMessage
 from app.streams.readers import CaptureReader, open_reader
@@ -37,7 +35,12 @@ from app.streams.recording import (
     FrameRecordingSource,
     is_frame_recording,
     recording_calibration,
+    recording_drogue,
 )
+from app.types import UInt8Array
+from app.vision.drogue import DrogueProfile
+from app.vision.io import decode_image
+from app.vision.preprocess import ImageError
 
 DEFAULT_MAX_SKEW_S = 0.010
 CAMERA_DEVICE = re.compile(r"\d{1,3}|/dev/video\d{1,3}")  # an index or a V4L2 device
@@ -141,9 +144,11 @@ class VideoSource:
         self._recording: FrameRecordingSource | McapRecordingSource | None = None
         self._pairer: TimestampPairer | None = None
         self.calibration: Any = None  # a frame recording's own calibration, if it has one
+        self.drogue: DrogueProfile | None = None  # and its own drogue profile
         if not right and is_mcap(left):
             self._recording = McapRecordingSource(left)
             self.calibration = self._recording.calibration
+            self.drogue = mcap_drogue(left)
         elif not right:
             if not is_frame_recording(left):
                 raise SourceError(
@@ -152,6 +157,7 @@ class VideoSource:
                 )
             self._recording = FrameRecordingSource(left)
             self.calibration = recording_calibration(left)
+            self.drogue = recording_drogue(left)
         else:
             self._open_pair()
 
@@ -295,14 +301,12 @@ class CameraSource:
             self.right.close()
 
 
-def decode_image_bytes(data: bytes) -> np.ndarray:
+def decode_image_bytes(data: bytes, name: str = "image") -> UInt8Array:
+    """A pushed image (:func:`app.vision.io.decode_image`); ``SourceError`` if undecodable."""
     try:
-        img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
-    except cv2.error:  # e.g. over OPENCV_IO_MAX_IMAGE_PIXELS
-        img = None
-    if img is None:
-        raise SourceError("undecodable image")
-    return ensure_gray_or_bgr(img)
+        return decode_image(data, name)
+    except ImageError as exc:
+        raise SourceError(f"undecodable image ({exc})") from None
 
 
 class PushSource:
@@ -366,7 +370,8 @@ class PushSource:
         if msg is None:
             return None
         try:
-            left, right = decode_image_bytes(msg.left), decode_image_bytes(msg.right)
+            left = decode_image_bytes(msg.left, "left")
+            right = decode_image_bytes(msg.right, "right")
         except SourceError as exc:
             self.stats.add("rejected")
             self.last_error = f"pair {msg.seq}: {exc}"

@@ -36,6 +36,7 @@ if TYPE_CHECKING:
     from app.server.mcap_recording import RecordingMcap
     from app.sim.rig_mount import CameraMount
     from app.streams.recording import FrameRecordingWriter
+    from app.vision.drogue import DrogueProfile
 
 log = logging.getLogger(__name__)
 FSYNC_PERIOD_S = 0.5
@@ -127,10 +128,13 @@ class Recorder:
         calibration: StereoCalibration | None = None,
         accept_frame: Callable[[RawFrame], bool] | None = None,
         source: str | None = None,
+        drogue: DrogueProfile | None = None,
     ) -> RecordingMeta:
         """Start a recording. ``frames``: also the raw stereo pairs of every tick that has
         images (lossless PNG + times + ``calibration``, in ``<id>.frames``); ``accept_frame``
-        filters the raw ticks whose pairs are written (a stream's fresh-track epoch)."""
+        filters the raw ticks whose pairs are written (a stream's fresh-track epoch);
+        ``drogue``: the profile the source's navigation looks for, stored with the frames and
+        in the MCAP log (a replay uses it)."""
         with self._lock:
             if self._info is not None:
                 raise RecordingError(409, f"recording {self._info.id} is already active")
@@ -156,7 +160,7 @@ class Recorder:
                     scene_file = f"{rec_id}.viser"
                 except Exception:
                     log.exception("could not start the scene serializer")
-            mcap = self._open_mcap(rec_id, calibration)
+            mcap = self._open_mcap(rec_id, calibration, drogue)
             writer = None
             if frames:
                 from app.streams.recording import FrameRecordingWriter
@@ -169,6 +173,7 @@ class Recorder:
                         max_bytes=self.max_frames_bytes,
                         source=source,
                         on_pair=None if mcap is None else mcap.on_pair,
+                        drogue=drogue,
                     )
                 except Exception as exc:
                     self._discard_mcap(mcap)
@@ -275,7 +280,10 @@ class Recorder:
         writer.submit(frame, record.seq)
 
     def _open_mcap(
-        self, rec_id: str, calibration: StereoCalibration | None
+        self,
+        rec_id: str,
+        calibration: StereoCalibration | None,
+        drogue: DrogueProfile | None = None,
     ) -> RecordingMcap | None:
         """(lock held) The recording's MCAP log, or None (disabled, or it cannot be opened:
         logged; the recording goes on without it)."""
@@ -284,7 +292,8 @@ class Recorder:
         try:
             from app.server.mcap_recording import RecordingMcap
 
-            return RecordingMcap(self.directory / f"{rec_id}.mcap", calibration, self._rig_mount())
+            path = self.directory / f"{rec_id}.mcap"
+            return RecordingMcap(path, calibration, self._rig_mount(), drogue)
         except Exception:
             log.exception("recording %s: the MCAP log could not be opened", rec_id)
             return None

@@ -27,7 +27,6 @@ import asyncio
 import base64
 from typing import Annotated, Any, Literal
 
-import cv2
 import numpy as np
 from fastapi import APIRouter, Depends, File, Form, HTTPException, Request, UploadFile
 
@@ -42,6 +41,8 @@ from app.server.image_guard import (
     ImageHeaderError,
     peek_header,
 )
+from app.vision.io import decode_image
+from app.vision.preprocess import ImageError
 
 router = APIRouter(tags=["calibration"])
 
@@ -107,15 +108,12 @@ def _check_set(
 def _decode(data: bytes, label: str) -> np.ndarray:
     if not data:
         raise HTTPException(status_code=400, detail=f"{label} is empty")
-    try:
-        img = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_GRAYSCALE)
-    except cv2.error:  # e.g. over OPENCV_IO_MAX_IMAGE_PIXELS
-        img = None
-    if img is None:
+    try:  # the package's one decoder; corner detection greys a colour board itself
+        return decode_image(data, label)
+    except ImageError:
         raise HTTPException(
             status_code=400, detail=f"{label} is not a decodable image (PNG, JPEG, ...)"
-        )
-    return np.asarray(img, dtype=np.uint8)
+        ) from None
 
 
 def _calibrate(

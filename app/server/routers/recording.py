@@ -65,6 +65,7 @@ def recording_start(
             calibration=None if calibrations is None else calibrations.current,
             accept_frame=accept,
             source=None if streams is None else streams.spec,
+            drogue=None if streams is None else streams.drogue_in_use(),
         )
     except RecordingError as exc:
         raise HTTPException(exc.status, exc.detail) from None

@@ -11,7 +11,14 @@ from pydantic import BaseModel, Field
 from app.server import guard_events
 from app.server.dependencies import StateDep
 from app.server.metrics import render_metrics
-from app.server.schemas import Health, HealthComponent, Message, ServiceConfig, TickRecord
+from app.server.schemas import (
+    DrogueInfo,
+    Health,
+    HealthComponent,
+    Message,
+    ServiceConfig,
+    TickRecord,
+)
 
 router = APIRouter(tags=["state"])
 
@@ -88,6 +95,8 @@ def healthz(state: StateDep) -> Health:
         errors=loop.errors,
         last_error=loop.last_error,
         viser=state.viz is not None,
+        drogue=None if state.streams is None else DrogueInfo.of(state.streams.drogue_in_use()),
+        configured_drogue=DrogueInfo.of(state.uploads.drogue),
     )
 
 

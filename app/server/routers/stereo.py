@@ -153,6 +153,7 @@ async def _in_worker_process(
             calibration_to_wire(calibration),
             matcher,
             calibration.image_size,
+            state.uploads.drogue.to_dict(),
         )
     except UploadWorkerCrashed as exc:
         log.error("upload worker crashed: %s", exc)

@@ -30,7 +30,7 @@ def export_recording(
     renamed onto ``out``."""
     import os
 
-    from app.streams.recording import read_index
+    from app.streams.recording import read_index, recording_drogue
 
     out = Path(out)
     tmp = out.with_name(f".{out.name}.tmp")
@@ -47,6 +47,7 @@ def export_recording(
         mount=mount,
         threaded=False,
         flush_period_s=1e9,
+        drogue=None if frames_dir is None else recording_drogue(frames_dir),
     )
     try:
         with open(telemetry_jsonl, "rb") as fh:

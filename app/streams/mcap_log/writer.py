@@ -6,7 +6,8 @@ Crash safety: chunked writing (1 MB chunks, zstd), the current chunk finished ev
 ``flush_period_s``; a writer killed mid-run leaves a file readable, up to its last complete
 chunk, by a streaming reader (:func:`app.streams.mcap_log.reader.iter_messages`). The exact
 calibration (``StereoCalibration.to_dict()``) is the ``aar-dock`` metadata record written first
-(a replay uses the very numbers of the live run).
+(a replay uses the very numbers of the live run); the drogue profile the navigation looked
+for (``DrogueProfile.to_dict()``) is its ``drogue`` entry.
 """
 
 from __future__ import annotations
@@ -55,6 +56,7 @@ from app.streams.mcap_log.messages import (
     scene_update,
     timestamp,
 )
+from app.vision.drogue import DrogueProfile
 
 if TYPE_CHECKING:
     from app.sim.rig_mount import CameraMount
@@ -294,6 +296,7 @@ class McapLogWriter(FoxgloveLogger):
         overwrite: bool = False,
         image_format: ImageFormat = "png",
         jpeg_quality: int = 90,
+        drogue: DrogueProfile | None = None,
     ) -> None:
         import foxglove
         from foxglove.mcap import MCAPCompression, MCAPWriteOptions
@@ -312,6 +315,8 @@ class McapLogWriter(FoxgloveLogger):
         meta = {"format": FORMAT, "time": "log time = exposure time, ns since the UNIX epoch"}
         if calibration is not None:
             meta["calibration"] = json.dumps(calibration.to_dict())
+        if drogue is not None:  # the drogue the navigation looked for (app.vision.drogue)
+            meta["drogue"] = json.dumps(drogue.to_dict())
         self._writer.write_metadata(METADATA_NAME, meta)
         self._last_flush = time.monotonic()
         super().__init__(
