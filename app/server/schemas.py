@@ -146,6 +146,21 @@ class HealthComponent(BaseModel):
     reason: str | None = None
 
 
+class FoxgloveHealth(BaseModel):
+    """The Foxglove port (``serve --foxglove-port``): its gate's state and refusals."""
+
+    running: bool
+    port: int
+    clients: int = Field(description="clients relayed to the Foxglove server now")
+    handshakes: int = Field(description="connections still in their handshake")
+    served: int = Field(description="clients relayed since start")
+    refused: dict[str, int] = Field(
+        default_factory=dict,
+        description="connections refused, by reason: host, origin, token, not_websocket, "
+        "bad_request, handshake_timeout, per_address, total, accept_failed, upstream",
+    )
+
+
 class Health(BaseModel):
     status: Literal["ok", "degraded"]
     source: str = Field("sim", description="the active source: sim, push, video:..., camera:...")
@@ -165,6 +180,7 @@ class Health(BaseModel):
     errors: int = 0
     last_error: str | None = None
     viser: bool
+    foxglove: FoxgloveHealth | None = Field(None, description="None: no Foxglove port")
 
 
 class ServiceConfig(BaseModel):

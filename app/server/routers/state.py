@@ -11,7 +11,14 @@ from pydantic import BaseModel, Field
 from app.server import guard_events
 from app.server.dependencies import StateDep
 from app.server.metrics import render_metrics
-from app.server.schemas import Health, HealthComponent, Message, ServiceConfig, TickRecord
+from app.server.schemas import (
+    FoxgloveHealth,
+    Health,
+    HealthComponent,
+    Message,
+    ServiceConfig,
+    TickRecord,
+)
 
 router = APIRouter(tags=["state"])
 
@@ -73,6 +80,21 @@ def healthz(state: StateDep) -> Health:
         components.append(
             HealthComponent(name="mavlink", status="degraded" if why else "ok", reason=why)
         )
+    foxglove = None
+    if state.foxglove is not None:
+        gate = state.foxglove.health()
+        foxglove = FoxgloveHealth(
+            running=gate.running,
+            port=gate.port,
+            clients=gate.clients,
+            handshakes=gate.handshakes,
+            served=gate.served,
+            refused=gate.refused,
+        )
+        why = None if gate.running else "the Foxglove port's gate is not running"
+        components.append(
+            HealthComponent(name="foxglove", status="degraded" if why else "ok", reason=why)
+        )
     degraded = any(c.status != "ok" for c in components)
     return Health(
         status="degraded" if degraded else "ok",
@@ -88,6 +110,7 @@ def healthz(state: StateDep) -> Health:
         errors=loop.errors,
         last_error=loop.last_error,
         viser=state.viz is not None,
+        foxglove=foxglove,
     )
 
 
