@@ -152,7 +152,12 @@ def run(args: argparse.Namespace) -> int:
     import uvicorn
 
     from app.server import log_hygiene
-    from app.server.connection_guard import guarded_listener, new_registry, protocol_classes
+    from app.server.connection_guard import (
+        guarded_listener,
+        mark_guarded,
+        new_registry,
+        protocol_classes,
+    )
     from app.server.main import PUSH_PATH, create_app
     from app.sim.warmup import compile_kernels
 
@@ -173,6 +178,7 @@ def run(args: argparse.Namespace) -> int:
     # rates, enforced in uvicorn's protocol layer (app.server.connection_guard)
     registry = new_registry(settings, PUSH_PATH)
     http_protocol, ws_protocol = protocol_classes(registry)
+    mark_guarded(app, registry)  # else the app warns, and /healthz says degraded
     config = uvicorn.Config(
         app,
         host=settings.host,
