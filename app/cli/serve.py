@@ -51,7 +51,7 @@ def register(subparsers: Any) -> None:
         "--foxglove-port",
         type=int,
         help="live Foxglove WebSocket server on this port (AAR_FOXGLOVE_PORT; off by default; "
-        "no authentication: loopback unless --foxglove-host says otherwise)",
+        "Host, Origin and AAR_TOKEN checked, connections capped: docs/service.md)",
     )
     p.add_argument("--foxglove-host", help="its interface (AAR_FOXGLOVE_HOST, 127.0.0.1)")
     p.set_defaults(func=run)
