@@ -53,7 +53,7 @@ def register(subparsers: Any) -> None:
         "--foxglove-port",
         type=int,
         help="live Foxglove WebSocket server on this port (AAR_FOXGLOVE_PORT; off by default; "
-        "no authentication: loopback unless --foxglove-host says otherwise)",
+        "Host, Origin and AAR_TOKEN checked, connections capped: docs/service.md)",
     )
     p.add_argument("--foxglove-host", help="its interface (AAR_FOXGLOVE_HOST, 127.0.0.1)")
     add_drogue_options(  # AAR_DROGUE, AAR_RING_RADIUS_MM
@@ -162,7 +162,12 @@ def run(args: argparse.Namespace) -> int:
     import uvicorn
 
     from app.server import log_hygiene
-    from app.server.connection_guard import guarded_listener, new_registry, protocol_classes
+    from app.server.connection_guard import (
+        guarded_listener,
+        mark_guarded,
+        new_registry,
+        protocol_classes,
+    )
     from app.server.main import PUSH_PATH, create_app
     from app.sim.warmup import compile_kernels
 
@@ -183,6 +188,7 @@ def run(args: argparse.Namespace) -> int:
     # rates, enforced in uvicorn's protocol layer (app.server.connection_guard)
     registry = new_registry(settings, PUSH_PATH)
     http_protocol, ws_protocol = protocol_classes(registry)
+    mark_guarded(app, registry)  # else the app warns, and /healthz says degraded
     config = uvicorn.Config(
         app,
         host=settings.host,

@@ -27,6 +27,11 @@ or two, freeing theirs): asyncio's accept loop, which retried ``accept()`` up to
 (2048) times per wake-up at EMFILE and logged each failure with a traceback, never meets it.
 
 Counts of what was refused: :mod:`app.server.guard_events` (``/metrics``).
+
+The guards live in the server, not in the ASGI app: ``aar-dock serve`` records them on the
+app (:func:`mark_guarded`). Served without them (plain ``uvicorn --factory``), the app logs
+:data:`UNGUARDED` at the first request from a real client, and ``/healthz`` says
+``degraded`` (component ``connection_guard``) to every real client.
 """
 
 from __future__ import annotations
@@ -389,6 +394,25 @@ def protocol_classes(registry: ConnectionRegistry) -> tuple[type[Any], type[Any]
             super().send_receive_event_to_app()
 
     return GuardedH11Protocol, GuardedWebSocketProtocol
+
+
+# ---- whether the app runs behind them ------------------------------------------------------
+UNGUARDED = (
+    "this service was started without the connection guards of `aar-dock serve` (plain "
+    "uvicorn or another ASGI server?): no connection caps, no header timeout (slowloris), no "
+    "per-route WebSocket message limits. Run it with `aar-dock serve` (docs/service.md)"
+)
+
+
+def mark_guarded(app: Any, registry: ConnectionRegistry) -> None:
+    """Record on the app (``app.state.connection_guard``) that its server runs the guards."""
+    app.state.connection_guard = registry
+
+
+def is_guarded(app: Any) -> bool:
+    """True if :func:`mark_guarded` was called on ``app`` (``aar-dock serve`` does)."""
+    state = getattr(app, "state", None)
+    return getattr(state, "connection_guard", None) is not None
 
 
 # ---- the listening socket ------------------------------------------------------------------

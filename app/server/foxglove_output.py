@@ -3,6 +3,10 @@
 Every record goes out on the MCAP log's channels (:mod:`app.streams.foxglove_live`); the
 stereo pair at most ``image_hz`` times a second, as JPEG. Never blocks the tick thread: the
 logger's queue drops what it cannot keep up with.
+
+The SDK's server listens on a loopback port of its own, TLS only with a certificate made at
+start (:mod:`app.server.loopback_tls`); ``host:port`` is the gate in front of it
+(:mod:`app.server.foxglove_gate`: Host, Origin, token, connection caps).
 """
 
 from __future__ import annotations
@@ -10,6 +14,8 @@ from __future__ import annotations
 import time
 
 from app.geometry.calibration import StereoCalibration
+from app.server.foxglove_gate import FoxgloveGate, GateHealth, GatePolicy
+from app.server.loopback_tls import LOOPBACK, make_loopback_tls
 from app.server.mcap_recording import default_mount, mcap_tick, telemetry_schema
 from app.server.schemas import TickRecord
 from app.streams.foxglove_live import FoxgloveLive
@@ -19,7 +25,7 @@ from app.types import UInt8Array
 
 
 class FoxgloveOutput:
-    """The Foxglove WebSocket server of the service and its subscriber."""
+    """The Foxglove WebSocket server of the service, its gate and its subscriber."""
 
     def __init__(
         self,
@@ -27,19 +33,37 @@ class FoxgloveOutput:
         port: int,
         calibration: StereoCalibration | None,
         *,
+        policy: GatePolicy,
         plant: str | None = None,
         image_hz: float = 5.0,
     ) -> None:
         self.image_period_s = 1.0 / image_hz if image_hz > 0 else float("inf")
         self._last_image = float("-inf")
+        tls = make_loopback_tls()
         self.live = FoxgloveLive(
-            host=host,
-            port=port,
+            host=LOOPBACK,
+            port=0,
             calibration=calibration,
             telemetry_schema=telemetry_schema(),
             mount=default_mount(plant),
+            tls_cert=tls.cert_pem,
+            tls_key=tls.key_pem,
         )
-        self.port = self.live.port
+        try:
+            self.gate = FoxgloveGate(
+                host,
+                port,
+                upstream_port=self.live.port,
+                upstream_tls=tls.client_context(),
+                policy=policy,
+            )
+        except BaseException:
+            self.live.close()
+            raise
+        self.port = self.gate.port
+
+    def health(self) -> GateHealth:
+        return self.gate.health()
 
     def on_tick(self, record: TickRecord, raw: RawFrame | None = None) -> None:
         """Tick-loop subscriber: the record now, its images at the reduced rate."""
@@ -63,4 +87,5 @@ class FoxgloveOutput:
         self.live.write_pair(RawPair(left, right, info), record.seq)
 
     def close(self) -> None:
+        self.gate.close()
         self.live.close()

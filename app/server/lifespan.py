@@ -174,12 +174,14 @@ def _start_outputs(st: AppState, settings: Settings) -> None:
         bus.subscribe(st.mavlink.on_tick)
         log.info("MAVLink 2 output to %s", settings.mavlink)
     if settings.foxglove_port is not None:
+        from app.server.foxglove_gate import GatePolicy
         from app.server.foxglove_output import FoxgloveOutput
 
         st.foxglove = FoxgloveOutput(
             settings.foxglove_host,
             settings.foxglove_port,
             st.calibrations.current,
+            policy=GatePolicy.from_settings(settings),
             plant=settings.sim_plant,
             image_hz=settings.foxglove_image_hz,
         )

@@ -170,6 +170,19 @@ class DrogueInfo(BaseModel):
             colour=drogue.colour,
             led_angles_deg=angles,
         )
+class FoxgloveHealth(BaseModel):
+    """The Foxglove port (``serve --foxglove-port``): its gate's state and refusals."""
+
+    running: bool
+    port: int
+    clients: int = Field(description="clients relayed to the Foxglove server now")
+    handshakes: int = Field(description="connections still in their handshake")
+    served: int = Field(description="clients relayed since start")
+    refused: dict[str, int] = Field(
+        default_factory=dict,
+        description="connections refused, by reason: host, origin, token, not_websocket, "
+        "bad_request, handshake_timeout, per_address, total, accept_failed, upstream",
+    )
 
 
 class Health(BaseModel):
@@ -199,6 +212,7 @@ class Health(BaseModel):
         description="the configured drogue (AAR_DROGUE, AAR_RING_RADIUS_MM; else the paper's "
         "ring): what uploads, cameras and pushed pairs are searched for",
     )
+    foxglove: FoxgloveHealth | None = Field(None, description="None: no Foxglove port")
 
 
 class ServiceConfig(BaseModel):

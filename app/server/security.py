@@ -30,6 +30,7 @@ from urllib.parse import urlsplit
 from starlette.datastructures import Headers
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
+from app.server.connection_guard import UNGUARDED, is_guarded
 from app.server.limits import ConcurrencyLimit
 from app.server.settings import Settings
 
@@ -197,6 +198,7 @@ class RequestGuard:
         self.routes = routes
         self.default = default
         self.api_prefix = api_prefix
+        self.unguarded_warned = False
 
     # -- checks --------------------------------------------------------------------------
     def _host_error(self, scope: Scope, headers: Headers) -> str | None:
@@ -225,6 +227,10 @@ class RequestGuard:
             await self.app(scope, receive, send)
             return
         headers = Headers(scope=scope)
+        if not self.unguarded_warned and not in_process(scope, headers):
+            self.unguarded_warned = True  # the first real client: once per app
+            if not is_guarded(scope.get("app")):
+                log.warning("%s", UNGUARDED)
         error = self._host_error(scope, headers)
         status = 400
         if error is None and (kind == "websocket" or scope["method"] in MUTATING):

@@ -279,10 +279,26 @@ class Settings(BaseSettings):
         ge=0,
         le=65535,
         description="live Foxglove WebSocket server on this port (the MCAP log's channels, "
-        "images at foxglove_image_hz; no authentication: docs/service.md); None: off",
+        "images at foxglove_image_hz; behind the service's Host, Origin and token checks: "
+        "docs/service.md); None: off",
     )
     foxglove_host: str = Field(
         "127.0.0.1", description="interface of the Foxglove server (loopback unless told)"
+    )
+    foxglove_max_clients: int = Field(
+        32,
+        ge=1,
+        le=10_000,
+        description="Foxglove connections at once (handshakes included); also capped at a sixth "
+        "of the file-descriptor limit minus AAR_FD_RESERVE (each costs three descriptors)",
+    )
+    foxglove_max_clients_per_address: int = Field(
+        8, ge=1, le=10_000, description="Foxglove connections from one client address"
+    )
+    foxglove_allowed_origins: Annotated[list[str], NoDecode] = Field(
+        default_factory=list,
+        description="browser origins (scheme://host[:port]) allowed to open the Foxglove port "
+        "besides AAR_ALLOWED_ORIGINS and the service's own pages, e.g. https://app.foxglove.dev",
     )
     foxglove_image_hz: float = Field(
         5.0, ge=0, le=60, description="stereo pairs per second sent to Foxglove (JPEG)"
@@ -327,7 +343,13 @@ class Settings(BaseSettings):
 
         return check_url(v.strip())
 
-    @field_validator("trusted_hosts", "allowed_origins", "stream_roots", mode="before")
+    @field_validator(
+        "trusted_hosts",
+        "allowed_origins",
+        "foxglove_allowed_origins",
+        "stream_roots",
+        mode="before",
+    )
     @classmethod
     def _split_list(cls, v: Any) -> Any:
         if isinstance(v, str):

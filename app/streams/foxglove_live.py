@@ -2,8 +2,9 @@
 WebSocket server (``foxglove-sdk``'s ``start_server``), for Foxglove's *Open connection*.
 
 Same topics, schemas, frames and log times as the MCAP log; the images are JPEG (the
-adapter hands over a pair at a reduced rate), encoded by the logger's thread. The server has
-no authentication: it binds the loopback interface unless told otherwise.
+adapter hands over a pair at a reduced rate), encoded by the logger's thread. The SDK's server
+checks no Origin or token: the service puts it on loopback, TLS only (``tls_cert``,
+``tls_key``), behind its own gate (``app/server/foxglove_gate.py``).
 """
 
 from __future__ import annotations
@@ -24,7 +25,8 @@ log = logging.getLogger(__name__)
 
 
 class FoxgloveLive(FoxgloveLogger):
-    """A Foxglove WebSocket server on ``host:port`` (port 0: a free one, see :attr:`port`)."""
+    """A Foxglove WebSocket server on ``host:port`` (port 0: a free one, see :attr:`port`);
+    with ``tls_cert`` and ``tls_key`` (PEM, the key PKCS#8) it speaks ``wss://`` only."""
 
     def __init__(
         self,
@@ -36,6 +38,8 @@ class FoxgloveLive(FoxgloveLogger):
         mount: CameraMount | None = None,
         jpeg_quality: int = 80,
         queue_items: int = 32,
+        tls_cert: bytes | None = None,
+        tls_key: bytes | None = None,
     ) -> None:
         import foxglove
 
@@ -52,7 +56,14 @@ class FoxgloveLive(FoxgloveLogger):
             jpeg_quality=jpeg_quality,
         )
         try:
-            self._server = foxglove.start_server(name="aar-dock", host=host, port=port, context=ctx)
+            self._server = foxglove.start_server(
+                name="aar-dock",
+                host=host,
+                port=port,
+                context=ctx,
+                tls_cert=tls_cert,  # PEM; with the key (PKCS#8): wss:// only
+                tls_key=tls_key,
+            )
         except Exception:
             self.close()
             raise

@@ -15,8 +15,10 @@ import numpy as np
 import websockets
 
 from app.resources import load_default_calibration
+from app.server.foxglove_gate import GatePolicy
 from app.server.foxglove_output import FoxgloveOutput
 from app.server.schemas import TickRecord
+from app.server.settings import Settings
 from app.vision.result import PoseResult
 from tests.support.raw_frames import RawPair
 
@@ -87,7 +89,8 @@ async def _client(port: int, out: FoxgloveOutput) -> tuple[dict[str, str], list[
 
 
 def test_live_foxglove_channels_on_loopback() -> None:
-    out = FoxgloveOutput("127.0.0.1", 0, load_default_calibration(), image_hz=2.0)
+    policy = GatePolicy.from_settings(Settings(_env_file=None))  # type: ignore[call-arg]
+    out = FoxgloveOutput("127.0.0.1", 0, load_default_calibration(), policy=policy, image_hz=2.0)
     try:
         assert out.port > 0
         schemas, tele, images = asyncio.run(_client(out.port, out))
@@ -101,7 +104,5 @@ def test_live_foxglove_channels_on_loopback() -> None:
 
 
 def test_live_foxglove_is_off_by_default_and_loopback() -> None:
-    from app.server.settings import Settings
-
     s = Settings(_env_file=None)  # type: ignore[call-arg]
     assert s.foxglove_port is None and s.foxglove_host == "127.0.0.1"

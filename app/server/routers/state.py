@@ -9,16 +9,19 @@ from fastapi.responses import PlainTextResponse
 from pydantic import BaseModel, Field
 
 from app.server import guard_events
+from app.server.connection_guard import UNGUARDED, is_guarded
 from app.server.dependencies import StateDep
 from app.server.metrics import render_metrics
 from app.server.schemas import (
     DrogueInfo,
+    FoxgloveHealth,
     Health,
     HealthComponent,
     Message,
     ServiceConfig,
     TickRecord,
 )
+from app.server.security import in_process
 
 router = APIRouter(tags=["state"])
 
@@ -49,8 +52,17 @@ def get_history(
     return state.bus.history(seconds)
 
 
+def _guard_component(request: Request) -> HealthComponent | None:
+    """A real client's view: does the server run ``aar-dock serve``'s connection guards?"""
+    if in_process(request.scope, request.headers):
+        return None  # in-process test clients: no server, no connections to guard
+    if is_guarded(request.app):
+        return HealthComponent(name="connection_guard", status="ok")
+    return HealthComponent(name="connection_guard", status="degraded", reason=UNGUARDED)
+
+
 @router.get("/healthz", response_model=Health)
-def healthz(state: StateDep) -> Health:
+def healthz(state: StateDep, request: Request) -> Health:
     """``ok`` or ``degraded``; ``components`` names what is degraded and why."""
     loop = state.loop
     now = loop.clock.now()
@@ -80,6 +92,24 @@ def healthz(state: StateDep) -> Health:
         components.append(
             HealthComponent(name="mavlink", status="degraded" if why else "ok", reason=why)
         )
+    foxglove = None
+    if state.foxglove is not None:
+        gate = state.foxglove.health()
+        foxglove = FoxgloveHealth(
+            running=gate.running,
+            port=gate.port,
+            clients=gate.clients,
+            handshakes=gate.handshakes,
+            served=gate.served,
+            refused=gate.refused,
+        )
+        why = None if gate.running else "the Foxglove port's gate is not running"
+        components.append(
+            HealthComponent(name="foxglove", status="degraded" if why else "ok", reason=why)
+        )
+    guard = _guard_component(request)
+    if guard is not None:
+        components.append(guard)
     degraded = any(c.status != "ok" for c in components)
     return Health(
         status="degraded" if degraded else "ok",
@@ -97,6 +127,7 @@ def healthz(state: StateDep) -> Health:
         viser=state.viz is not None,
         drogue=None if state.streams is None else DrogueInfo.of(state.streams.drogue_in_use()),
         configured_drogue=DrogueInfo.of(state.uploads.drogue),
+        foxglove=foxglove,
     )
 
 
