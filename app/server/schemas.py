@@ -170,6 +170,8 @@ class DrogueInfo(BaseModel):
             colour=drogue.colour,
             led_angles_deg=angles,
         )
+
+
 class FoxgloveHealth(BaseModel):
     """The Foxglove port (``serve --foxglove-port``): its gate's state and refusals."""
 
