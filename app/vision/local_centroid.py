@@ -20,7 +20,10 @@ Here each detected blob is measured again on its own terms:
   propagation of independent pixel noise through the weighted mean,
   σ_u² = Σ σᵢ²·(uᵢ − ū)² / (Σ wᵢ)² with σᵢ² = σ_read² + k_shot·max(Iᵢ − b, 0) (DN²; a saturated
   pixel carries no noise), plus a floor ``floor_px`` in quadrature for what the model does not
-  describe (demosaicing, blur, sub-pixel structure).
+  describe (demosaicing, blur, sub-pixel structure). With ``image_noise`` the image's own
+  errors are measured too: each support pixel's difference A from the blob mirrored through
+  its centroid (bilinear), σ_u² = max(model, Σ ½Aᵢ²·(uᵢ − ū)²) / (Σ wᵢ)² — an LED's image is
+  point-symmetric, so A is what compression, blur, demosaicing or a saturated edge did to it.
 
 A support that reaches the window's edge (a blob merged with something larger) or a blob with
 no contrast keeps its eq. 11 centroid and gets σ = NaN: the caller treats it as unmeasured.
@@ -60,6 +63,12 @@ class LocalCentroidConfig:
     shot_var_per_dn: float = 0.032  # shot-noise variance per DN of signal (DN²/DN ≈ 255/full well)
     floor_px: float = 0.03  # centroid error the noise model leaves out (px, 1σ)
     weights_from_level: bool = True  # weights I − level (True) or I − local background
+    # σ also from the image itself: the blob's residuals to its own profile mirrored through
+    # the centroid (compression, blur, demosaicing, saturated edges), the larger of that and
+    # the sensor model's; False (default): the sensor model only. Off by default: on the
+    # physically based dev set it lets a 5-point hypothesis of 3 LEDs and 2 bolt glints
+    # through the χ² test (docs/integrity.md, "Degraded images")
+    image_noise: bool = False
 
     def params(self) -> NDArray[np.float64]:
         return np.array(
@@ -70,6 +79,7 @@ class LocalCentroidConfig:
                 self.shot_var_per_dn,
                 self.floor_px,
                 1.0 if self.weights_from_level else 0.0,
+                1.0 if self.image_noise else 0.0,
             ],
             dtype=np.float64,
         )

@@ -179,23 +179,47 @@ def _measure(
     if sw <= 0.0:
         return True
     cu, cv = swu / sw, swv / sw
-    # first-order noise of the weighted mean (the level held fixed)
-    vu = vv = 0.0
+    # first-order noise of the weighted mean (the level held fixed): the sensor model's pixel
+    # variance (vu, vv), and the pixel errors the image itself shows (au, av): each support
+    # pixel's difference from the blob's own profile mirrored through the centroid, A, whose
+    # half-square estimates that pixel's variance whatever made it (compression, blur,
+    # demosaicing, a saturated edge) — an LED's image is point-symmetric about its centre
+    vu = vv = au = av = 0.0
+    image_noise = params[6] > 0
     for j in range(j_lo, j_hi + 1):  # (in raster order, as over the whole window)
         for i in range(i_lo, i_hi + 1):
             if state[(j + 1) * w2 + i + 1] == 2:
                 g = float(gray[y0 + j, x0 + i])
+                du, dv = x0 + i - cu, y0 + j - cv
+                if image_noise:
+                    a = g - bilinear(gray, cu - du, cv - dv)
+                    au += 0.5 * a * a * du * du
+                    av += 0.5 * a * a * dv * dv
                 if g >= sat:
                     continue
                 var = read_sigma * read_sigma + shot_k * max(g - bg, 0.0)
-                du, dv = x0 + i - cu, y0 + j - cv
                 vu += var * du * du
                 vv += var * dv * dv
+    if image_noise:  # the larger of the model's and the image's
+        vu, vv = max(vu, au), max(vv, av)
     out[OUT_U] = cu
     out[OUT_V] = cv
     out[OUT_SIGMA_U] = np.sqrt(vu / (sw * sw) + floor_px * floor_px)
     out[OUT_SIGMA_V] = np.sqrt(vv / (sw * sw) + floor_px * floor_px)
     return True
+
+
+@njit(cache=True, nogil=True)
+def bilinear(gray: np.ndarray, x: float, y: float) -> float:  # pragma: no cover - compiled
+    """``gray`` at (x, y) px (pixel centres at integers), bilinear, clamped to the image."""
+    h, w = gray.shape
+    x = min(max(x, 0.0), w - 1.0)
+    y = min(max(y, 0.0), h - 1.0)
+    ix, iy = min(int(x), w - 2), min(int(y), h - 2)
+    fx, fy = x - ix, y - iy
+    top = (1.0 - fx) * float(gray[iy, ix]) + fx * float(gray[iy, ix + 1])
+    bottom = (1.0 - fx) * float(gray[iy + 1, ix]) + fx * float(gray[iy + 1, ix + 1])
+    return (1.0 - fy) * top + fy * bottom
 
 
 @njit(cache=True, nogil=True)
