@@ -254,15 +254,14 @@ class McapRecordingSource(RecordedPairs):
     def _pairs(self, closed: threading.Event) -> Iterator[StereoFrame]:
         lim = self.limits
         pending = PendingPairs(lim.max_pending, lim.max_pending_bytes)
-        info: OrderedDict[int, FrameTimes] = OrderedDict()
+        info: OrderedDict[int, bytes] = OrderedDict()  # parsed when its pair is complete
         n = 0
         try:
             for msg in iter_messages(self.path, [*IMAGE_TOPICS, TOPIC_FRAME], lim.read):
                 if closed.is_set():
                     return
-                where = f"{msg.topic} at log time {msg.log_time_ns}"
                 if msg.topic == TOPIC_FRAME:
-                    info[msg.log_time_ns] = frame_times(msg.data, where)
+                    info[msg.log_time_ns] = msg.data
                     while len(info) > lim.max_frame_infos:
                         info.popitem(last=False)
                     continue
@@ -275,7 +274,9 @@ class McapRecordingSource(RecordedPairs):
                 at = f"at log time {msg.log_time_ns}"
                 left = decode_image(pair[0], f"the left image {at}", self.max_pixels)
                 right = decode_image(pair[1], f"the right image {at}", self.max_pixels)
-                yield _frame(left, right, info.pop(msg.log_time_ns, FrameTimes()), msg, n)
+                raw = info.pop(msg.log_time_ns, None)
+                times = FrameTimes() if raw is None else frame_times(raw, f"{TOPIC_FRAME} {at}")
+                yield _frame(left, right, times, msg, n)
                 n += 1
         except McapLogError as exc:
             raise SourceError(str(exc)) from None

@@ -98,21 +98,19 @@ class _Body(ReadDataStream):
         return super().read(length)
 
 
-_PARSERS: dict[int, Callable[[ReadDataStream, int], McapRecord]] = {
-    Opcode.SCHEMA: lambda s, n: Schema.read(s),
-    Opcode.CHANNEL: lambda s, n: Channel.read(s),
-    Opcode.MESSAGE: lambda s, n: Message.read(s, n),
-    Opcode.CHUNK: lambda s, n: Chunk.read(s),
-    Opcode.METADATA: lambda s, n: Metadata.read(s),
+_PARSERS: dict[int, Callable[[ReadDataStream], McapRecord]] = {
+    Opcode.SCHEMA: Schema.read,
+    Opcode.CHANNEL: Channel.read,
+    Opcode.CHUNK: Chunk.read,
+    Opcode.METADATA: Metadata.read,
 }
 
 
 def _parse(opcode: int, body: bytes, where: str) -> McapRecord:
-    """One record from exactly its bytes, by the ``mcap`` library's record class."""
-    if opcode == Opcode.MESSAGE and len(body) < MESSAGE_HEAD:
-        raise McapLogError(f"{where}: a message record of {len(body)} bytes (< {MESSAGE_HEAD})")
+    """One record from exactly its bytes, by the ``mcap`` library's record class (a message's
+    fixed head is read by :func:`_message`: the hot path)."""
     try:
-        return _PARSERS[opcode](_Body(body), len(body))
+        return _PARSERS[opcode](_Body(body))
     except McapLogError as exc:
         raise McapLogError(f"{where}: corrupt {Opcode(opcode).name} record ({exc})") from None
     except (ValueError, struct.error, OverflowError) as exc:  # UnicodeDecodeError among them
@@ -163,44 +161,77 @@ class _Counter:
         self.records = 0
         self.messages = 0
 
-    def record(self, opcode: int, where: str) -> None:
-        self.records += 1
+    def add(self, records: int, messages: int, where: Callable[[], str]) -> None:
+        self.records += records
+        self.messages += messages
         if self.records > self.limits.max_records:
-            raise McapLogError(f"{where}: more than {self.limits.max_records} records")
-        if opcode == Opcode.MESSAGE:
-            self.messages += 1
-            if self.messages > self.limits.max_messages:
-                raise McapLogError(f"{where}: more than {self.limits.max_messages} messages")
+            raise McapLogError(f"{where()}: more than {self.limits.max_records} records")
+        if self.messages > self.limits.max_messages:
+            raise McapLogError(f"{where()}: more than {self.limits.max_messages} messages")
+
+
+_MESSAGE_HEAD = struct.Struct("<HIQQ")
+_RECORD_HEAD = struct.Struct("<BQ")
+Accept = Callable[[int], bool]
+
+
+def _message(view: memoryview, pos: int, length: int, accept: Accept) -> Message | None:
+    """A message record's fixed head (channel id, sequence, log and publish time; the layout
+    of ``mcap.records.Message``) and, if ``accept`` takes its channel, its payload."""
+    channel_id, sequence, log_time, publish_time = _MESSAGE_HEAD.unpack_from(view, pos)
+    if not accept(channel_id):
+        return None
+    data = bytes(view[pos + MESSAGE_HEAD : pos + length])
+    return Message(channel_id, log_time, data, publish_time, sequence)
 
 
 def _chunk_records(
-    data: bytes, offset: int, count: _Counter, wanted: set[int]
+    data: bytes, offset: int, count: _Counter, accept: Accept
 ) -> Iterator[McapRecord]:
-    """The records of a decompressed chunk, one at a time (``wanted`` opcodes parsed)."""
+    """The schemas, channels and accepted messages of a decompressed chunk, one at a time
+    (the hot loop: a chunk may hold millions of tiny records)."""
     view = memoryview(data)
-    pos, end = 0, len(data)
-    while pos < end:
-        where = f"chunk at byte {offset}, record at byte {pos} of its data"
-        if end - pos < 9:
-            raise McapLogError(f"{where}: {end - pos} stray bytes at the end of a chunk")
-        opcode, length = struct.unpack_from("<BQ", view, pos)
-        pos += 9
-        if length > end - pos:
-            raise McapLogError(f"{where}: a record of {length} bytes runs past its chunk")
-        count.record(opcode, where)
-        if opcode == Opcode.MESSAGE and length - MESSAGE_HEAD > count.limits.max_message_bytes:
-            raise McapLogError(f"{where}: a message of {length} bytes, over the limit")
-        if opcode in wanted:
-            yield _parse(opcode, bytes(view[pos : pos + length]), where)
-        pos += length
+    pos, end, n, msgs = 0, len(data), 0, 0
+    max_message = count.limits.max_message_bytes + MESSAGE_HEAD
+    unpack, head = _RECORD_HEAD.unpack_from, _MESSAGE_HEAD.unpack_from
+    where = lambda: f"chunk at byte {offset}, record at byte {pos} of its data"  # noqa: E731
+    try:
+        while pos < end:
+            if end - pos < 9:
+                raise McapLogError(f"{where()}: {end - pos} stray bytes at the end of a chunk")
+            opcode, length = unpack(view, pos)
+            body = pos + 9
+            if length > end - body:
+                raise McapLogError(f"{where()}: a record of {length} bytes runs past its chunk")
+            n += 1
+            if opcode == Opcode.MESSAGE:
+                msgs += 1
+                if not MESSAGE_HEAD <= length <= max_message:
+                    raise McapLogError(f"{where()}: a message record of {length} bytes")
+                channel_id, sequence, log_time, publish_time = head(view, body)
+                if accept(channel_id):  # inlined _message: the hot path
+                    data = bytes(view[body + MESSAGE_HEAD : body + length])
+                    yield Message(channel_id, log_time, data, publish_time, sequence)
+            elif opcode in (Opcode.SCHEMA, Opcode.CHANNEL):
+                yield _parse(opcode, bytes(view[body : body + length]), where())
+            elif opcode <= Opcode.DATA_END:  # reserved 0x00, or a record not of a chunk
+                raise McapLogError(f"{where()}: opcode {opcode:#04x} is not allowed in a chunk")
+            pos = body + length
+            if n >= 65536:  # checked in batches (the limits are in millions)
+                count.add(n, msgs, where)
+                n = msgs = 0
+    finally:
+        view.release()
+    count.add(n, msgs, where)
 
 
 def _records(
-    fh: BinaryIO, limits: ReadLimits, *, chunks: bool, stop_at_data_end: bool = True
+    fh: BinaryIO, limits: ReadLimits, *, chunks: bool, accept: Accept = lambda _: True
 ) -> Iterator[McapRecord]:
-    """The file's schemas, channels, messages and metadata in order (``chunks``: the
-    records inside chunks too; else chunks are skipped unread). Raises :class:`_Cut` at the
-    end of a cut file, :class:`McapLogError` for anything corrupt."""
+    """The file's schemas, channels, accepted messages and metadata in order (``chunks``:
+    the records inside chunks too; else chunks are skipped unread), up to its data end.
+    Raises :class:`_Cut` at the end of a cut file, :class:`McapLogError` for anything
+    corrupt."""
     size = fh.seek(0, io.SEEK_END)
     fh.seek(0)
     magic = fh.read(len(MAGIC))
@@ -209,13 +240,12 @@ def _records(
             raise _Cut("the file ends inside its magic")
         raise McapLogError("it does not start with the MCAP magic")
     count = _Counter(limits)
-    wanted: set[int] = {Opcode.SCHEMA, Opcode.CHANNEL, Opcode.MESSAGE}
     while True:
         offset = fh.tell()
         head = fh.read(9)
         if len(head) < 9:
             raise _Cut(f"the file ends at byte {offset + len(head)} with no footer")
-        opcode, length = struct.unpack("<BQ", head)
+        opcode, length = _RECORD_HEAD.unpack(head)
         where = f"record at byte {offset}"
         if length > limits.max_record_bytes:
             raise McapLogError(
@@ -224,20 +254,22 @@ def _records(
             )
         if length > size - offset - 9:
             raise _Cut(f"the file ends inside the {where} ({length} bytes declared)")
-        count.record(opcode, where)
-        if opcode == Opcode.FOOTER or (stop_at_data_end and opcode == Opcode.DATA_END):
+        count.add(1, int(opcode == Opcode.MESSAGE), lambda: where)  # noqa: B023
+        if opcode in (Opcode.FOOTER, Opcode.DATA_END):
             return
-        if opcode == Opcode.CHUNK and not chunks:
-            fh.seek(length, io.SEEK_CUR)
+        if opcode == Opcode.MESSAGE:
+            if not MESSAGE_HEAD <= length <= limits.max_message_bytes + MESSAGE_HEAD:
+                raise McapLogError(f"{where}: a message record of {length} bytes")
+            msg = _message(memoryview(fh.read(length)), 0, length, accept)
+            if msg is not None:
+                yield msg
             continue
-        if opcode not in _PARSERS:  # indexes, statistics, attachments, unknown: skipped
-            fh.seek(length, io.SEEK_CUR)
+        if opcode not in _PARSERS or (opcode == Opcode.CHUNK and not chunks):
+            fh.seek(length, io.SEEK_CUR)  # indexes, statistics, attachments, unknown: skipped
             continue
-        if opcode == Opcode.MESSAGE and length - MESSAGE_HEAD > limits.max_message_bytes:
-            raise McapLogError(f"{where}: a message of {length} bytes, over the limit")
         record = _parse(opcode, fh.read(length), where)
         if isinstance(record, Chunk):
-            yield from _chunk_records(_decompress(record, limits, where), offset, count, wanted)
+            yield from _chunk_records(_decompress(record, limits, where), offset, count, accept)
         else:
             yield record
 
@@ -258,19 +290,28 @@ def iter_messages(
     wanted = None if topics is None else set(topics)
     schemas: dict[int, Schema] = {}
     channels: dict[int, Channel] = {}
+    taken: set[int] = set()  # the ids of the channels read
+
+    def accept(channel_id: int) -> bool:
+        if channel_id in taken:
+            return True
+        if channel_id not in channels:
+            raise McapLogError(f"a message on channel {channel_id}, never defined before it")
+        return False
+
     fh = _open(path)
     try:
-        for rec in _records(fh, limits, chunks=True):
+        for rec in _records(fh, limits, chunks=True, accept=accept):
             if isinstance(rec, Schema):
                 schemas[rec.id] = rec
             elif isinstance(rec, Channel):
                 channels[rec.id] = rec
+                if wanted is None or rec.topic in wanted:
+                    taken.add(rec.id)
+                else:
+                    taken.discard(rec.id)
             elif isinstance(rec, Message):
-                ch = channels.get(rec.channel_id)
-                if ch is None:
-                    raise McapLogError(f"a message on channel {rec.channel_id}, never defined")
-                if wanted is not None and ch.topic not in wanted:
-                    continue
+                ch = channels[rec.channel_id]
                 schema = schemas.get(ch.schema_id)
                 name = "" if schema is None else schema.name
                 yield McapMessage(ch.topic, rec.log_time, rec.data, ch.message_encoding, name)
