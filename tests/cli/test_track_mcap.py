@@ -32,6 +32,7 @@ from tests.support.hostile_mcap import (
     head_records,
     message,
     png,
+    record,
     run_measured,
     tiny_messages,
     valid_log,
@@ -96,10 +97,15 @@ def test_a_zstd_chunk_of_1_gib_zeros_and_one_declaring_1_pib_are_refused(tmp_pat
         tmp_path, "lying.mcap", finish(head_records() + chunk(b"", data=bomb, declared_size=MiB))
     )
     pib = _bytes(tmp_path, "pib.mcap", finish(head_records() + chunk(b"", declared_size=2**50)))
+    # a chunk whose compressed data field declares 1 PiB (the record itself 50 bytes)
+    body = struct.pack("<QQQI", 0, 0, 100, 0) + struct.pack("<I", 4) + b"zstd"
+    body += struct.pack("<Q", 2**50) + bytes(10)
+    field = _bytes(tmp_path, "field.mcap", finish(head_records() + record(Opcode.CHUNK, body)))
     assert honest.stat().st_size < 64 * 1024
     _refused(honest, tmp_path, "over the limit")
     _refused(lying, tmp_path, "holds more")
     _refused(pib, tmp_path, "1125899906842624 bytes uncompressed, over the limit")
+    _refused(field, tmp_path, "a field of 1125899906842624 bytes runs past its record")
 
 
 def test_a_chunk_of_200_mb_of_zero_records_is_refused(tmp_path: Path) -> None:
