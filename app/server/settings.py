@@ -34,6 +34,7 @@ from pydantic import Field, field_validator
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
 from app import resources as paths
+from app.calibration.plausibility import DEFAULT_MAX_PIXELS as DEFAULT_MAX_CALIBRATION_PIXELS
 from app.sim.plant import DEFAULT_PLANT
 from app.sim.sim_config import Plant
 
@@ -254,7 +255,7 @@ class Settings(BaseSettings):
         description="largest uploaded image (width × height), checked on the header",
     )
     max_calibration_pixels: int = Field(
-        4096 * 4096,
+        DEFAULT_MAX_CALIBRATION_PIXELS,
         ge=1,
         description="largest calibration image_size (width × height) PUT /calibration accepts",
     )

@@ -18,7 +18,10 @@ pushed pair waits unread for ``AAR_STREAM_STALL_S`` — is reopened by a watchdo
 (``aar-stream-watchdog``) after a back-off (``AAR_STREAM_RESTART_BACKOFF_S``, doubling up to
 ``AAR_STREAM_RESTART_BACKOFF_MAX_S``; back to the start after a source ran 30 s). Meanwhile
 :meth:`StreamService.health` says ``degraded`` with the reason (``/healthz``, ``/metrics``,
-the page), and a pusher into the failed source is closed with 1013 and the reason.
+the page), and a pusher into the failed source is closed with 1013 and the reason. A file
+whose data turns out corrupt mid-way (:class:`~app.streams.frames.SourceCorrupt`: an MCAP
+message that does not parse) is not reopened — it would meet the same bytes — but stays
+``failed`` and ``degraded`` with the reason; only a clean end of file is ``ended``.
 """
 
 from __future__ import annotations
@@ -36,7 +39,7 @@ from app.server.schemas import StreamInfo
 from app.server.settings import Settings
 from app.server.telemetry_bus import TelemetryBus
 from app.server.tick_loop import TickLoop
-from app.streams.frames import EndOfStream, SourceError
+from app.streams.frames import EndOfStream, SourceCorrupt, SourceError
 from app.streams.processor import StreamProcessor
 from app.streams.protocol import PushMessage
 from app.streams.sources import (
@@ -91,7 +94,7 @@ class StreamService:
         self.source: FrameSourceT | None = None
         self.processor: StreamProcessor | None = None
         self.spec = "sim"
-        self.state = "sim"  # sim | running | restarting | ended
+        self.state = "sim"  # sim | running | restarting | ended | failed
         self.last_error: str | None = None
         self.errors = 0
         self.frames = 0
@@ -359,7 +362,9 @@ class StreamService:
         rate = round(source.stats.fps(), 3) if source is not None and state == "running" else 0.0
         limit = self.settings.stream_failure_streak
         reason: str | None = None
-        if failure is not None:
+        if state == "failed":  # corrupt data: final, a restart would meet it again
+            reason = f"{spec}: {self.last_error}"
+        elif failure is not None:
             wait = 0.0 if restart_at is None else max(0.0, restart_at - time.monotonic())
             reason = f"{spec}: restarting in {wait:.1f} s after: {failure}"
         elif streak >= limit:
@@ -448,6 +453,15 @@ class StreamService:
                     log.info("frame source %s ended", source.spec)
                 else:  # a camera that stopped delivering, a push source closed under us
                     self._fail(gen, f"the source ended: {exc}", stop)
+                return
+            except SourceCorrupt as exc:
+                if stop.is_set():
+                    return
+                self.errors += 1
+                self.last_error = str(exc)
+                with self._flock:
+                    self.state = "failed"
+                log.error("frame source %s failed: %s", source.spec, exc)
                 return
             except Exception as exc:
                 self.errors += 1

@@ -22,6 +22,11 @@ class SourceError(ValueError):
     """A source spec that cannot be opened (missing file, no device, bad syntax)."""
 
 
+class SourceCorrupt(SourceError):
+    """A finite source whose data turns out corrupt after it was opened (a message of an MCAP
+    log that does not parse): final, reopening it would meet the same bytes again."""
+
+
 class EndOfStream(Exception):
     """Raised by ``read`` when a finite source (files, a recording) has no more pairs."""
 

@@ -39,7 +39,7 @@ from fastapi.testclient import TestClient
 from starlette.testclient import WebSocketDenialResponse
 from starlette.websockets import WebSocketDisconnect
 
-from app.server import calibration_checks
+from app.calibration import plausibility as calibration_checks
 from app.server.image_guard import ImageHeaderError, peek_header
 from app.server.main import create_app
 from app.server.settings import Settings

@@ -1,7 +1,7 @@
 """``GET``/``PUT /calibration`` and rollback.
 
 A new calibration is validated for form (``StereoCalibration.from_dict``), unknown fields and
-physical plausibility (``app.server.calibration_checks``) before anything uses it; a refused
+physical plausibility (``app.calibration.plausibility``) before anything uses it; a refused
 one is dropped (nothing keeps a reference to it).
 """
 
@@ -12,8 +12,8 @@ from typing import Annotated, Any
 from fastapi import APIRouter, Body, Depends, HTTPException, status
 from fastapi.responses import JSONResponse
 
+from app.calibration.plausibility import validated
 from app.geometry.calibration import CalibrationError
-from app.server.calibration_checks import validated
 from app.server.dependencies import StateDep, require_token
 
 router = APIRouter(prefix="/calibration", tags=["calibration"])

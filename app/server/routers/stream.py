@@ -40,7 +40,9 @@ ERROR_INTERVAL_S = 1.0
 class StreamStatus(BaseModel):
     source: str = Field(description="active source spec: sim, push, video:..., camera:...")
     kind: str
-    state: str = Field(description="sim | running | restarting | ended")
+    state: str = Field(
+        description="sim | running | restarting | ended | failed (corrupt data: see health)"
+    )
     health: str = Field("ok", description="ok | degraded (the source failed, stalled)")
     health_reason: str | None = None
     restarts: int = Field(0, description="times the source was reopened after a failure")

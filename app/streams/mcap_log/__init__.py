@@ -34,10 +34,18 @@ from app.streams.mcap_log.channels import (
 )
 from app.streams.mcap_log.export import export_recording
 from app.streams.mcap_log.messages import camera_calibration, right_in_left, z_to
-from app.streams.mcap_log.reader import McapMessage, is_complete, iter_messages, read_metadata
+from app.streams.mcap_log.reader import (
+    DEFAULT_LIMITS,
+    McapMessage,
+    ReadLimits,
+    is_complete,
+    iter_messages,
+    read_metadata,
+)
 from app.streams.mcap_log.writer import FoxgloveLogger, McapLogWriter, close_open_loggers
 
 __all__ = [
+    "DEFAULT_LIMITS",
     "FORMAT",
     "METADATA_NAME",
     "TOPICS",
@@ -57,6 +65,7 @@ __all__ = [
     "McapStats",
     "McapTick",
     "RawPair",
+    "ReadLimits",
     "camera_calibration",
     "close_open_loggers",
     "encode_image",

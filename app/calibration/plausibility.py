@@ -1,4 +1,6 @@
-"""Physical plausibility of a calibration before the service accepts it (``PUT /calibration``).
+"""Physical plausibility of a calibration before it is used: ``PUT /calibration`` and the
+calibration stored in an MCAP log (:func:`app.streams.mcap_source.mcap_calibration`) pass the
+same checks and fail with the same message.
 
 ``StereoCalibration.from_dict`` checks the *form* (shapes, finite numbers, a rotation, a
 non-zero baseline). A calibration can be well-formed and still break the service: fx = 1e-320
@@ -6,7 +8,8 @@ makes every simulated step fail, |T| = 1e300 or k1 = 1e200 overflow the projecti
 8000 × 6000 image makes each tick render 48 Mpx. The bounds below are generous for any real
 camera of this project (the paper's rig: fx ≈ 2400 px, |T| ≈ 115 mm, |k| < 0.2):
 
-* image size: each side in [16, 16384] px and width × height ≤ ``AAR_MAX_CALIBRATION_PIXELS``;
+* image size: each side in [16, 16384] px and width × height ≤ ``AAR_MAX_CALIBRATION_PIXELS``
+  (:data:`DEFAULT_MAX_PIXELS`);
 * fx, fy in [50, 1e5] px (a 1 px sensor at 1e5 px focal length is a 0.0006° field of view);
 * principal point inside the image; |skew γ| < 0.1 · fx;
 * |T| in [1, 10000] mm;
@@ -14,7 +17,8 @@ camera of this project (the paper's rig: fx ≈ 2400 px, |T| ≈ 115 mm, |k| < 0
   within the image (otherwise it folds: two rays land on one pixel and undistortion has no
   unique answer).
 
-Each failure is a :class:`CalibrationError` naming the field (→ 422 ``{"detail", "field"}``).
+Each failure is a :class:`CalibrationError` naming the field (the service answers 422
+``{"detail", "field"}``).
 """
 
 from __future__ import annotations
@@ -32,6 +36,7 @@ FOCAL_RANGE = (50.0, 1e5)
 SKEW_FRACTION = 0.1
 BASELINE_RANGE_MM = (1.0, 10000.0)
 DIST_MAX = 10.0
+DEFAULT_MAX_PIXELS = 4096 * 4096  # AAR_MAX_CALIBRATION_PIXELS
 
 
 def check_keys(data: Any) -> None:
