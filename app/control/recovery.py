@@ -15,11 +15,17 @@ rad/s) with the model's control effectiveness ``L_δa = ∂ṗ/∂δa``, ``M_δe
   a PI correction on the sink rate ``ż`` flown (a lighter aircraft or the tanker's downwash
   would otherwise turn the descent into a climb);
 * aileron: ``δa = −(ω_φ² (φ − φ_c) + 2 ζ ω_φ p) / L_δa`` with
-  ``φ_c = clip(−k_ψ ẏ / V, ±10°)`` — wings level on the tanker's track: ``ẏ / V`` is the
-  receiver's track angle relative to the tanker's (small angles; ``ẏ`` its measured sideways
-  speed relative to the tanker, ``V`` the airspeed). Holding the heading alone let a gust's
-  side velocity drift the receiver 15–150 m sideways in a break-away, and the LQR took over
-  with a large side velocity; no turn towards the drogue either way;
+  ``φ_c = clip(−k_ψ (ẏ − ẏ_c) / V, ±10°)`` — wings level on the tanker's track: ``ẏ / V`` is
+  the receiver's track angle relative to the tanker's (small angles; ``ẏ`` its measured
+  sideways speed relative to the tanker, ``V`` the airspeed), and ``ẏ_c = clip(−k_y y_o,
+  ±side_return_max_mps)`` brings it slowly back to the lateral station it held when the
+  take-over began (``y_o`` its offset from there, tanker frame) — the tanker's line, not the
+  drogue's swing. Holding the heading alone let a gust's side velocity drift the receiver
+  15–150 m sideways in a break-away, and the LQR took over with a large side velocity;
+  holding the track alone still let moderate turbulence carry it ≈ 20 m aside, out of the
+  cameras' view for the rejoin. No turn towards the drogue either way; ``(ÿ = g φ)`` the
+  lateral loop is ``ÿ + (g k_ψ/V) ẏ + (g k_ψ k_y/V) y_o = 0``: ω ≈ 0.18 rad/s, ζ ≈ 0.9 at
+  230 KCAS;
 * rudder: ``δr = −(2 ζ ω_ψ r) / N_δr`` — a yaw damper;
 * speed brakes (:meth:`RecoveryLaw.speedbrake`): out while short of the standoff and faster
   than the drop-back speed, in otherwise (the A-4's add ΔC_D 0.021: with the engine at idle
@@ -51,7 +57,9 @@ class RecoveryGains:
     sink_mps: float = 3.0  # the descent's sink rate
     sink_gain: float = 2.0  # k_z (per unit: m/s of sink-rate error per m/s)
     sink_integral_per_s: float = 0.5  # k_i
-    heading_gain: float = 2.0  # k_ψ (rad of bank per rad of track angle)
+    heading_gain: float = 4.0  # k_ψ (rad of bank per rad of track angle)
+    side_position_gain: float = 0.1  # k_y (m/s of sideways speed per m of offset)
+    side_return_max_mps: float = 1.0  # the most sideways speed it commands back to station
     bank_max_deg: float = 10.0
     omega_roll_rad_s: float = 2.0
     omega_pitch_rad_s: float = 2.0
@@ -96,11 +104,13 @@ class RecoveryLaw:
         aft_m: float,
         below_m: float,
         side_speed_mps: float = 0.0,
+        side_offset_m: float = 0.0,
     ) -> FloatArray:
         """Command deviation from trim (throttle, aileron, elevator, rudder) for the
         perturbation state ``x_dev`` (u v w p q r φ θ ψ x y z), the speed relative to the
         tanker ``speed_mps`` (forward +), the sink rate (down +), the distances aft of and
-        below the drogue (m) and the sideways speed relative to the tanker (m/s, right +)."""
+        below the drogue (m), the sideways speed relative to the tanker (m/s, right +) and the
+        sideways offset from the station held when the take-over began (m, right +)."""
         g = self.gains
         p, q, r, phi, theta = x_dev[3], x_dev[4], x_dev[5], x_dev[6], x_dev[7]
         v_c = -g.drop_back_mps if aft_m < g.standoff_aft_m else 0.0
@@ -112,7 +122,12 @@ class RecoveryLaw:
         theta_c = -(zdot_c + g.sink_gain * err + g.sink_integral_per_s * self.sink_error_integral)
         theta_c /= self.airspeed_mps
         bank_max = math.radians(g.bank_max_deg)
-        track = side_speed_mps / self.airspeed_mps  # rad, relative to the tanker's track
+        side_c = float(
+            np.clip(
+                -g.side_position_gain * side_offset_m, -g.side_return_max_mps, g.side_return_max_mps
+            )
+        )
+        track = (side_speed_mps - side_c) / self.airspeed_mps  # rad, from the track wanted
         phi_c = float(np.clip(-g.heading_gain * track, -bank_max, bank_max))
         wr, wp, wy, z = g.omega_roll_rad_s, g.omega_pitch_rad_s, g.omega_yaw_rad_s, g.damping
         throttle = float(

@@ -50,6 +50,11 @@ class GuidanceConfig:
     # pre-contact position, 3–4.5 m in practice) at ``rejoin_speed_mps``
     rejoin_gap_m: float = 5.0
     rejoin_speed_mps: float = 1.0
+    # farther than ``rejoin_far_m`` beyond the pre-contact gap the rejoin closes at
+    # ``rejoin_far_speed_mps`` (the break-away's drop-back carries the receiver 20–30 m aft;
+    # at 1 m/s all the way the rejoin alone took ≈ 25 s of a 90 s run)
+    rejoin_far_m: float = 10.0
+    rejoin_far_speed_mps: float = 2.0
     rejoin_dwell_s: float = 4.0  # stabilised at the pre-contact position this long, then close
 
 
@@ -67,6 +72,7 @@ class ReferenceGenerator:
         self.committed = False
         self.gap_rate = 0.0  # m/s, the commanded gap's rate (negative: closing)
         self.rejoin_below_m = 0.0  # rejoin: the reference's height below the drogue (m)
+        self.rejoin_side_m = 0.0  # rejoin: the reference's offset to the drogue's right (m)
         self.rejoin_dwell = 0.0  # s at the pre-contact position
 
     @property
@@ -90,31 +96,43 @@ class ReferenceGenerator:
         self.gap_cmd += self.gap_rate * dt
         return self.gap_rate
 
-    def start_rejoin(self, gap_m: float, below_m: float) -> None:
-        """Take over from the break-away at ``gap_m`` behind and ``below_m`` below the drogue
-        (the reference starts where the probe is and moves back at a bounded speed)."""
+    def start_rejoin(self, gap_m: float, below_m: float, side_m: float = 0.0) -> None:
+        """Take over from the break-away at ``gap_m`` behind, ``below_m`` below and ``side_m``
+        to the right of the drogue (the reference starts where the probe is and moves back at
+        a bounded speed)."""
         self.phase = "rejoin"
         self.gap_cmd = float(gap_m)
         self.rejoin_below_m = max(float(below_m), 0.0)
+        self.rejoin_side_m = float(side_m)
         self.rejoin_dwell = 0.0
         self.gap_rate = 0.0
         self.committed = False
 
-    def _rejoin_step(self, dt: float) -> float:
-        """One tick of the rejoin; returns the gap's rate (m/s)."""
+    def _rejoin_step(self, dt: float) -> tuple[float, float, float]:
+        """One tick of the rejoin; returns the rates (m/s) of the gap, of the height below
+        and of the offset to the side."""
         c = self.cfg
         step = c.rejoin_speed_mps * dt
-        self.rejoin_below_m = max(self.rejoin_below_m - step, 0.0)
+        below_step = min(step, self.rejoin_below_m)
+        side_step = float(np.clip(self.rejoin_side_m, -step, step))
+        self.rejoin_below_m -= below_step
+        self.rejoin_side_m -= side_step
         rate = 0.0
         if self.gap_cmd > c.rejoin_gap_m:
-            move = min(step, self.gap_cmd - c.rejoin_gap_m)
+            far = self.gap_cmd > c.rejoin_gap_m + c.rejoin_far_m
+            speed = c.rejoin_far_speed_mps if far else c.rejoin_speed_mps
+            move = min(speed * dt, self.gap_cmd - c.rejoin_gap_m)
             self.gap_cmd -= move
             rate = -move / dt
-        if self.rejoin_below_m == 0.0 and self.gap_cmd <= c.rejoin_gap_m + 1e-9:
+        if (
+            self.rejoin_below_m == 0.0
+            and self.rejoin_side_m == 0.0
+            and self.gap_cmd <= c.rejoin_gap_m + 1e-9
+        ):
             self.rejoin_dwell += dt
             if self.rejoin_dwell >= c.rejoin_dwell_s:
                 self.phase = "approach"
-        return rate
+        return rate, -below_step / dt, -side_step / dt
 
     def start_backoff(self) -> None:
         self.phase = "backoff"
@@ -146,10 +164,10 @@ class ReferenceGenerator:
             vel = np.array([c.push_in_m / c.push_in_time_s if frac < 1 else 0.0, 0.0, 0.0])
             return ref, vel
         gap_rate = 0.0
-        below = 0.0
+        below = side = below_rate = side_rate = 0.0
         if self.phase == "rejoin":
-            gap_rate = self._rejoin_step(dt)
-            below = self.rejoin_below_m
+            gap_rate, below_rate, side_rate = self._rejoin_step(dt)
+            below, side = self.rejoin_below_m, self.rejoin_side_m
         elif self.phase == "backoff":
             if self.gap_cmd < c.backoff_gap_m:
                 self.gap_cmd += c.backoff_speed_mps * dt
@@ -178,6 +196,6 @@ class ReferenceGenerator:
             self.gap_rate = gap_rate
         if self.phase in ("approach", "final"):
             self.phase = "final" if self.gap_cmd <= c.final_gap_m else "approach"
-        ref = np.asarray(drogue_pos, float) - np.array([self.gap_cmd, 0.0, -below])
-        vel = np.asarray(drogue_vel, float) - np.array([gap_rate, 0.0, 0.0])
+        ref = np.asarray(drogue_pos, float) - np.array([self.gap_cmd, -side, -below])
+        vel = np.asarray(drogue_vel, float) - np.array([gap_rate, -side_rate, -below_rate])
         return ref, vel

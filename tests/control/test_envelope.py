@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 
 from app.control.envelope import (
     EnvelopeBounds,
@@ -87,3 +88,21 @@ def test_recovery_law_levels_the_wings_pulls_power_and_holds_a_descent() -> None
     law.reset()
     u3 = law.command(np.zeros(12), speed_mps=0.0, sink_rate_mps=0.0, aft_m=12.0, below_m=4.0)
     assert u3[0] == 0.0
+
+
+def test_recovery_law_drifts_back_to_its_lateral_station_slowly() -> None:
+    """Off to the right of the station it held at the take-over, with no side speed: the law
+    banks left, gently (the commanded side speed is capped), and not at all on station."""
+    model = design_for(DockingConfig(plant="jsbsim", vision=False)).design.model
+    law = RecoveryLaw(model)
+    on_station = law.command(np.zeros(12), 0.0, 0.0, 12.0, 4.0, 0.0, 0.0)
+    assert on_station[1] == 0.0
+    right = law.command(np.zeros(12), 0.0, 0.0, 12.0, 4.0, 0.0, 8.0)
+    assert right[1] * model.b[3, 1] < 0  # rolls left, back towards the station
+    far_right = law.command(np.zeros(12), 0.0, 0.0, 12.0, 4.0, 0.0, 80.0)
+    # the side speed asked for is capped (1 m/s): 80 m off asks no more than 10 m off
+    ten = law.command(np.zeros(12), 0.0, 0.0, 12.0, 4.0, 0.0, 10.0)
+    assert far_right[1] == pytest.approx(ten[1])
+    # moving back at the capped speed already: no more bank
+    back = law.command(np.zeros(12), 0.0, 0.0, 12.0, 4.0, -1.0, 80.0)
+    assert back[1] == pytest.approx(0.0, abs=1e-12)

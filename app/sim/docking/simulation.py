@@ -558,8 +558,11 @@ class DockingSimulation:
             d_est = aim.drogue_raw_m
             aft, below = float(d_est[0] - tip_hat[0]), float(tip_hat[2] - d_est[2])
             speed, side, sink = (float(v) for v in tip_vel_hat)
+            if self._rta_station_y_m is None:  # the lateral station the take-over holds
+                self._rta_station_y_m = float(tip_hat[1])
+            side_offset = float(tip_hat[1]) - self._rta_station_y_m
             self.u_applied = self.act.apply(
-                self.recovery.command(x_hat, speed, sink, aft, below, side)
+                self.recovery.command(x_hat, speed, sink, aft, below, side, side_offset)
             )
             self._plant.set_speedbrake(self.recovery.speedbrake(speed, aft))
             self.lqr.hand_over(self.u_applied)
@@ -721,6 +724,7 @@ class DockingSimulation:
 
     def _start_rta(self, reason: str) -> None:
         self.rta_reason = reason
+        self._rta_station_y_m = None  # set from the first estimate the recovery law flies on
         self.recovery.reset(self.dt)
         self.rta_events.append(RtaEvent(self.t, "recovery", reason))
 
@@ -734,7 +738,7 @@ class DockingSimulation:
         self.lqr.hand_over(self.u_applied)
         gap = float(drogue_m[0] - tip_m[0])
         below = float(tip_m[2] - drogue_m[2])
-        self.guidance.start_rejoin(gap, below)
+        self.guidance.start_rejoin(gap, below, float(tip_m[1] - drogue_m[1]))
 
     def _monitor(self, tip: FloatArray, d_pos: FloatArray) -> None:
         """Step 7: the run-time assurance's monitor on the flown state (the plant's own
