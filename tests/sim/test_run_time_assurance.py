@@ -141,3 +141,22 @@ def test_a_break_away_in_a_steady_crosswind_holds_the_tankers_track() -> None:
     side_speed = (y[-1] - y[-26]) / (25 * sim.dt)  # m/s over the last half second
     assert abs(side_speed) < 1.0  # heading hold: 1.7 m/s
     assert abs(y[-1] - y[0]) < 3.0  # m drifted over the whole break-away (heading hold: 5.7)
+
+
+def test_the_probe_across_the_rim_while_breaking_away_is_a_rim_strike() -> None:
+    """A break-away 0.4 m short of the drogue cannot stop the probe before the drogue's plane:
+    if the head then crosses the rim it strikes it, whatever the guidance intended (a crossing
+    while breaking away used to be ignored altogether)."""
+    sim = DockingSimulation(
+        DockingConfig(turbulence="none", imperfections="none", seed=1, vision=False)
+    )
+    while float(sim.drogue.position_m[0] - sim.probe_tip()[0]) > 0.4:
+        sim.step()
+    offset = float(sim.drogue.position_m[1] - sim.probe_tip()[1])
+    sim.drogue.d[1] += 0.305 - offset  # the rim straight ahead of the probe head
+    sim.break_away("forced by the test")
+    while not sim.done and sim.t < 20.0:
+        sim.step()
+    out = sim.outcome()
+    assert out.outcome == "rim_strike" and "while breaking away" in (out.reason or "")
+    assert not out.captured

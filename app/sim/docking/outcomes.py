@@ -10,7 +10,8 @@ Outcome classes, in order of precedence (a safety event outranks everything afte
 * ``keep_out`` — the receiver inside the tanker's or the hose's keep-out zone;
 * ``captured`` — the probe head entered inside the rim less its radius at a closure inside the
   latch window (1.0–2.6 m/s), and the run ended without a safety event;
-* ``rim_strike`` — the probe head crossed the drogue's plane across the rim;
+* ``rim_strike`` — the probe head crossed the drogue's plane across the rim (in an attempt or
+  while breaking away);
 * ``missed`` — the break-aways used up, the last after a crossing outside the rim or outside
   the latch window;
 * ``aborted`` — the break-aways used up otherwise, or the time ran out.

@@ -606,7 +606,7 @@ class DockingSimulation:
     ) -> DockingTick:
         """Steps 5–7 of the tick: propagate, the contact check, the run-time assurance's
         monitor; then the tick's record."""
-        cfg, dt, g = self.config, self.dt, self.guidance
+        dt, g = self.dt, self.guidance
         self.max_sat = max(self.max_sat, self.act.saturation())
         # 5. propagate plant (the design model, or the perturbed aircraft), gusts, drogue
         # one frozen gust field: the drogue meets it now, the receiver's CG gap / V later
@@ -640,40 +640,12 @@ class DockingSimulation:
         self._monitor(tip, d_pos)
         if self.classifier.diverged:
             tip, d_pos = self._prev_tip, self._prev_drogue  # the last finite values
-        elif not self.captured and self.rta_reason is None:
-            # (a crossing while breaking away is not an attempt: the coupling is not flown)
-            s_prev = float(self._prev_normal @ (self._prev_tip - self._prev_drogue))
-            s_now = float(n @ (tip - d_pos))
-            if s_prev > 0.0 >= s_now:
-                lam = s_prev / (s_prev - s_now)
-                tip_c = self._prev_tip + lam * (tip - self._prev_tip)
-                d_c = self._prev_drogue + lam * (d_pos - self._prev_drogue)
-                n_c = n
-                rel_c = tip_c - d_c
-                radial = rel_c - (rel_c @ n_c) * n_c
-                miss_now = float(np.linalg.norm(radial))
-                closure = (s_prev - s_now) / dt
-                self.miss, self.closure = miss_now, closure
-                v_rel = ((tip - self._prev_tip) - (d_pos - self._prev_drogue)) / dt
-                lateral = float(np.linalg.norm(v_rel - (v_rel @ n_c) * n_c))
-                kind = self.contact.crossing(
-                    miss_now,
-                    closure,
-                    lateral,
-                    cfg.capture_radius_m,
-                    cfg.probe_head_radius_m,
-                    (cfg.min_closure_mps, cfg.max_closure_mps),
-                )
-                if kind == "captured":
-                    self.captured = captured_now = True
-                    self.capture_time = self.t
-                    g.mark_contact(tip)
-                elif kind == "rim_strike":
-                    self.classifier.mark("rim_strike", self.contact.last_reason)
-                    self.break_away(self.contact.last_reason)
-                else:
-                    self.classifier.last_miss = self.contact.last_reason
-                    self.break_away(self.contact.last_reason)
+        elif not self.captured:
+            crossing = self._plane_crossing(tip, d_pos, n, dt)
+            if crossing is not None:
+                attempt = self.rta_reason is None  # (not while breaking away)
+                captured_now = self._judge_crossing(tip, *crossing)
+                miss_now = crossing[0] if attempt else None
         self._prev_tip, self._prev_drogue, self._prev_normal = tip, d_pos, n
         phase = "contact" if captured_now else ("breakaway" if self.rta_reason else g.phase)
         state_abs = self.x.copy()
@@ -707,6 +679,60 @@ class DockingSimulation:
             rta_reason=self.rta_reason,
             run_outcome=self.outcome().outcome if self.done else None,
         )
+
+    def _plane_crossing(
+        self, tip: FloatArray, d_pos: FloatArray, n: FloatArray, dt: float
+    ) -> tuple[float, float, float] | None:
+        """The probe tip's crossing of the drogue's plane this tick, if any: the radial miss
+        (m), the closure and the lateral speed across the drogue's axis (m/s) at the crossing."""
+        s_prev = float(self._prev_normal @ (self._prev_tip - self._prev_drogue))
+        s_now = float(n @ (tip - d_pos))
+        if not s_prev > 0.0 >= s_now:
+            return None
+        lam = s_prev / (s_prev - s_now)
+        tip_c = self._prev_tip + lam * (tip - self._prev_tip)
+        d_c = self._prev_drogue + lam * (d_pos - self._prev_drogue)
+        rel_c = tip_c - d_c
+        radial = rel_c - (rel_c @ n) * n
+        v_rel = ((tip - self._prev_tip) - (d_pos - self._prev_drogue)) / dt
+        lateral = float(np.linalg.norm(v_rel - (v_rel @ n) * n))
+        return float(np.linalg.norm(radial)), (s_prev - s_now) / dt, lateral
+
+    def _judge_crossing(self, tip: FloatArray, miss: float, closure: float, lateral: float) -> bool:
+        """Step 6: a crossing of the drogue's plane judged as the field does
+        (:class:`~app.sim.docking.outcomes.ContactReport`); True on a capture. While breaking
+        away the coupling is not flown — no capture and no new break-away — but the probe head
+        across the rim is a rim strike all the same."""
+        cfg = self.config
+        if self.rta_reason is not None:
+            inner = cfg.capture_radius_m - cfg.probe_head_radius_m
+            outer = cfg.capture_radius_m + cfg.probe_head_radius_m
+            if inner < miss <= outer:
+                self.miss, self.closure = miss, closure
+                self.contact.rim_strikes += 1
+                reason = f"rim strike while breaking away: probe head {miss:.3f} m from the centre"
+                self.classifier.mark("rim_strike", reason)
+            return False
+        self.miss, self.closure = miss, closure
+        kind = self.contact.crossing(
+            miss,
+            closure,
+            lateral,
+            cfg.capture_radius_m,
+            cfg.probe_head_radius_m,
+            (cfg.min_closure_mps, cfg.max_closure_mps),
+        )
+        if kind == "captured":
+            self.captured = True
+            self.capture_time = self.t
+            self.guidance.mark_contact(tip)
+            return True
+        if kind == "rim_strike":
+            self.classifier.mark("rim_strike", self.contact.last_reason)
+        else:
+            self.classifier.last_miss = self.contact.last_reason
+        self.break_away(self.contact.last_reason)
+        return False
 
     def break_away(self, reason: str = "break-away") -> None:
         """Break away as the field flies it: the recovery law (power back, wings level, drop
