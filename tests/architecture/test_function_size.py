@@ -14,7 +14,6 @@ LIMIT_LINES = 120
 KNOWN_LONG = {
     ("calibration/stereo_calibration.py", "calibrate_from_detections"),
     ("server/connection_guard.py", "protocol_classes"),
-    ("server/metrics.py", "render_metrics"),
     ("sim/stereo_render/renderer.py", "render_pair"),
     ("vision/pipeline.py", "_solve"),
 }

@@ -138,7 +138,7 @@ def test_state_history_health_metrics(client: TestClient) -> None:
     m = client.get("/api/v1/metrics")
     assert m.status_code == 200 and m.headers["content-type"].startswith("text/plain")
     assert "aar_ticks_total" in m.text and "aar_ticks_dropped_total" in m.text
-    assert 'aar_stage_latency_ms{stage="step",quantile="0.5"}' in m.text
+    assert 'aar_stage_latency_ms{quantile="0.5",stage="step"}' in m.text
     cfg = client.get("/api/v1/config").json()
     assert cfg["image_size"] == [1280, 1024] and cfg["viser_url"] is None
 
