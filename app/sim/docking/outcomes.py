@@ -22,6 +22,10 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+import numpy as np
+
+from app.types import FloatArray
+
 OUTCOMES = ("captured", "rim_strike", "missed", "aborted", "departure", "keep_out", "error")
 #: closure above this at contact: the hose whips (m/s; 5 kt)
 WHIP_CLOSURE_MPS = 2.6
@@ -35,6 +39,37 @@ class RtaEvent:
     t_s: float
     kind: str
     reason: str
+
+
+@dataclass(frozen=True)
+class PlaneCrossing:
+    """The probe tip crossing the drogue's plane: its radial miss from the drogue's centre
+    (m), the closure and the lateral speed across the drogue's axis (m/s) at the crossing."""
+
+    miss_m: float
+    closure_mps: float
+    lateral_mps: float
+
+
+def plane_crossing(
+    before: tuple[FloatArray, FloatArray, FloatArray],
+    now: tuple[FloatArray, FloatArray, FloatArray],
+    dt: float,
+) -> PlaneCrossing | None:
+    """The crossing between two ticks (each: probe tip, drogue centre, drogue normal aft; m,
+    tanker frame), interpolated linearly to the instant the tip reaches the plane; None if
+    the tip did not go from aft of the plane to on or past it."""
+    (tip0, d0, n0), (tip, d, n) = before, now
+    s_prev = float(n0 @ (tip0 - d0))
+    s_now = float(n @ (tip - d))
+    if not s_prev > 0.0 >= s_now:
+        return None
+    lam = s_prev / (s_prev - s_now)
+    rel = (tip0 + lam * (tip - tip0)) - (d0 + lam * (d - d0))
+    radial = rel - (rel @ n) * n
+    v_rel = ((tip - tip0) - (d - d0)) / dt
+    lateral = float(np.linalg.norm(v_rel - (v_rel @ n) * n))
+    return PlaneCrossing(float(np.linalg.norm(radial)), (s_prev - s_now) / dt, lateral)
 
 
 @dataclass
@@ -80,6 +115,16 @@ class ContactReport:
         self.capture_closure_mps = closure_mps
         self.last_reason = "captured"
         return "captured"
+
+    def strike_while_breaking_away(
+        self, miss_m: float, rim_radius_m: float, head_radius_m: float
+    ) -> str | None:
+        """A crossing while breaking away (no attempt): the reason if the head struck the
+        rim, else None."""
+        if not rim_radius_m - head_radius_m < miss_m <= rim_radius_m + head_radius_m:
+            return None
+        self.rim_strikes += 1
+        return f"rim strike while breaking away: probe head {miss_m:.3f} m from the centre"
 
 
 @dataclass

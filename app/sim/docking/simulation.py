@@ -15,17 +15,16 @@ Frames and units
 
 One tick (default 50 Hz):
 
-1. own-state sensors (INS-like: p, q, r, φ, θ, ψ, x, y, z with noise) → state observer (eq. 19);
-2. if a camera frame is due (:mod:`app.sim.docking.vision`): render the LED ring at the true
-   drogue pose (:func:`app.sim.stereo_render.render_pair`), run :class:`NavigationPipeline`, convert
-   the fitted drogue centre to the tanker frame with the *estimated* own pose; drogue Kalman filter (gated);
-   with ``vision=False`` the true drogue centre is the measurement (ablation);
-3. reference generation (:mod:`app.control.reference`, the swing model of
-   :mod:`app.sim.docking.guidance`) and breakaway checks (:mod:`app.control.abort`);
-4. LQR with integral action (eq. 20) → rate/position-limited actuators;
-5. propagate receiver (linear model, ZOH), Dryden gusts and hose–drogue (bow wave included);
-6. capture check: at the instant the probe tip crosses the drogue plane, capture if the radial
-   miss is below ``capture_radius_m`` and the closure speed lies in 0.5–2 m/s.
+1. own-state sensors (INS-like, with noise) → state observer (eq. 19);
+2. a camera frame when due (:mod:`app.sim.docking.vision`): render the LED ring at the true
+   drogue pose, run :class:`NavigationPipeline`, the fitted centre to the tanker frame with the
+   *estimated* own pose → the drogue filter (``vision=False``: the true centre, an ablation);
+3. guidance (:mod:`app.control.reference`, :mod:`app.sim.docking.guidance`: the swing, identified
+   online) and the break-away checks (:mod:`app.control.abort`);
+4. LQR with integral action (eq. 20), or the run-time assurance's recovery law → actuators;
+5. propagate the receiver, the Dryden gusts and the hose–drogue (bow wave included);
+6. the plane crossing judged as the field does (:mod:`app.sim.docking.outcomes`: capture inside
+   the rim less the probe head's radius at a closure of 1.0–2.6 m/s, rim strike, miss).
 
 Field of view at close range: the cameras sit ``≈ 3 m`` behind the probe tip and are toed in
 towards it, so the whole 0.305 m ring stays in both images down to contact (≈ 240 px radius at
@@ -60,13 +59,19 @@ from app.geometry.rotations import euler_to_matrix, look_at_camera
 from app.resources import load_default_calibration
 from app.sim.camera_sensor import StereoCameraSensor
 from app.sim.docking.config import PLANT_GUIDANCE, DockingConfig
+from app.sim.docking.drogue_setup import flown_drogue, nominal_drogue_model
 from app.sim.docking.guidance import SwingGuidance
-from app.sim.docking.outcomes import ContactReport, RtaEvent, RunClassifier
+from app.sim.docking.outcomes import (
+    ContactReport,
+    PlaneCrossing,
+    RtaEvent,
+    RunClassifier,
+    plane_crossing,
+)
 from app.sim.docking.phases import Aim, Sensing
 from app.sim.docking.plant_design import design_for, make_plant
 from app.sim.docking.results import DockingOutcome, DockingTick
 from app.sim.docking.vision import DrogueFrame, camera_sensor, drogue_in_tanker, take_frame
-from app.sim.hose_drogue import HoseDrogue, HoseDrogueParams
 from app.sim.imperfections import (
     FrameChannel,
     ImperfectionDraw,
@@ -200,19 +205,8 @@ class DockingSimulation:
         self.turb = DrydenTurbulence(
             cfg.turbulence, trim.tas_mps, self.dt, trim.altitude_ft * 0.3048, seed=cfg.seed
         )
-        hs = self.imp_draw.hose_scale  # this run's hose and drogue (the guidance's: nominal)
-        self.drogue = HoseDrogue(
-            HoseDrogueParams(
-                hose_length_m=HoseDrogueParams.hose_length_m * hs["hose_length"],
-                hose_mass_per_m=HoseDrogueParams.hose_mass_per_m * hs["hose_mass"],
-                drogue_mass_kg=HoseDrogueParams.drogue_mass_kg * hs["drogue_mass"],
-                drogue_cd=HoseDrogueParams.drogue_cd * hs["drogue_drag"],
-                air_density=trim.air_density_kgm3,
-                airspeed_mps=trim.tas_mps,
-                drogue_radius_m=cfg.ring_radius_m,
-                bow_force_n=cfg.bow_wave_force_n * self.imp_draw.bow_scale,
-            )
-        )
+        # this run's hose and drogue (the guidance keeps the nominal model: drogue_setup)
+        self.drogue = flown_drogue(cfg, trim.air_density_kgm3, trim.tas_mps, self.imp_draw)
         # receiver at trim, probe tip start_gap behind the drogue's rest position (+ random offset)
         offset = np.concatenate([[0.0], rng.normal(0.0, cfg.start_offset_sigma_m, 2)])
         tip_start = self.drogue.eq_m - np.array([cfg.start_gap_m, 0.0, 0.0]) + offset
@@ -224,14 +218,7 @@ class DockingSimulation:
         self.u_applied = np.zeros(4)
         self.filter = DrogueFilter(history=self._latency_ticks + 1, hold_after_s=cfg.coast_limit_s)
         self.tip_tracker = AlphaBetaTracker(self.dt)
-        # the guidance's model of the drogue: the nominal hose type at this flight condition
-        # (not this run's draw — its bow-wave strength, or any other dispersion)
-        self.drogue_model = HoseDrogueParams(
-            air_density=trim.air_density_kgm3,
-            airspeed_mps=trim.tas_mps,
-            drogue_radius_m=cfg.ring_radius_m,
-            bow_force_n=cfg.bow_wave_force_n,
-        ).guidance_model()
+        self.drogue_model = nominal_drogue_model(cfg, trim.air_density_kgm3, trim.tas_mps)
         self.bow_model = BowWaveModel(self.drogue_model)
         self.guidance = ReferenceGenerator(
             GuidanceConfig(
@@ -641,11 +628,12 @@ class DockingSimulation:
         if self.classifier.diverged:
             tip, d_pos = self._prev_tip, self._prev_drogue  # the last finite values
         elif not self.captured:
-            crossing = self._plane_crossing(tip, d_pos, n, dt)
+            prev = (self._prev_tip, self._prev_drogue, self._prev_normal)
+            crossing = plane_crossing(prev, (tip, d_pos, n), dt)
             if crossing is not None:
                 attempt = self.rta_reason is None  # (not while breaking away)
-                captured_now = self._judge_crossing(tip, *crossing)
-                miss_now = crossing[0] if attempt else None
+                captured_now = self._judge_crossing(tip, crossing)
+                miss_now = crossing.miss_m if attempt else None
         self._prev_tip, self._prev_drogue, self._prev_normal = tip, d_pos, n
         phase = "contact" if captured_now else ("breakaway" if self.rta_reason else g.phase)
         state_abs = self.x.copy()
@@ -680,48 +668,22 @@ class DockingSimulation:
             run_outcome=self.outcome().outcome if self.done else None,
         )
 
-    def _plane_crossing(
-        self, tip: FloatArray, d_pos: FloatArray, n: FloatArray, dt: float
-    ) -> tuple[float, float, float] | None:
-        """The probe tip's crossing of the drogue's plane this tick, if any: the radial miss
-        (m), the closure and the lateral speed across the drogue's axis (m/s) at the crossing."""
-        s_prev = float(self._prev_normal @ (self._prev_tip - self._prev_drogue))
-        s_now = float(n @ (tip - d_pos))
-        if not s_prev > 0.0 >= s_now:
-            return None
-        lam = s_prev / (s_prev - s_now)
-        tip_c = self._prev_tip + lam * (tip - self._prev_tip)
-        d_c = self._prev_drogue + lam * (d_pos - self._prev_drogue)
-        rel_c = tip_c - d_c
-        radial = rel_c - (rel_c @ n) * n
-        v_rel = ((tip - self._prev_tip) - (d_pos - self._prev_drogue)) / dt
-        lateral = float(np.linalg.norm(v_rel - (v_rel @ n) * n))
-        return float(np.linalg.norm(radial)), (s_prev - s_now) / dt, lateral
-
-    def _judge_crossing(self, tip: FloatArray, miss: float, closure: float, lateral: float) -> bool:
+    def _judge_crossing(self, tip: FloatArray, c: PlaneCrossing) -> bool:
         """Step 6: a crossing of the drogue's plane judged as the field does
         (:class:`~app.sim.docking.outcomes.ContactReport`); True on a capture. While breaking
         away the coupling is not flown — no capture and no new break-away — but the probe head
         across the rim is a rim strike all the same."""
         cfg = self.config
+        rim, head = cfg.capture_radius_m, cfg.probe_head_radius_m
         if self.rta_reason is not None:
-            inner = cfg.capture_radius_m - cfg.probe_head_radius_m
-            outer = cfg.capture_radius_m + cfg.probe_head_radius_m
-            if inner < miss <= outer:
-                self.miss, self.closure = miss, closure
-                self.contact.rim_strikes += 1
-                reason = f"rim strike while breaking away: probe head {miss:.3f} m from the centre"
+            reason = self.contact.strike_while_breaking_away(c.miss_m, rim, head)
+            if reason is not None:
+                self.miss, self.closure = c.miss_m, c.closure_mps
                 self.classifier.mark("rim_strike", reason)
             return False
-        self.miss, self.closure = miss, closure
-        kind = self.contact.crossing(
-            miss,
-            closure,
-            lateral,
-            cfg.capture_radius_m,
-            cfg.probe_head_radius_m,
-            (cfg.min_closure_mps, cfg.max_closure_mps),
-        )
+        self.miss, self.closure = c.miss_m, c.closure_mps
+        window = (cfg.min_closure_mps, cfg.max_closure_mps)
+        kind = self.contact.crossing(c.miss_m, c.closure_mps, c.lateral_mps, rim, head, window)
         if kind == "captured":
             self.captured = True
             self.capture_time = self.t
