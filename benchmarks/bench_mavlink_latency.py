@@ -9,7 +9,8 @@ the rounds' figures.
 
 * **pushed pairs at 30 Hz** (``--source push``, the ``aar-dock push`` protocol on the push
   WebSocket): the stream tests' rendered 1280×1024 sequence, encoded once as PNG (what
-  ``aar-dock push`` sends by default; the camera computer's encoding is not counted). Each
+  ``aar-dock push`` sends by default) and as JPEG (``--format jpg``, quality 95); the camera
+  computer's encoding is not counted. Each
   pair's ``t_s`` is this process's monotonic time when it is sent: its exposure, so the
   latency is ``arrival − time_usec`` (the service's work: receive, decode, track, filter,
   publish, send).
@@ -171,23 +172,21 @@ def main() -> None:
     ap.add_argument("--seconds", type=float, default=10.0)
     args = ap.parse_args()
     seq = cached_sequence(40)
-    png = [
-        cv2.imencode(".png", im, [cv2.IMWRITE_PNG_COMPRESSION, 1])[1].tobytes()
-        for im in seq.lefts + seq.rights
-    ]
-    pairs = list(zip(png[:40], png[40:], strict=True))
+    encodings = {
+        "PNG": (".png", [cv2.IMWRITE_PNG_COMPRESSION, 1]),
+        "JPEG 95": (".jpg", [cv2.IMWRITE_JPEG_QUALITY, 95]),
+    }
     rows: list[tuple[str, list[tuple[float, float, int]]]] = []
     with service("--source", "push", "--no-sim") as (listener, base):
-        pushed_round(listener, base, pairs, 2.0, 30.0)  # warm-up (acquisition, caches)
-        rows.append(
-            (
-                "pushed pairs, PNG, 30 Hz",
-                [
-                    quantiles_ms(pushed_round(listener, base, pairs, args.seconds, 30.0))
-                    for _ in range(args.rounds)
-                ],
-            )
-        )
+        for name, (ext, params) in encodings.items():
+            images = [cv2.imencode(ext, im, params)[1].tobytes() for im in seq.lefts + seq.rights]
+            pairs = list(zip(images[:40], images[40:], strict=True))
+            pushed_round(listener, base, pairs, 2.0, 30.0)  # warm-up (acquisition, caches)
+            rounds = [
+                quantiles_ms(pushed_round(listener, base, pairs, args.seconds, 30.0))
+                for _ in range(args.rounds)
+            ]
+            rows.append((f"pushed pairs, {name}, 30 Hz", rounds))
     for hz in (30.0, 60.0):
         with service("--mavlink-sim", "--tick-hz", str(hz)) as (listener, base):
             time.sleep(2.0)

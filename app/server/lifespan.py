@@ -174,7 +174,7 @@ def _start_outputs(st: AppState, settings: Settings) -> None:
             max_age_s=settings.mavlink_max_age_s,
             clock=bus.clock,
         )
-        bus.subscribe(st.mavlink.on_tick)
+        bus.subscribe(st.mavlink.on_tick, first=True)  # the wire before the page, recorder
         log.info("MAVLink 2 output to %s", settings.mavlink)
     if settings.foxglove_port is not None:
         from app.server.foxglove_output import FoxgloveOutput

@@ -48,9 +48,14 @@ class TelemetryBus:
         self.sources = SourceEpoch()  # the producer in force and its epoch
 
     # ---- subscribers ----------------------------------------------------------------
-    def subscribe(self, fn: Subscriber) -> None:
+    def subscribe(self, fn: Subscriber, *, first: bool = False) -> None:
+        """Call ``fn`` with every record from now on; ``first``: before the subscribers
+        already there (an output whose latency counts: MAVLink)."""
         with self._lock:
-            self._subscribers.append(fn)
+            if first:
+                self._subscribers.insert(0, fn)
+            else:
+                self._subscribers.append(fn)
 
     def unsubscribe(self, fn: Subscriber) -> None:
         with self._lock:
