@@ -19,6 +19,11 @@ the rounds' figures.
   publication time ``clock_s`` less its ``relay`` (deadline → record built), read back from
   ``GET /api/v1/history`` and matched to the target by ``time_usec`` = the tick's ``t_s``.
 
+Then where a pushed pair's time goes, in this process (the profile behind the cuts): the two
+images decoded one after the other (the baseline) against ``PushSource.read`` (the right one on
+a helper thread meanwhile), the tracker (``StreamProcessor.process``) and the publication with
+the MAVLink send (``TelemetryBus.publish`` → ``MavlinkOutput``), per encoding.
+
     .venv/bin/python benchmarks/bench_mavlink_latency.py [--rounds 3] [--seconds 10]
 """
 
@@ -46,8 +51,9 @@ sys.path.insert(0, str(ROOT))
 os.environ["MAVLINK20"] = "1"
 from pymavlink import mavutil  # noqa: E402
 
+from app.streams.processor import StreamProcessor  # noqa: E402
 from app.streams.protocol import encode_message  # noqa: E402
-from tests.support.streams_sequence import cached_sequence  # noqa: E402
+from tests.support.streams_sequence import Sequence, cached_sequence  # noqa: E402
 
 
 def _free_port(kind: int) -> int:
@@ -166,6 +172,71 @@ def sim_round(listener: Listener, base: str, seconds: float) -> list[float]:
     return lat
 
 
+def profile_push_path(encoded: dict[str, list[tuple[bytes, bytes]]], seq: Sequence) -> None:
+    """Median ms per pair of each service-side stage of a pushed pair (module docstring)."""
+    from app.server import records
+    from app.server.clock import MonotonicClock
+    from app.server.mavlink_output import MavlinkOutput, default_mount
+    from app.server.schemas import StreamInfo
+    from app.server.telemetry_bus import TelemetryBus
+    from app.streams.protocol import decode_message
+    from app.streams.sources import PushSource, decode_image_bytes
+
+    print(
+        "\n| encoding | decode L then R (ms) | PushSource.read (ms) | track (ms) | publish + send (ms) |"
+    )
+    print("|---|---|---|---|---|")
+    for name, pairs in encoded.items():
+        source, proc = PushSource(), StreamProcessor(seq.calib)
+        bus = TelemetryBus(MonotonicClock(), 64)
+        out = MavlinkOutput(
+            f"udpout:127.0.0.1:{_free_port(socket.SOCK_DGRAM)}",
+            default_mount("jsbsim"),
+            bus.sources,
+        )
+        bus.subscribe(out.on_tick)
+        epoch = bus.sources.begin("push")
+        t: dict[str, list[float]] = {"seq": [], "read": [], "track": [], "publish": []}
+        for k in range(3 * len(pairs)):
+            left, right = pairs[k % len(pairs)]
+            t0 = time.perf_counter()
+            decode_image_bytes(left), decode_image_bytes(right)
+            t1 = time.perf_counter()
+            source.put(decode_message(encode_message(left, right, t_s=k / 30, seq=k)))
+            t2 = time.perf_counter()
+            frame = source.read(1.0)
+            t3 = time.perf_counter()
+            assert frame is not None
+            tick = proc.process(frame, "push")
+            t4 = time.perf_counter()
+            info = StreamInfo(
+                spec="push",
+                frame=k,
+                frame_t_s=frame.t_s,
+                mode=tick.mode,
+                fps=30.0,
+                pairs=k,
+                dropped_skew=0,
+                dropped_backpressure=0,
+            )
+            bus.publish(records.from_stream(tick, info, step_ms=0.0), run=0, epoch=epoch)
+            t5 = time.perf_counter()
+            for key, dt in (
+                ("seq", t1 - t0),
+                ("read", t3 - t2),
+                ("track", t4 - t3),
+                ("publish", t5 - t4),
+            ):
+                t[key].append(dt * 1e3)
+        out.close()
+        source.close()
+        med = {key: float(np.median(v)) for key, v in t.items()}
+        print(
+            f"| {name} | {med['seq']:.1f} | {med['read']:.1f} | {med['track']:.1f} | "
+            f"{med['publish']:.2f} |"
+        )
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--rounds", type=int, default=3)
@@ -176,11 +247,13 @@ def main() -> None:
         "PNG": (".png", [cv2.IMWRITE_PNG_COMPRESSION, 1]),
         "JPEG 95": (".jpg", [cv2.IMWRITE_JPEG_QUALITY, 95]),
     }
+    encoded = {}
+    for name, (ext, params) in encodings.items():
+        images = [cv2.imencode(ext, im, params)[1].tobytes() for im in seq.lefts + seq.rights]
+        encoded[name] = list(zip(images[:40], images[40:], strict=True))
     rows: list[tuple[str, list[tuple[float, float, int]]]] = []
     with service("--source", "push", "--no-sim") as (listener, base):
-        for name, (ext, params) in encodings.items():
-            images = [cv2.imencode(ext, im, params)[1].tobytes() for im in seq.lefts + seq.rights]
-            pairs = list(zip(images[:40], images[40:], strict=True))
+        for name, pairs in encoded.items():
             pushed_round(listener, base, pairs, 2.0, 30.0)  # warm-up (acquisition, caches)
             rounds = [
                 quantiles_ms(pushed_round(listener, base, pairs, args.seconds, 30.0))
@@ -208,6 +281,7 @@ def main() -> None:
         n = int(np.median([q[2] for q in qs]))
         each = ", ".join(f"{q[1]:.1f}" for q in qs)
         print(f"| {name} | {p50:.1f} | {p99:.1f} | {n} | {each} |")
+    profile_push_path(encoded, seq)
 
 
 if __name__ == "__main__":
