@@ -50,6 +50,12 @@ def register(subparsers: Any) -> None:
         "docs/ecosystem.md)",
     )
     p.add_argument(
+        "--mavlink-sim",
+        action="store_true",
+        help="also send the simulated stream's targets on MAVLink, for SITL (AAR_MAVLINK_SIM; "
+        "marked target_num 255)",
+    )
+    p.add_argument(
         "--foxglove-port",
         type=int,
         help="live Foxglove WebSocket server on this port (AAR_FOXGLOVE_PORT; off by default; "
@@ -108,6 +114,8 @@ def settings_from_args(args: argparse.Namespace) -> Any:
         overrides["stream_realtime"] = False
     if getattr(args, "loop", False):
         overrides["stream_loop"] = True
+    if getattr(args, "mavlink_sim", False):
+        overrides["mavlink_sim"] = True
     return Settings(**overrides)
 
 

@@ -170,8 +170,15 @@ def _start_outputs(st: AppState, settings: Settings) -> None:
     if settings.mavlink is not None:
         from app.server.mavlink_output import MavlinkOutput, default_mount
 
-        st.mavlink = MavlinkOutput(settings.mavlink, default_mount(settings.sim_plant))
-        bus.subscribe(st.mavlink.on_tick)
+        st.mavlink = MavlinkOutput(
+            settings.mavlink,
+            default_mount(settings.sim_plant),
+            bus.sources,
+            simulated=settings.mavlink_sim,
+            max_age_s=settings.mavlink_max_age_s,
+            clock=bus.clock,
+        )
+        bus.subscribe(st.mavlink.on_tick, first=True)  # the wire before the page, recorder
         log.info("MAVLink 2 output to %s", settings.mavlink)
     if settings.foxglove_port is not None:
         from app.server.foxglove_gate import GatePolicy
@@ -195,14 +202,15 @@ def start_services(st: AppState, settings: Settings, *, warm: bool) -> None:
     if settings.viser_enabled:
         _start_viz(st, settings)
     _start_outputs(st, settings)
-    if settings.sim_autostart:
+    stream_configured = settings.source.strip() not in ("", "sim")
+    if settings.sim_autostart and not stream_configured:  # one source: the configured one
         st.loop.start_sim()  # with a worker process: spawned and the simulation built here
     st.loop.start()
     if warm and st.upload_pool is not None:
         # the app as deployed: the upload workers start now, not with the first upload
         # (apps with an injected source, i.e. tests, start them on demand)
         st.upload_pool.warm()
-    if settings.source.strip() not in ("", "sim"):
+    if stream_configured:
         st.streams.switch(settings.source)  # SourceError: the service does not start
 
 

@@ -257,9 +257,12 @@ def _points(points: FloatArray | None) -> list[Vec3] | None:
     return [(float(p[0]), float(p[1]), float(p[2])) for p in np.asarray(points)]
 
 
-def to_record(tick: Tick, *, seq: int, clock_s: float, run: int) -> TickRecord:
+def to_record(
+    tick: Tick, *, seq: int, clock_s: float, run: int, source_epoch: int | None = None
+) -> TickRecord:
     """The published record of ``tick`` (``seq`` and ``clock_s``: the bus's stamp; ``run``:
-    the simulation's run counter)."""
+    the simulation's run counter; ``source_epoch``: its producer's, see
+    :mod:`app.server.source_epoch`)."""
     sim = tick.sim
     record = TickRecord(
         seq=seq,
@@ -268,6 +271,7 @@ def to_record(tick: Tick, *, seq: int, clock_s: float, run: int) -> TickRecord:
         clock_s=clock_s,
         wall_time=time.time(),
         run=run,
+        source_epoch=source_epoch,
         phase=None if sim is None else sim.phase,
         rta_reason=None if sim is None else sim.rta_reason,
         run_outcome=None if sim is None else sim.run_outcome,

@@ -66,6 +66,11 @@ class TickRecord(BaseModel):
     clock_s: float = Field(description="server loop clock when published (s)")
     wall_time: float = Field(description="UNIX time when published (s)")
     run: int = Field(0, description="simulation run counter (increments on reset)")
+    source_epoch: int | None = Field(
+        None,
+        description="the epoch of the source that made this tick (one per start of a source: "
+        "a switch, a restart; app.server.source_epoch); None for uploads",
+    )
     phase: str | None = None
     # run-time assurance (simplex): why the recovery law flies this tick, "break-away: …" or
     # "envelope: …" (app.control.envelope); None while the normal controller (LQR) flies

@@ -274,6 +274,18 @@ class Settings(BaseSettings):
         description="MAVLink 2 output of the navigation result (udpout:HOST:PORT): HEARTBEAT at "
         "1 Hz and LANDING_TARGET per navigation record (docs/ecosystem.md); None: off",
     )
+    mavlink_sim: bool = Field(
+        False,
+        description="also send the simulated stream's targets on MAVLink (SITL), marked "
+        "target_num 255; off: only a camera, video, push or MCAP source's",
+    )
+    mavlink_max_age_s: float = Field(
+        0.25,
+        gt=0.0,
+        le=10.0,
+        description="a fix older than this (s) goes out on MAVLink as not valid, and a valid "
+        "one not followed by another within it is withdrawn (position_valid 0)",
+    )
 
     foxglove_port: int | None = Field(
         None,

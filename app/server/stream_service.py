@@ -105,6 +105,7 @@ class StreamService:
         self._parsed: SourceSpec | None = None
         self._options: SourceOptions | None = None
         self.generation = 0  # one per (re)opened source
+        self._epoch: int | None = None  # the running source's in bus.sources
         self.restarts = 0
         self.streak = 0  # failed pairs since the last good one (across restarts)
         self.failure: str | None = None  # why the source is restarting (None: it is not)
@@ -203,9 +204,10 @@ class StreamService:
             self._restart_at = None
         self._run_started = self._last_delivered = time.monotonic()
         self._stop = stop = threading.Event()
+        self._epoch = epoch = self.bus.sources.begin(source.kind)
         self._thread = threading.Thread(
             target=self._run,
-            args=(source, self.processor, stop, self.generation),
+            args=(source, self.processor, stop, self.generation, epoch),
             name="aar-stream",
             daemon=True,
         )
@@ -214,6 +216,9 @@ class StreamService:
     def _stop_source(self, join_s: float = 5.0) -> None:
         thread, source = self._thread, self.source
         self._stop.set()
+        if self._epoch is not None:  # from now on nothing of this run goes out (MAVLink)
+            self.bus.sources.end(self._epoch)
+            self._epoch = None
         if source is not None and isinstance(source, PushSource):
             source.close()  # wakes a waiting read
         if thread is not None and thread is not threading.current_thread():
@@ -378,7 +383,12 @@ class StreamService:
 
     # ---- the stream thread ----------------------------------------------------------
     def _run(
-        self, source: FrameSourceT, processor: StreamProcessor, stop: threading.Event, gen: int
+        self,
+        source: FrameSourceT,
+        processor: StreamProcessor,
+        stop: threading.Event,
+        gen: int,
+        epoch: int,
     ) -> None:
         consecutive = 0  # failures of this run (the restart rule)
         rejected = source.stats.rejected
@@ -441,6 +451,7 @@ class StreamService:
                 self.bus.publish(
                     records.from_stream(tick, info, step_ms=step_ms, extra_timings_ms=timings),
                     run=self.loop.run,
+                    epoch=epoch,
                 )
                 self.frames += 1
                 consecutive = self.streak = 0

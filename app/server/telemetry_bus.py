@@ -23,6 +23,7 @@ import numpy as np
 from app.server.clock import Clock
 from app.server.records import RawFrame, Tick, to_record
 from app.server.schemas import TickRecord
+from app.server.source_epoch import SourceEpoch
 
 log = logging.getLogger(__name__)
 
@@ -44,11 +45,17 @@ class TelemetryBus:
         self._history: deque[TickRecord] = deque(maxlen=history_len)
         self.latest: TickRecord | None = None
         self.stage_ms: dict[str, deque[float]] = {}
+        self.sources = SourceEpoch()  # the producer in force and its epoch
 
     # ---- subscribers ----------------------------------------------------------------
-    def subscribe(self, fn: Subscriber) -> None:
+    def subscribe(self, fn: Subscriber, *, first: bool = False) -> None:
+        """Call ``fn`` with every record from now on; ``first``: before the subscribers
+        already there (an output whose latency counts: MAVLink)."""
         with self._lock:
-            self._subscribers.append(fn)
+            if first:
+                self._subscribers.insert(0, fn)
+            else:
+                self._subscribers.append(fn)
 
     def unsubscribe(self, fn: Subscriber) -> None:
         with self._lock:
@@ -61,13 +68,18 @@ class TelemetryBus:
             self._seq += 1
             return self._seq
 
-    def publish(self, tick: Tick, *, run: int, stages: bool = True) -> TickRecord:
+    def publish(
+        self, tick: Tick, *, run: int, stages: bool = True, epoch: int | None = None
+    ) -> TickRecord:
         """Stamp ``tick``, build its record, keep it and fan it out; returns the record.
 
         ``run``: the simulation's run counter the record carries; ``stages``: add the record's
         timings to the stage statistics (the simulation's and the streams' ticks; an upload
-        adds only its publication time)."""
-        record = to_record(tick, seq=self._next_seq(), clock_s=self.clock.now(), run=run)
+        adds only its publication time); ``epoch``: the producer's epoch in
+        :attr:`sources` (``None``: an upload, which is no source)."""
+        record = to_record(
+            tick, seq=self._next_seq(), clock_s=self.clock.now(), run=run, source_epoch=epoch
+        )
         if stages:
             for name, value in record.timings_ms.items():
                 self._add_stage(name, value)

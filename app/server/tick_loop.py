@@ -27,6 +27,7 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from app.server import records
@@ -51,6 +52,15 @@ log = logging.getLogger(__name__)
 
 MAX_CONSECUTIVE_ERRORS = 10  # then the simulated stream stops (healthz shows last_error)
 TICK_THREAD_NICE = -10  # the tick thread's nice value where the process may raise it
+
+
+@dataclass(frozen=True)
+class Stepped:
+    """One step's tick, the run it belongs to and the simulation's source epoch then."""
+
+    tick: records.Tick
+    run: int
+    epoch: int | None
 
 
 class TickLoop:
@@ -105,6 +115,7 @@ class TickLoop:
         self.heartbeat: float | None = None
         self.started_at: float | None = None
         self.before_start_sim: Callable[[], None] | None = None
+        self._epoch: int | None = None  # the simulation's in bus.sources while it runs
 
     # ---- configuration ------------------------------------------------------------
     def _history_len(self) -> int:
@@ -171,10 +182,18 @@ class TickLoop:
             if self._source is None or self._source.done:
                 self._rebuild()
             self.running = True
+            self._epoch = self.bus.sources.begin("sim")
+
+    def _end_epoch(self) -> None:
+        """The simulation is no longer the active source (under ``self._lock``)."""
+        if self._epoch is not None:
+            self.bus.sources.end(self._epoch)
+            self._epoch = None
 
     def stop_sim(self) -> None:
         with self._lock:
             self.running = False
+            self._end_epoch()
             if isinstance(self._source, PacedSource):
                 self._source.pause()  # a paced source stops its schedule
 
@@ -193,6 +212,7 @@ class TickLoop:
         if self._consecutive_errors >= MAX_CONSECUTIVE_ERRORS:
             log.error("simulation stopped after %d failed steps", MAX_CONSECUTIVE_ERRORS)
             self.running = False
+            self._end_epoch()
             self._consecutive_errors = 0
 
     def _current_source(self, now: float) -> SimSource | None:
@@ -213,7 +233,7 @@ class TickLoop:
             return self._source
         return None
 
-    def _step_paced(self, src: PacedSource) -> tuple[records.Tick, int] | None:
+    def _step_paced(self, src: PacedSource) -> Stepped | None:
         """Wait for a paced source's next tick (outside the loop's lock): the tick and its
         run; ``None`` if the step failed, or if the source was stopped or replaced meanwhile
         (not an error)."""
@@ -229,7 +249,7 @@ class TickLoop:
                 return None
             self.dropped += int(raw.missed_deadlines)
             self._consecutive_errors = 0
-            run = self.run
+            run, epoch = self.run, self._epoch
         tick = records.from_sim(
             raw.state,
             step_ms=(raw.released_s - raw.deadline_s) * 1e3,
@@ -237,13 +257,13 @@ class TickLoop:
             paced=PacedTiming(raw.deadline_s, raw.released_s, raw.received_s),
             raw=raw,
         )
-        return tick, run
+        return Stepped(tick, run, epoch)
 
     def _step_in_process(
         self, src: StepSource, now: float, deadline: float | None
-    ) -> tuple[records.Tick, int] | None:
-        """Step an in-process source (under ``self._lock``): the tick and its run; ``None``
-        if the step failed."""
+    ) -> Stepped | None:
+        """Step an in-process source (under ``self._lock``): the tick, its run and epoch;
+        ``None`` if the step failed."""
         t0 = time.perf_counter()
         try:
             state = src.step()
@@ -253,7 +273,7 @@ class TickLoop:
         late_s = 0.0 if deadline is None else max(0.0, now - deadline)
         step_ms = (late_s + time.perf_counter() - t0) * 1e3
         self._consecutive_errors = 0
-        return records.from_sim(state, step_ms=step_ms), self.run
+        return Stepped(records.from_sim(state, step_ms=step_ms), self.run, self._epoch)
 
     def tick(self, deadline: float | None = None) -> TickRecord | None:
         """Step the simulation once and publish; ``None`` if not running or finished.
@@ -274,8 +294,7 @@ class TickLoop:
             stepped = self._step_paced(src)
         if stepped is None:
             return None
-        tick, run = stepped
-        record = self.bus.publish(tick, run=run)
+        record = self.bus.publish(stepped.tick, run=stepped.run, epoch=stepped.epoch)
         self.ticks += 1
         t_now = self.clock.now()
         self._tick_times.append(t_now)

@@ -15,6 +15,7 @@ from __future__ import annotations
 import re
 import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -312,7 +313,9 @@ def decode_image_bytes(data: bytes, name: str = "image") -> UInt8Array:
 class PushSource:
     """Pairs pushed by the server's WebSocket handler: keeps only the newest (a pair not
     yet read when the next arrives is dropped and counted); decoding happens in ``read``
-    (the stream thread), never in the handler."""
+    (the stream thread, the right image on a helper thread meanwhile: OpenCV's decoder
+    releases the GIL, so a pair costs one image's decoding time, not two), never in the
+    handler."""
 
     kind: SourceKind = "push"
 
@@ -327,6 +330,7 @@ class PushSource:
         self._pending_since = 0.0
         self.received = 0
         self.last_error: str | None = None
+        self._decoder = ThreadPoolExecutor(1, thread_name_prefix="aar-push-decode")
 
     def begin_session(self) -> None:
         """A pusher (re)connected: its ``seq`` may start again from anywhere."""
@@ -370,8 +374,14 @@ class PushSource:
         if msg is None:
             return None
         try:
-            left = decode_image_bytes(msg.left, "left")
-            right = decode_image_bytes(msg.right, "right")
+            right_job = self._decoder.submit(decode_image_bytes, msg.right, "right")
+        except RuntimeError:  # closed since the check above: its decoder is shut down
+            raise EndOfStream("push source closed") from None
+        try:
+            try:
+                left = decode_image_bytes(msg.left, "left")
+            finally:
+                right = right_job.result()
         except SourceError as exc:
             self.stats.add("rejected")
             self.last_error = f"pair {msg.seq}: {exc}"
@@ -389,6 +399,7 @@ class PushSource:
         with self._cond:
             self._closed = True
             self._cond.notify_all()
+        self._decoder.shutdown(wait=False)
 
 
 FrameSourceT = VideoSource | CameraSource | PushSource

@@ -44,6 +44,7 @@ def test_landing_targets_follow_the_telemetry(tmp_path: Path) -> None:
         recordings_dir=tmp_path / "rec",
         sim_auto_restart_s=None,
         mavlink=f"udpout:127.0.0.1:{port}",
+        mavlink_sim=True,  # the simulated stream's targets, asked for (SITL)
     )
     try:
         with TestClient(create_app(settings)) as c:
@@ -71,6 +72,7 @@ def test_landing_targets_follow_the_telemetry(tmp_path: Path) -> None:
     for rec in sent:
         m = by_time[round(rec["t_s"] * 1e6)]
         assert m.frame == mavutil.mavlink.MAV_FRAME_BODY_FRD
+        assert m.target_num == 255  # simulated: marked
         assert m.position_valid == int(rec["lock"])
         if not rec["lock"]:
             assert (m.x, m.y, m.z, m.distance) == (0.0, 0.0, 0.0, 0.0)
@@ -128,8 +130,9 @@ def test_each_hand_over_is_one_statustext() -> None:
     when the recovery law takes over (CRITICAL for an envelope recovery, WARNING for a
     break-away; a long reason in MAVLink 2 chunks), one NOTICE when it hands back or the run
     changes; nothing while the reason stays; LANDING_TARGET goes on for every record."""
-    from app.server.mavlink_output import RTA_OFF_TEXT, MavlinkOutput
+    from app.server.mavlink_output import RTA_OFF_TEXT, SIMULATED_TEXT, MavlinkOutput
     from app.server.schemas import TickRecord
+    from app.server.source_epoch import SourceEpoch
 
     sev = mavutil.mavlink
     envelope = "envelope: α 10.2° above 10.0° with the probe 1.2 m from the drogue's rim"
@@ -145,10 +148,22 @@ def test_each_hand_over_is_one_statustext() -> None:
     ]
     port = _free_udp_port()
     rx = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", dialect="common")
-    out = MavlinkOutput(f"udpout:127.0.0.1:{port}", default_mount("jsbsim"))
+    sources = SourceEpoch()
+    epoch = sources.begin("sim")
+    out = MavlinkOutput(
+        f"udpout:127.0.0.1:{port}", default_mount("jsbsim"), sources, simulated=True
+    )
     try:
         for i, (run, reason) in enumerate(plan):
-            rec = TickRecord(seq=i, source="sim", t_s=0.1 * i, clock_s=0.0, wall_time=0.0, run=run)
+            rec = TickRecord(
+                seq=i,
+                source="sim",
+                t_s=0.1 * i,
+                clock_s=out.clock.now(),
+                wall_time=0.0,
+                run=run,
+                source_epoch=epoch,
+            )
             out.on_tick(rec.model_copy(update={"rta_reason": reason}))
         texts = _drain(rx, "STATUSTEXT", 1.5)
         stats = out.stats
@@ -165,6 +180,7 @@ def test_each_hand_over_is_one_statustext() -> None:
             got[-1] = (m.severity, got[-1][1] + m.text)
     assert [m.chunk_seq for m in texts if m.id != 0] == [0, 1]  # the envelope's 86 bytes
     assert got == [
+        (sev.MAV_SEVERITY_NOTICE, SIMULATED_TEXT),  # simulated targets begin
         (sev.MAV_SEVERITY_WARNING, "RTA break-away: missed the drogue by 0.199 m"),
         (sev.MAV_SEVERITY_NOTICE, RTA_OFF_TEXT),
         (
@@ -174,4 +190,4 @@ def test_each_hand_over_is_one_statustext() -> None:
         ),
         (sev.MAV_SEVERITY_NOTICE, RTA_OFF_TEXT),
     ]
-    assert stats.statustexts == 4 and stats.targets == len(plan) and stats.send_errors == 0
+    assert stats.statustexts == 5 and stats.targets == len(plan) and stats.send_errors == 0
