@@ -85,6 +85,12 @@ class DockingOutcome:
     time_to_capture_s: float  # NaN if not captured
     aborts: int
     max_control_saturation: float  # max over the run of |δ − δ_trim| / travel (0..1)
+    # the multi-body hose's contact (hose_model="multibody"; NaN / False otherwise or without
+    # a latch): the hose's peak tension while latched (N), a whip (slack, then snapped taut
+    # above the whip factor × the trail tension), the coupling pulled off the probe
+    peak_hose_tension_n: float = math.nan
+    hose_whip: bool = False
+    hose_released: bool = False
 
     def to_dict(self) -> dict[str, Any]:
         def f(v: float) -> float | None:
@@ -103,6 +109,9 @@ class DockingOutcome:
             "time_to_capture_s": f(self.time_to_capture_s),
             "aborts": int(self.aborts),
             "max_control_saturation": float(self.max_control_saturation),
+            "peak_hose_tension_n": f(self.peak_hose_tension_n),
+            "hose_whip": bool(self.hose_whip),
+            "hose_released": bool(self.hose_released),
         }
 
 

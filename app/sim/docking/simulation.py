@@ -61,11 +61,13 @@ from app.resources import load_default_calibration
 from app.sim.camera_sensor import StereoCameraSensor
 from app.sim.docking.config import PLANT_GUIDANCE, DockingConfig
 from app.sim.docking.guidance import SwingGuidance
+from app.sim.docking.multibody_drogue import MultibodyDrogue, MultibodyDrogueParams
 from app.sim.docking.outcomes import ContactReport, RtaEvent, RunClassifier
 from app.sim.docking.phases import Aim, Sensing
 from app.sim.docking.plant_design import design_for, make_plant
 from app.sim.docking.results import DockingOutcome, DockingTick
 from app.sim.docking.vision import DrogueFrame, camera_sensor, drogue_in_tanker, take_frame
+from app.sim.hose import CouplingParams, DrogueParams, FlowCondition, HoseParams, ReelParams
 from app.sim.hose_drogue import HoseDrogue, HoseDrogueParams
 from app.sim.imperfections import (
     FrameChannel,
@@ -200,19 +202,7 @@ class DockingSimulation:
         self.turb = DrydenTurbulence(
             cfg.turbulence, trim.tas_mps, self.dt, trim.altitude_ft * 0.3048, seed=cfg.seed
         )
-        hs = self.imp_draw.hose_scale  # this run's hose and drogue (the guidance's: nominal)
-        self.drogue = HoseDrogue(
-            HoseDrogueParams(
-                hose_length_m=HoseDrogueParams.hose_length_m * hs["hose_length"],
-                hose_mass_per_m=HoseDrogueParams.hose_mass_per_m * hs["hose_mass"],
-                drogue_mass_kg=HoseDrogueParams.drogue_mass_kg * hs["drogue_mass"],
-                drogue_cd=HoseDrogueParams.drogue_cd * hs["drogue_drag"],
-                air_density=trim.air_density_kgm3,
-                airspeed_mps=trim.tas_mps,
-                drogue_radius_m=cfg.ring_radius_m,
-                bow_force_n=cfg.bow_wave_force_n * self.imp_draw.bow_scale,
-            )
-        )
+        self.drogue = self._flown_drogue(cfg)
         # receiver at trim, probe tip start_gap behind the drogue's rest position (+ random offset)
         offset = np.concatenate([[0.0], rng.normal(0.0, cfg.start_offset_sigma_m, 2)])
         tip_start = self.drogue.eq_m - np.array([cfg.start_gap_m, 0.0, 0.0]) + offset
@@ -277,6 +267,51 @@ class DockingSimulation:
         self._prev_tip = self.probe_tip()
         self._prev_drogue = self.drogue.position_m.copy()
         self._prev_normal = self.drogue.normal()
+
+    def _flown_drogue(self, cfg: DockingConfig) -> HoseDrogue | MultibodyDrogue:
+        """This run's hose and drogue (``cfg.hose_model``) at the plant's trim, dispersed by
+        the run's draw (the guidance's model stays nominal)."""
+        trim, hs = self.trim, self.imp_draw.hose_scale
+        bow_n = cfg.bow_wave_force_n * self.imp_draw.bow_scale
+        if cfg.hose_model == "multibody":
+            hose, drogue = HoseParams(), DrogueParams(radius_m=cfg.ring_radius_m)
+            return MultibodyDrogue(
+                MultibodyDrogueParams(
+                    flow=FlowCondition(trim.air_density_kgm3, trim.tas_mps),
+                    hose=replace(
+                        hose,
+                        length_m=hose.length_m * hs["hose_length"],
+                        mass_per_m_kg=hose.mass_per_m_kg * hs["hose_mass"],
+                        cd_normal=hose.cd_normal * hs["hose_drag"],
+                        cd_tangential=hose.cd_tangential * hs["hose_drag"],
+                    ),
+                    drogue=replace(
+                        drogue,
+                        mass_kg=drogue.mass_kg * hs["drogue_mass"],
+                        cd=drogue.cd * hs["drogue_drag"],
+                    ),
+                    reel=ReelParams(),
+                    coupling=CouplingParams(
+                        min_closure_mps=cfg.min_closure_mps, max_closure_mps=cfg.max_closure_mps
+                    ),
+                    bow_force_n=bow_n,
+                    wake_downwash_mps=self.imp_draw.wake_downwash_mps,
+                    wake_sidewash_per_m=self.imp_draw.wake_sidewash_per_m,
+                ),
+                self.dt,
+            )
+        return HoseDrogue(
+            HoseDrogueParams(
+                hose_length_m=HoseDrogueParams.hose_length_m * hs["hose_length"],
+                hose_mass_per_m=HoseDrogueParams.hose_mass_per_m * hs["hose_mass"],
+                drogue_mass_kg=HoseDrogueParams.drogue_mass_kg * hs["drogue_mass"],
+                drogue_cd=HoseDrogueParams.drogue_cd * hs["drogue_drag"],
+                air_density=trim.air_density_kgm3,
+                airspeed_mps=trim.tas_mps,
+                drogue_radius_m=cfg.ring_radius_m,
+                bow_force_n=bow_n,
+            )
+        )
 
     def _build_controller(self, imp: Imperfections) -> None:
         """The observer (eq. 19), the LQR (eq. 20) from the design, and the servos with this
@@ -625,9 +660,9 @@ class DockingSimulation:
         self.k += 1
         tip = self.probe_tip()
         if self.captured:
-            # probe and drogue are latched: the drogue rides on the probe tip
-            self.drogue.d = tip - self.drogue.eq_m
-            self.drogue.v = np.zeros(3)
+            # probe and drogue are latched: the drogue rides on the probe tip (the reduced
+            # model: welded; the multi-body hose: on the coupling, the hose through the reel)
+            self.drogue.ride(dt, tip, gust)
         else:
             r_tb = self._rot(self.x)
             nose = self.x[9:12] + r_tb @ self.r_nose_b
@@ -667,6 +702,7 @@ class DockingSimulation:
                 if kind == "captured":
                     self.captured = captured_now = True
                     self.capture_time = self.t
+                    self.drogue.latch(tip, closure)
                     g.mark_contact(tip)
                 elif kind == "rim_strike":
                     self.classifier.mark("rim_strike", self.contact.last_reason)
@@ -776,6 +812,7 @@ class DockingSimulation:
         cls, reason = self.classifier.classify(
             self.captured, self.t >= self.config.max_time_s - 1e-9
         )
+        hose = self.drogue.contact_report() if isinstance(self.drogue, MultibodyDrogue) else None
         return DockingOutcome(
             outcome=cls,
             reason=reason,
@@ -789,6 +826,9 @@ class DockingSimulation:
             time_to_capture_s=self.capture_time,
             aborts=self.aborts,
             max_control_saturation=self.max_sat,
+            peak_hose_tension_n=math.nan if hose is None else hose.peak_tension_n,
+            hose_whip=hose is not None and hose.whip,
+            hose_released=hose is not None and hose.released,
         )
 
     def run(self, max_ticks: int | None = None) -> DockingOutcome:
