@@ -22,12 +22,13 @@ from app.sim.docking.config import (
     PlantGuidance,
 )
 from app.sim.docking.plant_design import PlantDesign, describe_plant, design_for, plant_design
-from app.sim.docking.results import DockingOutcome, DockingTick, TickLog
+from app.sim.docking.results import DockingOutcome, DockingTick, HoseState, TickLog
 from app.sim.docking.simulation import DockingSimulation
 
 __all__ = [
     "AIRFRAME_GEOMETRY",
     "HOSE_MODELS",
+    "HoseState",
     "PHASES",
     "PLANT_GUIDANCE",
     "AirframeGeometry",

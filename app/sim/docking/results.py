@@ -19,6 +19,19 @@ if TYPE_CHECKING:
     from app.streams.frames import StereoFrame
 
 
+@dataclass(frozen=True)
+class HoseState:
+    """The flown hose this tick (tanker frame, m; N): its nodes from the reel exit (first) to
+    the drogue (last); with the multi-body hose also the tick's highest segment tension, the
+    reel's payout and the latched contact's peak tension so far (None where the model has none:
+    the reduced model has no tension or reel, and before a latch no contact peak)."""
+
+    nodes_m: FloatArray
+    tension_n: float | None = None
+    payout_m: float | None = None
+    contact_peak_tension_n: float | None = None
+
+
 @dataclass
 class DockingTick:
     """Everything one tick produced (tanker frame, m/rad/s unless stated)."""
@@ -62,6 +75,8 @@ class DockingTick:
     rta_reason: str | None = None
     # the run's outcome class (app.sim.docking.outcomes.OUTCOMES) on its last tick; else None
     run_outcome: str | None = None
+    # the flown hose (its nodes; the multi-body hose's tension, payout, contact peak)
+    hose: HoseState | None = None
 
     @property
     def stereo_frame(self) -> StereoFrame | None:

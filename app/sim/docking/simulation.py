@@ -65,7 +65,7 @@ from app.sim.docking.multibody_drogue import MultibodyDrogue, MultibodyDroguePar
 from app.sim.docking.outcomes import ContactReport, RtaEvent, RunClassifier
 from app.sim.docking.phases import Aim, Sensing
 from app.sim.docking.plant_design import design_for, make_plant
-from app.sim.docking.results import DockingOutcome, DockingTick
+from app.sim.docking.results import DockingOutcome, DockingTick, HoseState
 from app.sim.docking.vision import DrogueFrame, camera_sensor, drogue_in_tanker, take_frame
 from app.sim.hose import CouplingParams, DrogueParams, FlowCondition, HoseParams, ReelParams
 from app.sim.hose_drogue import HoseDrogue, HoseDrogueParams
@@ -742,6 +742,20 @@ class DockingSimulation:
             camera_pose_T=frame_pose,
             rta_reason=self.rta_reason,
             run_outcome=self.outcome().outcome if self.done else None,
+            hose=self.hose_state(),
+        )
+
+    def hose_state(self) -> HoseState:
+        """The flown hose now (:class:`~app.sim.docking.results.HoseState`)."""
+        d = self.drogue
+        if not isinstance(d, MultibodyDrogue):
+            return HoseState(nodes_m=d.hose_nodes_m())
+        peak = d.peak_contact_tension_n
+        return HoseState(
+            nodes_m=d.hose_nodes_m(),
+            tension_n=d.tension_n,
+            payout_m=d.payout_m,
+            contact_peak_tension_n=None if math.isnan(peak) else peak,
         )
 
     def break_away(self, reason: str = "break-away") -> None:
