@@ -60,15 +60,14 @@ from app.geometry.rotations import euler_to_matrix, look_at_camera
 from app.resources import load_default_calibration
 from app.sim.camera_sensor import StereoCameraSensor
 from app.sim.docking.config import PLANT_GUIDANCE, DockingConfig
+from app.sim.docking.flown_hose import contact_report, flown_drogue, hose_state
 from app.sim.docking.guidance import SwingGuidance
-from app.sim.docking.multibody_drogue import MultibodyDrogue, MultibodyDrogueParams
 from app.sim.docking.outcomes import ContactReport, RtaEvent, RunClassifier
 from app.sim.docking.phases import Aim, Sensing
 from app.sim.docking.plant_design import design_for, make_plant
-from app.sim.docking.results import DockingOutcome, DockingTick, HoseState
+from app.sim.docking.results import DockingOutcome, DockingTick
 from app.sim.docking.vision import DrogueFrame, camera_sensor, drogue_in_tanker, take_frame
-from app.sim.hose import CouplingParams, DrogueParams, FlowCondition, HoseParams, ReelParams
-from app.sim.hose_drogue import HoseDrogue, HoseDrogueParams
+from app.sim.hose_drogue import HoseDrogueParams
 from app.sim.imperfections import (
     FrameChannel,
     ImperfectionDraw,
@@ -202,7 +201,7 @@ class DockingSimulation:
         self.turb = DrydenTurbulence(
             cfg.turbulence, trim.tas_mps, self.dt, trim.altitude_ft * 0.3048, seed=cfg.seed
         )
-        self.drogue = self._flown_drogue(cfg)
+        self.drogue = flown_drogue(cfg, trim.air_density_kgm3, trim.tas_mps, self.imp_draw, self.dt)
         # receiver at trim, probe tip start_gap behind the drogue's rest position (+ random offset)
         offset = np.concatenate([[0.0], rng.normal(0.0, cfg.start_offset_sigma_m, 2)])
         tip_start = self.drogue.eq_m - np.array([cfg.start_gap_m, 0.0, 0.0]) + offset
@@ -267,51 +266,6 @@ class DockingSimulation:
         self._prev_tip = self.probe_tip()
         self._prev_drogue = self.drogue.position_m.copy()
         self._prev_normal = self.drogue.normal()
-
-    def _flown_drogue(self, cfg: DockingConfig) -> HoseDrogue | MultibodyDrogue:
-        """This run's hose and drogue (``cfg.hose_model``) at the plant's trim, dispersed by
-        the run's draw (the guidance's model stays nominal)."""
-        trim, hs = self.trim, self.imp_draw.hose_scale
-        bow_n = cfg.bow_wave_force_n * self.imp_draw.bow_scale
-        if cfg.hose_model == "multibody":
-            hose, drogue = HoseParams(), DrogueParams(radius_m=cfg.ring_radius_m)
-            return MultibodyDrogue(
-                MultibodyDrogueParams(
-                    flow=FlowCondition(trim.air_density_kgm3, trim.tas_mps),
-                    hose=replace(
-                        hose,
-                        length_m=hose.length_m * hs["hose_length"],
-                        mass_per_m_kg=hose.mass_per_m_kg * hs["hose_mass"],
-                        cd_normal=hose.cd_normal * hs["hose_drag"],
-                        cd_tangential=hose.cd_tangential * hs["hose_drag"],
-                    ),
-                    drogue=replace(
-                        drogue,
-                        mass_kg=drogue.mass_kg * hs["drogue_mass"],
-                        cd=drogue.cd * hs["drogue_drag"],
-                    ),
-                    reel=ReelParams(),
-                    coupling=CouplingParams(
-                        min_closure_mps=cfg.min_closure_mps, max_closure_mps=cfg.max_closure_mps
-                    ),
-                    bow_force_n=bow_n,
-                    wake_downwash_mps=self.imp_draw.wake_downwash_mps,
-                    wake_sidewash_per_m=self.imp_draw.wake_sidewash_per_m,
-                ),
-                self.dt,
-            )
-        return HoseDrogue(
-            HoseDrogueParams(
-                hose_length_m=HoseDrogueParams.hose_length_m * hs["hose_length"],
-                hose_mass_per_m=HoseDrogueParams.hose_mass_per_m * hs["hose_mass"],
-                drogue_mass_kg=HoseDrogueParams.drogue_mass_kg * hs["drogue_mass"],
-                drogue_cd=HoseDrogueParams.drogue_cd * hs["drogue_drag"],
-                air_density=trim.air_density_kgm3,
-                airspeed_mps=trim.tas_mps,
-                drogue_radius_m=cfg.ring_radius_m,
-                bow_force_n=bow_n,
-            )
-        )
 
     def _build_controller(self, imp: Imperfections) -> None:
         """The observer (eq. 19), the LQR (eq. 20) from the design, and the servos with this
@@ -742,20 +696,7 @@ class DockingSimulation:
             camera_pose_T=frame_pose,
             rta_reason=self.rta_reason,
             run_outcome=self.outcome().outcome if self.done else None,
-            hose=self.hose_state(),
-        )
-
-    def hose_state(self) -> HoseState:
-        """The flown hose now (:class:`~app.sim.docking.results.HoseState`)."""
-        d = self.drogue
-        if not isinstance(d, MultibodyDrogue):
-            return HoseState(nodes_m=d.hose_nodes_m())
-        peak = d.peak_contact_tension_n
-        return HoseState(
-            nodes_m=d.hose_nodes_m(),
-            tension_n=d.tension_n,
-            payout_m=d.payout_m,
-            contact_peak_tension_n=None if math.isnan(peak) else peak,
+            hose=hose_state(self.drogue),
         )
 
     def break_away(self, reason: str = "break-away") -> None:
@@ -826,7 +767,7 @@ class DockingSimulation:
         cls, reason = self.classifier.classify(
             self.captured, self.t >= self.config.max_time_s - 1e-9
         )
-        hose = self.drogue.contact_report() if isinstance(self.drogue, MultibodyDrogue) else None
+        hose = contact_report(self.drogue)
         return DockingOutcome(
             outcome=cls,
             reason=reason,
