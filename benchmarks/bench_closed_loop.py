@@ -1,7 +1,7 @@
 """Closed-loop docking speed: simulated seconds per wall second, and Dask campaign throughput.
 
     .venv/bin/python benchmarks/bench_closed_loop.py [--sim-seconds 6] [--seeds 3] [--campaign]
-        [--plants jsbsim,linear]
+        [--plants jsbsim,linear] [--hose reduced,multibody]
 
 Part 1 (one core: BLAS/OpenCV threads pinned to 1): the same scenarios (light turbulence, a few
 seeds, the first ``--sim-seconds`` of the approach plus the same length of station keeping at
@@ -10,7 +10,9 @@ vision at 50 Hz rendering only the tracker's windows (``render_mode="windows"``)
 the seeds of the real-time factor (per wall second and per CPU second of the process; "vs
 truth" is the CPU-time ratio), with the per-frame render and tracker times and the share of
 frames the tracker tracked — for each plant (the A-4 on JSBSim, the linear design model), with
-the JSBSim ÷ linear ratio of the real-time factors in the same run. Part 2 (``--campaign``): campaign throughput (runs/min) with 1 vs 2
+the JSBSim ÷ linear ratio of the real-time factors in the same run; with ``--hose`` for each flown
+hose model (``DockingConfig.hose_model``), with the hose's own cost per tick (its free and
+latched steps, timed inside the loop). Part 2 (``--campaign``): campaign throughput (runs/min) with 1 vs 2
 Dask worker processes. Prints plain tables; asserts nothing.
 """
 
@@ -22,6 +24,7 @@ for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_v, "1")
 
 import argparse  # noqa: E402
+import itertools  # noqa: E402
 import statistics  # noqa: E402
 import time  # noqa: E402
 from dataclasses import replace  # noqa: E402
@@ -37,13 +40,26 @@ cv2.setNumThreads(1)
 
 def realtime_factor(
     cfg: DockingConfig, sim_seconds: float
-) -> tuple[float, float, float, float, float]:
+) -> tuple[float, float, float, float, float, float]:
     """(sim s per wall s, sim s per CPU s of this process, median render ms per frame, median
-    tracker ms per frame, tracked share) over the first ``sim_seconds`` and ``sim_seconds`` of
-    station keeping. On a shared machine the CPU-time factor is the steadier one."""
+    tracker ms per frame, tracked share, the hose's CPU µs per tick) over the first
+    ``sim_seconds`` and ``sim_seconds`` of station keeping. On a shared machine the CPU-time
+    factor is the steadier one."""
     import app.sim.camera_sensor as cs
 
     sim = DockingSimulation(cfg)
+    hose_cpu = [0.0]
+
+    def timed_hose(method):  # type: ignore[no-untyped-def]
+        def run(*a, **k):  # type: ignore[no-untyped-def]
+            c0 = time.process_time()
+            method(*a, **k)
+            hose_cpu[0] += time.process_time() - c0
+
+        return run
+
+    sim.drogue.step = timed_hose(sim.drogue.step)  # type: ignore[method-assign]
+    sim.drogue.ride = timed_hose(sim.drogue.ride)  # type: ignore[method-assign]
     render_ms: list[float] = []
     orig = cs.render_pair
 
@@ -57,7 +73,7 @@ def realtime_factor(
     track_ms: list[float] = []
     tracked = frames = 0
     n = int(round(sim_seconds / sim.dt))
-    wall = cpu = 0.0
+    wall = cpu = hose_s = 0.0
     steps = 0
     try:
         for part in range(2):
@@ -66,6 +82,7 @@ def realtime_factor(
                     sim.step()
                 if sim.done:
                     break
+            hose_before = hose_cpu[0]
             t0, c0 = time.perf_counter(), time.process_time()
             for _ in range(n):
                 if sim.done:
@@ -78,11 +95,19 @@ def realtime_factor(
                     track_ms.append(tick.pose.timing_ms.total)
             wall += time.perf_counter() - t0
             cpu += time.process_time() - c0
+            hose_s += hose_cpu[0] - hose_before
     finally:
         cs.render_pair = orig
     med = lambda xs: statistics.median(xs) if xs else 0.0  # noqa: E731
     sim_s = steps * sim.dt
-    return sim_s / wall, sim_s / cpu, med(render_ms), med(track_ms), tracked / max(frames, 1)
+    return (
+        sim_s / wall,
+        sim_s / cpu,
+        med(render_ms),
+        med(track_ms),
+        tracked / max(frames, 1),
+        1e6 * hose_s / max(steps, 1),
+    )
 
 
 def main() -> None:
@@ -93,6 +118,9 @@ def main() -> None:
     ap.add_argument("--runs", type=int, default=8, help="campaign runs per throughput measurement")
     ap.add_argument("--vision-runs", type=int, default=4)
     ap.add_argument("--plants", default="jsbsim,linear", help="comma-separated plants")
+    ap.add_argument(
+        "--hose", default="reduced", help="comma-separated flown hose models (reduced,multibody)"
+    )
     args = ap.parse_args()
     print(f"(compiled loops ready in {compile_kernels():.1f} s; not timed)")
 
@@ -108,28 +136,34 @@ def main() -> None:
         f"median of {args.seeds} seeds)"
     )
     print(
-        f"{'plant':7s} {'case':28s} {'real-time ×':>12s} {'per CPU s':>10s} {'vs truth':>9s} "
-        f"{'render ms':>10s} {'tracker ms':>11s} {'tracked':>8s}"
+        f"{'plant':7s} {'hose':9s} {'case':28s} {'real-time ×':>12s} {'per CPU s':>10s} "
+        f"{'vs truth':>9s} {'render ms':>10s} {'tracker ms':>11s} {'tracked':>8s} "
+        f"{'hose µs/tick':>12s}"
     )
     factors: dict[tuple[str, str], float] = {}
-    for plant in args.plants.split(","):
+    for plant, hose in itertools.product(args.plants.split(","), args.hose.split(",")):
         baseline = None
         for name, cfg in cases:
             res = [
-                realtime_factor(replace(cfg, plant=plant, seed=s), args.sim_seconds)
+                realtime_factor(
+                    replace(cfg, plant=plant, hose_model=hose, seed=s), args.sim_seconds
+                )
                 for s in range(args.seeds)
             ]
             rtf = statistics.median(r[0] for r in res)
             cpu_f = statistics.median(r[1] for r in res)
-            factors[(plant, name)] = cpu_f
+            if hose == "reduced" or (plant, name) not in factors:
+                factors[(plant, name)] = cpu_f
             if baseline is None:
                 baseline = cpu_f
             rms = statistics.median(r[2] for r in res)
             tms = statistics.median(r[3] for r in res)
             share = statistics.median(r[4] for r in res)
+            hose_us = statistics.median(r[5] for r in res)
             print(
-                f"{plant:7s} {name:28s} {rtf:12.2f} {cpu_f:10.2f} {cpu_f / baseline:9.3f} "
-                f"{rms:10.2f} {tms:11.2f} {100 * share:7.0f}%"
+                f"{plant:7s} {hose:9s} {name:28s} {rtf:12.2f} {cpu_f:10.2f} "
+                f"{cpu_f / baseline:9.3f} {rms:10.2f} {tms:11.2f} {100 * share:7.0f}% "
+                f"{hose_us:12.0f}"
             )
     if ("jsbsim", cases[0][0]) in factors and ("linear", cases[0][0]) in factors:
         print("\nJSBSim ÷ linear plant (real-time factor per CPU s, same run):")

@@ -17,6 +17,7 @@ let shownSeq = -1; // the worker's message count at the last redraw
 let pulling = false; // a snapshot request is in flight
 let simRunning = null; // from /healthz: false → the banner says STOPPED
 let lastMiss = null; // {miss, captured, run}: the last plane crossing's miss (set on one tick)
+let lastContact = null; // {peak, run}: the hose's peak tension of the last latched contact (N)
 let lastOutcome = null; // {outcome, run}: the last run's outcome class (set on its last tick)
 let series = []; // {t, y, z, lat} of the current run only (from the worker)
 let connState = "connecting";
@@ -64,6 +65,7 @@ function connectTelemetry() {
     latest = snap.latest;
     lastMiss = snap.lastMiss;
     lastOutcome = snap.lastOutcome;
+    lastContact = snap.lastContact;
     render(changed);
   };
   telemetry.postMessage({ type: "connect", url: proto + location.host + API + "/telemetry" });
@@ -132,6 +134,8 @@ function render(changed) {
   $("captured").textContent = rec.captured === null || rec.captured === undefined ? "–" : (rec.captured ? "yes" : "no");
   // the outcome is set on a run's last tick only: show the last run's that ended
   $("run-outcome").textContent = lastOutcome ? lastOutcome.outcome + " (run " + lastOutcome.run + ")" : "–";
+  // the multi-body hose's peak tension over the last latched contact (kept while it rides)
+  $("contact-peak").textContent = lastContact ? fmt(lastContact.peak, 0) + " N (run " + lastContact.run + ")" : "–";
   const r = rec.rel_position_m;
   $("rel-x").textContent = r ? fmt(r[0], 3) : "–";
   $("rel-y").textContent = r ? fmt(r[1], 3) : "–";

@@ -14,6 +14,7 @@ let latest = null;
 let seq = 0; // messages taken (the page redraws only when it changed)
 let lastMiss = null; // {miss, captured, run}: the last drogue-plane crossing (set on one tick)
 let lastOutcome = null; // {outcome, run}: the last run's outcome class (set on its last tick)
+let lastContact = null; // {peak, run}: the multi-body hose's peak tension (N) of the last latched contact
 let chartRun = null;
 const series = []; // {t, y, z, lat} of the current run only
 
@@ -28,6 +29,8 @@ function connect() {
     if (rec.source !== "sim") return;
     if (rec.miss_m !== null && rec.miss_m !== undefined) lastMiss = { miss: rec.miss_m, captured: rec.captured, run: rec.run };
     if (rec.run_outcome) lastOutcome = { outcome: rec.run_outcome, run: rec.run };
+    const peak = rec.hose ? rec.hose.contact_peak_tension_n : null;
+    if (peak !== null && peak !== undefined) lastContact = { peak, run: rec.run };
     if (rec.run !== chartRun || (series.length && rec.t_s < series[series.length - 1].t)) {
       series.length = 0; // a new run: its own line, never joined to the last run's
       chartRun = rec.run;
@@ -46,6 +49,6 @@ self.onmessage = (ev) => {
     url = msg.url;
     connect();
   } else if (msg.type === "snapshot") {
-    self.postMessage({ conn, seq, latest, lastMiss, lastOutcome, series: msg.since === seq ? null : series });
+    self.postMessage({ conn, seq, latest, lastMiss, lastOutcome, lastContact, series: msg.since === seq ? null : series });
   }
 };

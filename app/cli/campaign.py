@@ -47,6 +47,7 @@ def run(args: argparse.Namespace) -> int:
             imperfections=args.imperfections,
             station_keep_s=args.station_keep,
             hold_gap_on_lost_lock=not args.backoff_on_lost_lock,
+            hose_model=args.hose,
         )
         cfg.validate()
     except ValueError as exc:

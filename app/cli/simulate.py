@@ -12,7 +12,7 @@ from typing import Any
 
 def add_docking_options(p: argparse.ArgumentParser) -> None:
     """Options shared by ``simulate`` and ``campaign``."""
-    from app.sim.docking import DockingConfig
+    from app.sim.docking import HOSE_MODELS, DockingConfig
     from app.sim.plant import PLANTS
 
     p.add_argument(
@@ -44,6 +44,14 @@ def add_docking_options(p: argparse.ArgumentParser) -> None:
         choices=["none", "standard", "harsh"],
         help="flight imperfections preset (latency, dropped frames, plant ≠ design, "
         "calibration and INS errors, tanker wake); see docs/models.md",
+    )
+    p.add_argument(
+        "--hose",
+        default=DockingConfig.hose_model,
+        choices=list(HOSE_MODELS),
+        help="the flown hose: reduced (a second-order swing on a static shape, welded at "
+        "contact) or multibody (the lumped-mass hose with its reel and coupling); "
+        "default %(default)s",
     )
     p.add_argument(
         "--backoff-on-lost-lock",
@@ -135,6 +143,7 @@ def run(args: argparse.Namespace) -> int:
             station_keep_s=args.station_keep,
             imperfections=args.imperfections,
             hold_gap_on_lost_lock=not args.backoff_on_lost_lock,
+            hose_model=args.hose,
         )
         cfg.validate()
         if args.station_keep < 0:
@@ -184,6 +193,8 @@ def run(args: argparse.Namespace) -> int:
         f"closure={show(d['closure_speed_mps'], 'm/s')} "
         f"time_to_capture={show(d['time_to_capture_s'], 's')} "
         f"aborts={d['aborts']} max_saturation={d['max_control_saturation']:.2f} "
+        f"peak_hose_tension={show(d['peak_hose_tension_n'], 'N', digits=0)} "
+        f"hose_whip={d['hose_whip']} "
         f"sim={speed['sim_time_s']:.1f} s wall={speed['wall_time_s']:.1f} s "
         f"({speed['real_time_factor']}× real time)"
     )
@@ -196,6 +207,7 @@ ROUNDING = {
     "closure_speed_mps": 3,
     "time_to_capture_s": 2,
     "max_control_saturation": 3,
+    "peak_hose_tension_n": 0,
 }
 
 

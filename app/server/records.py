@@ -29,7 +29,7 @@ from typing import TYPE_CHECKING, Literal, Protocol
 import numpy as np
 import numpy.typing as npt
 
-from app.server.schemas import Control, Guidance, StreamInfo, TickRecord
+from app.server.schemas import Control, Guidance, HoseInfo, StreamInfo, TickRecord
 from app.streams.frames import RawFrame
 from app.types import FloatArray
 from app.vision.result import PoseResult
@@ -41,6 +41,19 @@ if TYPE_CHECKING:
 
 Source = Literal["sim", "upload", "video", "camera", "push"]
 Vec3 = tuple[float, float, float]
+
+
+class HoseView(Protocol):
+    """The flown hose of a simulated tick (:class:`app.sim.docking.HoseState`)."""
+
+    @property
+    def nodes_m(self) -> FloatArray: ...
+    @property
+    def tension_n(self) -> float | None: ...
+    @property
+    def payout_m(self) -> float | None: ...
+    @property
+    def contact_peak_tension_n(self) -> float | None: ...
 
 
 class SimState(RawFrame, Protocol):
@@ -90,6 +103,8 @@ class SimState(RawFrame, Protocol):
     def rta_reason(self) -> str | None: ...
     @property
     def run_outcome(self) -> str | None: ...
+    @property
+    def hose(self) -> HoseView | None: ...
 
 
 @dataclass(frozen=True)
@@ -257,6 +272,17 @@ def _points(points: FloatArray | None) -> list[Vec3] | None:
     return [(float(p[0]), float(p[1]), float(p[2])) for p in np.asarray(points)]
 
 
+def _hose(hose: HoseView | None) -> HoseInfo | None:
+    if hose is None:
+        return None
+    return HoseInfo(
+        nodes_m=_points(hose.nodes_m) or [],
+        tension_n=_finite(hose.tension_n),
+        payout_m=_finite(hose.payout_m),
+        contact_peak_tension_n=_finite(hose.contact_peak_tension_n),
+    )
+
+
 def to_record(
     tick: Tick, *, seq: int, clock_s: float, run: int, source_epoch: int | None = None
 ) -> TickRecord:
@@ -297,6 +323,7 @@ def to_record(
         timings_ms=_timings(tick),
         guidance=tick.guidance,
         stream=tick.stream,
+        hose=None if sim is None else _hose(sim.hose),
     )
     paced = tick.paced
     if paced is not None:  # the worker's deadline is on the monotonic clock

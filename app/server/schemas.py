@@ -7,7 +7,7 @@ from typing import Literal
 from pydantic import BaseModel, Field
 
 # the simulation's configuration lives in the core (the 3-D view uses it without the web layer)
-from app.sim.sim_config import STRICT, SimConfig, Turbulence
+from app.sim.sim_config import STRICT, HoseModel, SimConfig, Turbulence
 from app.vision.drogue import DrogueProfile
 from app.vision.result import PoseResult
 
@@ -51,6 +51,23 @@ class StreamInfo(BaseModel):
     dropped_skew: int
     dropped_backpressure: int
     skew_ms: float | None = None
+
+
+class HoseInfo(BaseModel):
+    """The flown hose of a simulated tick (tanker frame, m; N)."""
+
+    nodes_m: list[Vec3] = Field(
+        description="the hose's nodes, reel exit first, drogue last (tanker frame, m)"
+    )
+    tension_n: float | None = Field(
+        None, description="the tick's highest segment tension (N; multi-body hose only)"
+    )
+    payout_m: float | None = Field(
+        None, description="the reel's payout (m; the full trail length when not taken up)"
+    )
+    contact_peak_tension_n: float | None = Field(
+        None, description="the latched contact's peak hose tension so far (N; else None)"
+    )
 
 
 class TickRecord(BaseModel):
@@ -105,6 +122,7 @@ class TickRecord(BaseModel):
     )
     guidance: Guidance | None = None
     stream: StreamInfo | None = None
+    hose: HoseInfo | None = Field(None, description="the flown hose (simulated ticks)")
 
 
 class SimConfigUpdate(BaseModel):
@@ -121,6 +139,7 @@ class SimConfigUpdate(BaseModel):
     tick_hz: float | None = None
     matcher: Literal["epipolar", "paper"] | None = None
     vision: bool | None = None
+    hose_model: HoseModel | None = None
 
 
 class PlantInfo(BaseModel):

@@ -99,6 +99,7 @@ def docking_config(config: SimConfig) -> DockingConfig:
         led_count=config.drogue.led_count,
         ring_radius_m=config.drogue.ring_radius_mm / 1000.0,
         led_diameter_mm=config.drogue.led_diameter_mm,
+        hose_model=config.hose_model,
     )
 
 

@@ -40,6 +40,9 @@ CSV_FIELDS = (
     "frames_duplicated",
     "lateral_speed_mps",
     "hose_whip_risk",
+    "peak_hose_tension_n",
+    "hose_whip",
+    "hose_released",
     "recoveries",
     "alpha_min_deg",
     "alpha_max_deg",
@@ -126,6 +129,7 @@ def summarise(rows: list[dict[str, Any]], config: DockingConfig | None = None) -
     departures = outcomes["departure"]
     lateral = _finite(float(r.get("lateral_speed_mps") or math.nan) for r in captured)
     closure = _finite(r["closure_speed_mps"] for r in captured)
+    tension = _finite(float(r.get("peak_hose_tension_n") or math.nan) for r in rows)
     summary: dict[str, Any] = {
         "runs": n,
         "outcomes": outcomes,
@@ -139,6 +143,14 @@ def summarise(rows: list[dict[str, Any]], config: DockingConfig | None = None) -
         "closure_at_contact_min_mps": float(closure.min()) if len(closure) else None,
         "closure_at_contact_max_mps": float(closure.max()) if len(closure) else None,
         "hose_whip_risk_runs": sum(1 for r in rows if r.get("hose_whip_risk")),
+        # the multi-body hose's latched contacts (N; None without one) and its whips
+        "peak_tension_n": {
+            "p50": q(tension, 50),
+            "p95": q(tension, 95),
+            "max": float(tension.max()) if len(tension) else None,
+        },
+        "whip_runs": sum(1 for r in rows if r.get("hose_whip")),
+        "hose_released_runs": sum(1 for r in rows if r.get("hose_released")),
         "seeds": [int(min(r["seed"] for r in rows)), int(max(r["seed"] for r in rows))],
         "success_rate": len(captured) / n,
         "miss_p50_m": q(miss, 50),
@@ -166,6 +178,7 @@ def summarise(rows: list[dict[str, Any]], config: DockingConfig | None = None) -
             "closure_speed_mps": config.closure_speed_mps,
             "station_keep_s": config.station_keep_s,
             "hold_gap_on_lost_lock": config.hold_gap_on_lost_lock,
+            "hose_model": config.hose_model,
         }
         imp = resolve(config.imperfections)
         summary["imperfections"] = {"preset": imp.name, "values": imp.to_dict()}

@@ -107,6 +107,28 @@ class HoseDrogueParams:
         return np.asarray(from_drogue[::-1])
 
 
+def bow_wave_force(
+    drogue_m: FloatArray,
+    nose_m: FloatArray,
+    nose_axis: FloatArray,
+    force_n: float,
+    length_m: float,
+    up_bias_m: float,
+) -> FloatArray:
+    """Force (N) the receiver's bow wave exerts on a drogue at ``drogue_m`` (module docstring):
+    ``F₀ exp(−s/ℓ) · unit(r⊥ + ε·up)``, the nose at ``nose_m`` pointing along ``nose_axis``."""
+    if force_n == 0.0:
+        return np.zeros(3)
+    rel = drogue_m - nose_m
+    s = float(rel @ nose_axis)
+    if s < 0.0:
+        s = 0.0
+    r_perp = rel - s * nose_axis
+    direction = r_perp + np.array([0.0, 0.0, -up_bias_m])
+    direction /= np.linalg.norm(direction)
+    return np.asarray(force_n * np.exp(-s / length_m) * direction)
+
+
 class HoseDrogue:
     """Drogue position/velocity about its equilibrium; explicit state, semi-implicit Euler substeps."""
 
@@ -148,16 +170,19 @@ class HoseDrogue:
     def bow_wave_force(self, nose_m: FloatArray, nose_axis: FloatArray) -> FloatArray:
         """Force (N) the receiver's bow wave exerts on the drogue (see module docstring)."""
         p = self.params
-        if p.bow_force_n == 0.0:
-            return np.zeros(3)
-        rel = self.position_m - nose_m
-        s = float(rel @ nose_axis)
-        if s < 0.0:
-            s = 0.0
-        r_perp = rel - s * nose_axis
-        direction = r_perp + np.array([0.0, 0.0, -p.bow_up_bias_m])
-        direction /= np.linalg.norm(direction)
-        return p.bow_force_n * np.exp(-s / p.bow_length_m) * direction
+        return bow_wave_force(
+            self.position_m, nose_m, nose_axis, p.bow_force_n, p.bow_length_m, p.bow_up_bias_m
+        )
+
+    def latch(self, probe_m: FloatArray, closure_mps: float) -> None:
+        """Contact: from the next tick on the drogue is welded to the probe (:meth:`ride`);
+        nothing to latch in this model."""
+
+    def ride(self, dt: float, probe_m: FloatArray, gust_mps: FloatArray | None = None) -> None:
+        """Latched: the drogue sits on the probe tip ``probe_m`` (m), at rest in its frame (the
+        gust moves nothing: the drogue is welded)."""
+        self.d = probe_m - self.eq_m
+        self.v = np.zeros(3)
 
     def step(self, dt: float, gust_mps: FloatArray, force_n: FloatArray | None = None) -> None:
         p = self.params

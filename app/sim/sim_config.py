@@ -16,6 +16,7 @@ from app.vision.drogue import BASKET_24IN, DrogueProfile
 
 Turbulence = Literal["none", "light", "moderate", "severe"]
 Plant = Literal["jsbsim", "linear"]
+HoseModel = Literal["reduced", "multibody"]  # app.sim.docking.HOSE_MODELS
 TURBULENCE_LEVELS: tuple[Turbulence, ...] = ("none", "light", "moderate", "severe")
 LED_COUNT = 5
 
@@ -43,6 +44,11 @@ class SimConfig(BaseModel):
     tick_hz: float = Field(30.0, ge=1.0, le=120.0)
     matcher: Literal["epipolar", "paper"] = "epipolar"
     vision: bool = True
+    hose_model: HoseModel = Field(
+        "reduced",
+        description="the flown hose: reduced (a second-order swing on a static shape) or "
+        "multibody (the lumped-mass hose with its reel and coupling)",
+    )
     drogue: DrogueProfile = Field(
         BASKET_24IN,
         description="the drogue flown and looked for (app/vision/drogue.py; the service's "

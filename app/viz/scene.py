@@ -3,7 +3,7 @@
 Nodes are created once (:meth:`DockingScene.__init__`) and only updated afterwards
 (:meth:`DockingScene.update`, inside ``server.atomic()``). Named nodes:
 
-``/tanker``, ``/hose``, ``/drogue`` (with ``/drogue/basket`` ghosted truth, ``/drogue/capture_disc``),
+``/tanker``, ``/hose`` (with ``/hose/readout``: the tension and reel payout), ``/drogue`` (with ``/drogue/basket`` ghosted truth, ``/drogue/capture_disc``),
 ``/drogue_normal`` (arrow), ``/leds/led_1..N`` (spheres coloured by id), ``/measured/center``,
 ``/measured/ring``, ``/measured/leds`` (point cloud), ``/receiver`` (with ``/receiver/fuselage``,
 ``/receiver/wing``), ``/probe``, ``/probe_tip``, ``/cameras/left``, ``/cameras/right`` (frustums
@@ -28,8 +28,9 @@ from app.streams.annotations import LED_COLORS_RGB, annotate, led_color
 from app.streams.frames import RawFrame
 
 if TYPE_CHECKING:
-    from app.server.schemas import (
-        TickRecord,  # the record's type only: viz imports no server module
+    from app.server.schemas import (  # the records' types only: viz imports no server module
+        HoseInfo,
+        TickRecord,
     )
 
 DROGUE_RADIUS_M = 0.305
@@ -39,6 +40,7 @@ LED_COUNT = 5
 NODE_NAMES = (
     "/tanker",
     "/hose",
+    "/hose/readout",
     "/drogue",
     "/drogue/basket",
     "/drogue/capture_disc",
@@ -185,6 +187,18 @@ def camera_pose_from_tick(
     return CameraPose(R_TB @ geometry.R_BC, np.asarray(uav[9:12], float) + R_TB @ geometry.camera_b)
 
 
+def hose_readout(hose: HoseInfo | None) -> str | None:
+    """The hose's readout in the 3-D view (None: the hose model has no tension or reel)."""
+    if hose is None or hose.tension_n is None:
+        return None
+    text = f"hose {hose.tension_n:.0f} N"
+    if hose.payout_m is not None:
+        text += f" · reel payout {hose.payout_m:.2f} m"
+    if hose.contact_peak_tension_n is not None:
+        text += f" · contact peak {hose.contact_peak_tension_n:.0f} N"
+    return text
+
+
 class DockingScene:
     """Creates the scene nodes once and updates them from tick records."""
 
@@ -216,6 +230,9 @@ class DockingScene:
         s.add_label("/tanker/label", "tanker (hose exit)", position=(0.0, 0.0, -0.4))
         self.hose = s.add_line_segments(
             "/hose", np.zeros((10, 2, 3), np.float32), (40, 40, 40), thickness=0.04
+        )
+        self.hose_readout = s.add_label(
+            "/hose/readout", "", position=(-7.5, 0.0, 0.6), visible=False
         )
         self.drogue = s.add_frame("/drogue", show_axes=False, position=(-15.0, 0.0, 3.0))
         bv, bf = basket_mesh()
@@ -357,6 +374,25 @@ class DockingScene:
             if images and raw is not None:
                 self._update_images(record, raw)
 
+    def _update_hose(self, record: TickRecord, drogue: np.ndarray, normal: np.ndarray) -> None:
+        """The flown hose's nodes (the record's), else a display line from the hose exit to
+        the drogue's throat with a little sag; the readout: tension, reel payout and the last
+        contact's peak tension where the hose model has them."""
+        hose = record.hose
+        if hose is not None and len(hose.nodes_m) >= 2:
+            pts = np.asarray(hose.nodes_m, float)
+        else:
+            throat = drogue - 0.45 * normal
+            s = np.linspace(0.0, 1.0, 11)[:, None]
+            pts = s * throat[None, :]
+            pts[:, 2] += 0.08 * np.linalg.norm(throat) * np.sin(np.pi * s[:, 0])
+        self.hose.points = polyline_segments(pts).astype(np.float32)
+        text = hose_readout(hose)
+        self.hose_readout.visible = text is not None
+        if text is not None:
+            self.hose_readout.text = text
+            self.hose_readout.position = tuple(0.5 * pts[len(pts) // 2] + 0.5 * pts[-1])
+
     def _update_sim(
         self, record: TickRecord, cam: CameraPose | None, cam_frame: CameraPose | None
     ) -> None:
@@ -368,12 +404,7 @@ class DockingScene:
             self.drogue.position = d
             self.drogue.wxyz = wxyz_from_matrix(R)
             self.normal_arrow.points = np.array([[d, d + 0.6 * n]], dtype=np.float32)
-            # hose: tanker hose exit → drogue throat with a little sag (display only)
-            throat = d - 0.45 * n
-            s = np.linspace(0.0, 1.0, 11)[:, None]
-            pts = s * throat[None, :]
-            pts[:, 2] += 0.08 * np.linalg.norm(throat) * np.sin(np.pi * s[:, 0])
-            self.hose.points = polyline_segments(pts).astype(np.float32)
+            self._update_hose(record, d, n)
             leds_cam = record.led_truth_cam_mm
             if leds_cam is not None and cam_frame is not None and len(leds_cam) > 0:
                 world = cam_frame.to_tanker(np.asarray(leds_cam))

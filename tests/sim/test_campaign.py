@@ -68,6 +68,9 @@ def test_simulate_cli_json_shape(capsys):
         "time_to_capture_s",
         "aborts",
         "max_control_saturation",
+        "peak_hose_tension_n",
+        "hose_whip",
+        "hose_released",
         "sim_time_s",
         "wall_time_s",
         "real_time_factor",
@@ -88,6 +91,42 @@ def test_simulate_cli_json_shape(capsys):
     assert out["real_time_factor"] == pytest.approx(
         out["sim_time_s"] / out["wall_time_s"], rel=1e-2
     )
+    assert out["peak_hose_tension_n"] is None and out["hose_whip"] is False  # the reduced hose
+
+
+def test_simulate_cli_multibody_hose_reports_the_contact(capsys):
+    argv = ["simulate", "--plant", "linear", "--turbulence", "none", "--truth-measurements"]
+    code = main([*argv, "--json", "--station-keep", "1", "--hose", "multibody"])
+    assert code == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["captured"] is True
+    assert out["peak_hose_tension_n"] > 1000.0 and out["hose_whip"] is False
+
+
+def test_summary_quotes_the_peak_tension_distribution_and_whips():
+    tensions = [2100.0, 2300.0, float("nan"), 2500.0, 4400.0]
+    rows = [
+        {
+            "seed": k,
+            "outcome": "captured" if t == t else "aborted",
+            "captured": t == t,
+            "miss_distance_m": 0.1,
+            "closure_speed_mps": 1.6,
+            "time_to_capture_s": 10.0,
+            "aborts": 0,
+            "max_control_saturation": 0.5,
+            "wall_time_s": 1.0,
+            "sim_time_s": 10.0,
+            "peak_hose_tension_n": t,
+            "hose_whip": t > 4000.0,
+        }
+        for k, t in enumerate(tensions)
+    ]
+    s = summarise(rows)
+    assert s["peak_tension_n"]["p50"] == pytest.approx(2400.0)  # of the four latched runs
+    assert s["peak_tension_n"]["max"] == 4400.0
+    assert 2500.0 < s["peak_tension_n"]["p95"] < 4400.0
+    assert s["whip_runs"] == 1
 
 
 def test_simulate_cli_plots(tmp_path, capsys):

@@ -35,6 +35,7 @@ class FakeSimState:
     led_truth_cam_mm: np.ndarray | None = None
     rta_reason: str | None = None
     run_outcome: str | None = None
+    hose: None = None
     left_image: np.ndarray | None = None
     right_image: np.ndarray | None = None
     stereo_frame: None = None

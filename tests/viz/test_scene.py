@@ -156,3 +156,25 @@ def test_camera_pose_from_real_sim_tick_puts_leds_on_the_drogue_rim() -> None:
     # and in the rim plane (normal ⟂ LED offsets)
     off = world - np.asarray(prev.drogue_truth_m)
     assert np.max(np.abs(off @ np.asarray(prev.drogue_normal))) < 0.002
+
+
+def test_scene_draws_the_flown_hose_and_its_readout(server) -> None:
+    from app.server.schemas import HoseInfo
+    from app.viz.scene import hose_readout
+
+    scene = DockingScene(server, paper_calibration())
+    nodes = [(-0.75 * i, 0.01 * i, 0.15 * i) for i in range(21)]
+    hose = HoseInfo(nodes_m=nodes, tension_n=2210.4, payout_m=14.62, contact_peak_tension_n=2290.0)
+    scene.update(_record(0, None).model_copy(update={"hose": hose}), None, images=False)
+    segs = np.asarray(scene.hose.points)
+    assert segs.shape == (20, 2, 3)  # one segment per pair of the record's nodes
+    np.testing.assert_allclose(segs[:, 0], nodes[:-1], atol=1e-6)
+    np.testing.assert_allclose(segs[-1, 1], nodes[-1], atol=1e-6)
+    assert scene.hose_readout.visible
+    assert scene.hose_readout.text == "hose 2210 N · reel payout 14.62 m · contact peak 2290 N"
+    # the reduced model: nodes without a tension → the line, no readout
+    scene.update(
+        _record(1, None).model_copy(update={"hose": HoseInfo(nodes_m=nodes)}), None, images=False
+    )
+    assert not scene.hose_readout.visible
+    assert hose_readout(None) is None

@@ -19,6 +19,9 @@ from app.sim.jsbsim_plant import JsbsimCondition
 from app.sim.plant import DEFAULT_PLANT, PLANTS
 from app.sim.turbulence import LEVELS
 
+#: the hose and drogue models the loop can fly (DockingConfig.hose_model)
+HOSE_MODELS = ("reduced", "multibody")
+
 
 # guidance per plant. The Aerosonde design model follows the drogue's swing (its modes are
 # 10–30× faster); the A-4 cannot (lateral position bandwidth ≈ 0.5 rad/s against a 1.6 rad/s
@@ -182,6 +185,11 @@ class DockingConfig:
     # the run-time assurance's envelope (app.control.envelope.EnvelopeBounds; None: the
     # plant's, app.sim.docking.simulation.PLANT_ENVELOPE — the A-4's defaults and sources)
     envelope: EnvelopeBounds | None = None
+    # the flown hose and drogue (HOSE_MODELS): "reduced" — the reduced-order swing on a static
+    # hose shape, welded to the probe at contact (app.sim.hose_drogue); "multibody" — the
+    # lumped-mass hose with its reel and coupling (app.sim.hose, through
+    # app.sim.docking.multibody_drogue). The guidance's model is the nominal one either way
+    hose_model: str = "reduced"
 
     def jsbsim_condition(self, fuel_lbs: float | None = None) -> JsbsimCondition:
         """The A-4's condition (``fuel_lbs`` None: the aircraft file's load)."""
@@ -204,6 +212,8 @@ class DockingConfig:
         if self.turbulence not in LEVELS:
             raise ValueError(f"turbulence must be one of {LEVELS}, got {self.turbulence!r}")
         resolve(self.imperfections)
+        if self.hose_model not in HOSE_MODELS:
+            raise ValueError(f"hose_model must be one of {HOSE_MODELS}, got {self.hose_model!r}")
         if self.render_mode not in RENDER_MODES:
             raise ValueError(f"render_mode must be one of {RENDER_MODES}, got {self.render_mode!r}")
         if self.matcher not in ("epipolar", "paper"):

@@ -19,6 +19,19 @@ if TYPE_CHECKING:
     from app.streams.frames import StereoFrame
 
 
+@dataclass(frozen=True)
+class HoseState:
+    """The flown hose this tick (tanker frame, m; N): its nodes from the reel exit (first) to
+    the drogue (last); with the multi-body hose also the tick's highest segment tension, the
+    reel's payout and the latched contact's peak tension so far (None where the model has none:
+    the reduced model has no tension or reel, and before a latch no contact peak)."""
+
+    nodes_m: FloatArray
+    tension_n: float | None = None
+    payout_m: float | None = None
+    contact_peak_tension_n: float | None = None
+
+
 @dataclass
 class DockingTick:
     """Everything one tick produced (tanker frame, m/rad/s unless stated)."""
@@ -62,6 +75,8 @@ class DockingTick:
     rta_reason: str | None = None
     # the run's outcome class (app.sim.docking.outcomes.OUTCOMES) on its last tick; else None
     run_outcome: str | None = None
+    # the flown hose (its nodes; the multi-body hose's tension, payout, contact peak)
+    hose: HoseState | None = None
 
     @property
     def stereo_frame(self) -> StereoFrame | None:
@@ -85,6 +100,12 @@ class DockingOutcome:
     time_to_capture_s: float  # NaN if not captured
     aborts: int
     max_control_saturation: float  # max over the run of |δ − δ_trim| / travel (0..1)
+    # the multi-body hose's contact (hose_model="multibody"; NaN / False otherwise or without
+    # a latch): the hose's peak tension while latched (N), a whip (slack, then snapped taut
+    # above the whip factor × the trail tension), the coupling pulled off the probe
+    peak_hose_tension_n: float = math.nan
+    hose_whip: bool = False
+    hose_released: bool = False
 
     def to_dict(self) -> dict[str, Any]:
         def f(v: float) -> float | None:
@@ -103,6 +124,9 @@ class DockingOutcome:
             "time_to_capture_s": f(self.time_to_capture_s),
             "aborts": int(self.aborts),
             "max_control_saturation": float(self.max_control_saturation),
+            "peak_hose_tension_n": f(self.peak_hose_tension_n),
+            "hose_whip": bool(self.hose_whip),
+            "hose_released": bool(self.hose_released),
         }
 
 

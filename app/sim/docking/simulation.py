@@ -59,7 +59,12 @@ from app.geometry.rotations import euler_to_matrix, look_at_camera
 from app.resources import load_default_calibration
 from app.sim.camera_sensor import StereoCameraSensor
 from app.sim.docking.config import PLANT_GUIDANCE, DockingConfig
-from app.sim.docking.drogue_setup import flown_drogue, nominal_drogue_model
+from app.sim.docking.flown_hose import (
+    contact_report,
+    flown_drogue,
+    hose_state,
+    nominal_drogue_model,
+)
 from app.sim.docking.guidance import SwingGuidance
 from app.sim.docking.outcomes import (
     ContactReport,
@@ -205,8 +210,8 @@ class DockingSimulation:
         self.turb = DrydenTurbulence(
             cfg.turbulence, trim.tas_mps, self.dt, trim.altitude_ft * 0.3048, seed=cfg.seed
         )
-        # this run's hose and drogue (the guidance keeps the nominal model: drogue_setup)
-        self.drogue = flown_drogue(cfg, trim.air_density_kgm3, trim.tas_mps, self.imp_draw)
+        # this run's hose and drogue (the guidance keeps the nominal model: flown_hose)
+        self.drogue = flown_drogue(cfg, trim.air_density_kgm3, trim.tas_mps, self.imp_draw, self.dt)
         # receiver at trim, probe tip start_gap behind the drogue's rest position (+ random offset)
         offset = np.concatenate([[0.0], rng.normal(0.0, cfg.start_offset_sigma_m, 2)])
         tip_start = self.drogue.eq_m - np.array([cfg.start_gap_m, 0.0, 0.0]) + offset
@@ -612,9 +617,9 @@ class DockingSimulation:
         self.k += 1
         tip = self.probe_tip()
         if self.captured:
-            # probe and drogue are latched: the drogue rides on the probe tip
-            self.drogue.d = tip - self.drogue.eq_m
-            self.drogue.v = np.zeros(3)
+            # probe and drogue are latched: the drogue rides on the probe tip (the reduced
+            # model: welded; the multi-body hose: on the coupling, the hose through the reel)
+            self.drogue.ride(dt, tip, gust)
         else:
             r_tb = self._rot(self.x)
             nose = self.x[9:12] + r_tb @ self.r_nose_b
@@ -666,6 +671,7 @@ class DockingSimulation:
             camera_pose_T=frame_pose,
             rta_reason=self.rta_reason,
             run_outcome=self.outcome().outcome if self.done else None,
+            hose=hose_state(self.drogue),
         )
 
     def _judge_crossing(self, tip: FloatArray, c: PlaneCrossing) -> bool:
@@ -687,6 +693,7 @@ class DockingSimulation:
         if kind == "captured":
             self.captured = True
             self.capture_time = self.t
+            self.drogue.latch(tip, c.closure_mps)
             self.guidance.mark_contact(tip)
             return True
         if kind == "rim_strike":
@@ -764,6 +771,7 @@ class DockingSimulation:
         cls, reason = self.classifier.classify(
             self.captured, self.t >= self.config.max_time_s - 1e-9
         )
+        hose = contact_report(self.drogue)
         return DockingOutcome(
             outcome=cls,
             reason=reason,
@@ -777,6 +785,9 @@ class DockingSimulation:
             time_to_capture_s=self.capture_time,
             aborts=self.aborts,
             max_control_saturation=self.max_sat,
+            peak_hose_tension_n=math.nan if hose is None else hose.peak_tension_n,
+            hose_whip=hose is not None and hose.whip,
+            hose_released=hose is not None and hose.released,
         )
 
     def run(self, max_ticks: int | None = None) -> DockingOutcome:
