@@ -123,16 +123,26 @@ def record(frames: list[StereoFrame], enc: FrameEncoding, where: Path, config: A
     return where
 
 
+def pose_key(row: dict[str, Any]) -> tuple[Any, ...]:
+    """What a replay must reproduce of a pair (not its timings): lock, reason, tracker mode,
+    LED ids and pixel centroids, the centre."""
+    leds = tuple((d["id"], tuple(d["left_px"]), tuple(d["right_px"])) for d in row["leds"])
+    drogue = row.get("drogue") or {}
+    return (row["frame"], row["lock"], row["reason"], row["mode"], leds, drogue.get("center_mm"))
+
+
 def track(path: Path, out: Path) -> list[dict[str, Any]]:
-    with contextlib.redirect_stdout(io.StringIO()):
+    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
         code = cli_main(["track", "--left", str(path), "--jsonl", str(out), "--no-progress"])
     assert code == 0, (path, code)
     return [json.loads(x) for x in out.open()]
 
 
 def centre(row: dict[str, Any]) -> np.ndarray | None:
-    c = row.get("center_mm")
-    return None if c is None or not row.get("lock") else np.asarray(c, float)
+    drogue = row.get("drogue")
+    if not row.get("lock") or not drogue:
+        return None
+    return np.asarray(drogue["center_mm"], float)
 
 
 def replay_check(frames: list[StereoFrame], config: Any) -> None:
@@ -145,11 +155,12 @@ def replay_check(frames: list[StereoFrame], config: Any) -> None:
             d = record(frames, enc, Path(tmp), config)
             rows = {k: track(d / f"rec.{k}", d / f"{k}.jsonl") for k in ("frames", "mcap")}
         locks = {k: sum(bool(r["lock"]) for r in v) for k, v in rows.items()}
-        same = rows["frames"] == rows["mcap"]
+        keys = {k: [pose_key(r) for r in v] for k, v in rows.items()}
         if reference is None:
             reference = rows["frames"]
         if enc.lossless:
-            identical = same and rows["frames"] == reference
+            ref_keys = [pose_key(r) for r in reference]
+            identical = keys["frames"] == keys["mcap"] == ref_keys
             print(
                 f"  {enc.label:<18} locks frames {locks['frames']}/{len(frames)}, mcap "
                 f"{locks['mcap']}/{len(frames)}; identical to png-huffman through both: "
