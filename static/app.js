@@ -386,7 +386,10 @@ async function refreshRecordings() {
     for (const r of recs) {
       const li = document.createElement("li");
       const when = new Date(r.started_wall * 1000).toLocaleString();
-      li.textContent = r.id + " — " + when + ", " + r.ticks + " ticks" + (r.active ? " (recording…)" : "") + " ";
+      li.textContent = r.id + " — " + when + ", " + r.ticks + " ticks"
+        + (r.frame_pairs ? ", " + r.frame_pairs + " pairs, " + (r.frames_bytes / 1e6).toFixed(0) + " MB (" + (r.frames_encoding || "png") + ")" : "")
+        + (r.stop_reason && !r.active ? " — " + r.stop_reason : "")
+        + (r.active ? " (recording…)" : "") + " ";
       if (!r.active) {
         const base = API + "/recordings/" + encodeURIComponent(r.id);
         const links = [["telemetry (JSONL)", base + "/telemetry.jsonl"]];
@@ -404,9 +407,59 @@ async function refreshRecordings() {
   } catch (e) { /* ignore */ }
 }
 
+/** The recording options chosen on the page, as a query string. */
+function recordingQuery() {
+  const q = new URLSearchParams({
+    frames: $("rec-frames").checked ? "true" : "false",
+    codec: $("rec-codec").value,
+    png_level: $("rec-png-level").value || "1",
+    jpeg_quality: $("rec-jpeg-quality").value || "90",
+  });
+  return "?" + q.toString();
+}
+
+function minSec(s) {
+  if (s === null || s === undefined) return "–";
+  const m = Math.floor(s / 60), r = Math.round(s - 60 * m);
+  return m > 0 ? m + " min " + r + " s" : r + " s";
+}
+
+const BOUND_TEXT = {
+  "max_s": "the time limit (AAR_RECORDING_MAX_S)",
+  "frames budget": "the frames' budget (AAR_RECORDING_FRAMES_MAX_MB)",
+  "size bound": "the telemetry's size bound (AAR_RECORDING_MAX_MB)",
+  "free space": "the free disk space above the floor (AAR_RECORDING_MIN_FREE_MB)",
+};
+
+/** The write rate and the time left (recording), or how long one can run (before a start). */
+async function refreshRecordingBudget() {
+  const el = $("rec-budget");
+  if (!el) return;
+  try {
+    const p = await api("GET", "/recording" + recordingQuery());
+    const rate = p.mb_per_min === null ? "–" : p.mb_per_min.toFixed(0) + " MB/min";
+    const by = p.limited_by ? ", limited by " + (BOUND_TEXT[p.limited_by] || p.limited_by) : "";
+    const what = p.frames ? "frames " + p.encoding + (p.lossless ? "" : " — lossy") : "telemetry only";
+    let text;
+    if (p.active) {
+      text = "recording (" + what + "): " + rate + " measured, " + minSec(p.time_left_s) + " left" + by;
+    } else if (p.time_left_s === null) {
+      text = "a recording (" + what + "): no estimate yet (" + p.basis + ")";
+    } else {
+      text = "a recording (" + what + ") can run ≈ " + minSec(p.time_left_s) + " at ≈ " + rate + by + " (from " + p.basis + ")";
+    }
+    el.textContent = text;
+    el.dataset.timeLeft = p.time_left_s === null ? "" : String(p.time_left_s);
+    el.dataset.active = String(p.active);
+  } catch (e) { el.textContent = "recording budget: " + e.message; }
+}
+
 function wireRecordings() {
+  for (const id of ["rec-frames", "rec-codec", "rec-png-level", "rec-jpeg-quality"]) {
+    $(id).addEventListener("change", refreshRecordingBudget);
+  }
   $("rec-start").addEventListener("click", async () => {
-    try { const r = await api("POST", "/recording/start"); $("rec-msg").textContent = "recording " + r.id; }
+    try { const r = await api("POST", "/recording/start" + recordingQuery()); $("rec-msg").textContent = "recording " + r.id; }
     catch (e) { $("rec-msg").textContent = e.message; }
     refreshRecordings();
   });
@@ -456,6 +509,7 @@ async function init() {
   pollHealth(); setInterval(pollHealth, 1000);
   setInterval(refreshCameras, 1000 / CAMERA_HZ);
   refreshRecordings(); setInterval(refreshRecordings, 5000);
+  refreshRecordingBudget(); setInterval(refreshRecordingBudget, 2000);
 }
 
 init();

@@ -2,7 +2,8 @@
 
 Adapter between the tick loop's records (:class:`~app.server.schemas.TickRecord` + the raw
 tick) and the MCAP writer: one :class:`~app.streams.mcap_log.McapTick` per record (the
-telemetry exactly as its JSONL line), the frame recording's own PNG bytes for the images.
+telemetry exactly as its JSONL line), the frame recording's own image bytes (PNG, or JPEG with
+the lossy codec) for the images.
 """
 
 from __future__ import annotations
@@ -14,7 +15,14 @@ from app.geometry.calibration import StereoCalibration
 from app.server.schemas import TickRecord
 from app.sim.rig_mount import CameraMount
 from app.streams.frames import RawFrame
-from app.streams.mcap_log import EncodedPair, McapLogWriter, McapStats, McapTick, frame_info
+from app.streams.mcap_log import (
+    EncodedPair,
+    ImageFormat,
+    McapLogWriter,
+    McapStats,
+    McapTick,
+    frame_info,
+)
 from app.vision.drogue import DrogueProfile
 
 
@@ -59,8 +67,10 @@ class RecordingMcap:
         calibration: StereoCalibration | None,
         mount: CameraMount | None,
         drogue: DrogueProfile | None = None,
+        image_format: ImageFormat = "png",
     ) -> None:
         self.path = path
+        self.image_format: ImageFormat = image_format
         self.writer = McapLogWriter(
             path,
             calibration=calibration,
@@ -72,10 +82,18 @@ class RecordingMcap:
     def on_record(self, record: TickRecord, line: bytes, raw: RawFrame | None = None) -> None:
         self.writer.write_tick(mcap_tick(record, line, raw))
 
-    def on_pair(self, entry: dict[str, Any], left_png: bytes, right_png: bytes) -> None:
-        """The frame writer's hook: the pair's PNG bytes, at its record's log time."""
-        pair = EncodedPair(left_png, right_png, "png", frame_info(entry))
+    def on_pair(self, entry: dict[str, Any], left: bytes, right: bytes) -> None:
+        """The frame writer's hook: the pair's encoded bytes, at its record's log time."""
+        pair = EncodedPair(left, right, self.image_format, frame_info(entry))
         self.writer.write_pair(pair, entry.get("record_seq"))
+
+    @property
+    def bytes_on_disk(self) -> int:
+        """The log's size so far (its finished chunks; 0 if it cannot be read)."""
+        try:
+            return self.path.stat().st_size
+        except OSError:
+            return 0
 
     def close(self) -> McapStats:
         return self.writer.close()

@@ -77,7 +77,9 @@ class Settings(BaseSettings):
     recordings_dir: Path = Field(
         default_factory=default_recordings_dir, description="where recordings are written"
     )
-    recording_max_s: float = Field(300.0, gt=0.0, description="a recording stops after this")
+    recording_max_s: float = Field(
+        900.0, gt=0.0, description="a recording stops after this (s; 15 min)"
+    )
     recording_max_mb: float = Field(200.0, gt=0.0, description="size bound of one recording")
     history_s: float = Field(60.0, gt=0.0, le=3600.0, description="ring buffer length (s)")
     telemetry_queue: int = Field(64, ge=1, le=10000, description="per-client WebSocket queue")
@@ -134,12 +136,17 @@ class Settings(BaseSettings):
         "(default: the recordings directory); the --source flag is not restricted",
     )
     recording_frames_max_mb: float = Field(
-        4000.0, gt=0.0, description="size bound of the raw frames of one recording (MB)"
+        24000.0,
+        gt=0.0,
+        description="size bound of the raw frames of one recording (MB): ≈ 13 min of the "
+        "lossless default at 30 Hz on 1280×1024 (docs/ecosystem.md); the MCAP log holds them "
+        "again, so the free-space floor is checked against both",
     )
     recording_min_free_mb: float = Field(
         512.0,
         ge=0.0,
-        description="free space (MB) a frame recording needs to start (else 507); 0: no floor",
+        description="free space (MB) a frame recording needs to start (else 507), and below "
+        "which a running one stops; 0: no floor",
     )
     push_max_mb: float | None = Field(
         None,

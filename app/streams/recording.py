@@ -1,4 +1,5 @@
-"""Raw-frame recordings: lossless PNG pairs + per-pair times + the calibration used.
+"""Raw-frame recordings: image pairs (lossless PNG by default, :mod:`app.streams.frame_encoding`)
++ per-pair times + the calibration used.
 
 Layout of a frame recording directory (``<recording id>.frames`` next to the telemetry)::
 
@@ -7,7 +8,7 @@ Layout of a frame recording directory (``<recording id>.frames`` next to the tel
     drogue.json      the DrogueProfile it looked for (app.vision.drogue)
     frames.jsonl     one line per pair: {"i", "seq", "t_s", "t_left_s", "t_right_s",
                      "exposure_ms", "left", "right", "record_seq"}
-    left/000000.png, right/000000.png, ...
+    left/000000.png, right/000000.png, ... (``.jpg`` with the lossy ``jpeg`` codec)
 
 Crash safety: each PNG is written to a temporary name and renamed; the pair's line is
 appended (and flushed) only after both files are in place, and ``fsync``-ed every
@@ -30,9 +31,9 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-import cv2
 import numpy as np
 
+from app.streams.frame_encoding import FrameEncoding
 from app.streams.frames import (
     RecordedPairs,
     SourceError,
@@ -48,14 +49,6 @@ if TYPE_CHECKING:
 
 FORMAT = "aar-dock-frames/1"
 FSYNC_PERIOD_S = 0.5
-PNG_LEVEL = 1  # fast lossless compression (≈ 20 ms for a 1280×1024 grey image)
-
-
-def _encode_png(img: np.ndarray) -> bytes:
-    ok, buf = cv2.imencode(".png", img, [cv2.IMWRITE_PNG_COMPRESSION, PNG_LEVEL])
-    if not ok:
-        raise OSError("PNG encoding failed")
-    return bytes(buf.tobytes())
 
 
 def is_frame_recording(path: str | Path) -> bool:
@@ -86,9 +79,11 @@ class FrameRecordingWriter:
         source: str | None = None,
         on_pair: Callable[[dict[str, Any], bytes, bytes], None] | None = None,
         drogue: DrogueProfile | None = None,
+        encoding: FrameEncoding | None = None,
     ) -> None:
-        """``on_pair(index line, left PNG, right PNG)``: called (in the writer's thread) once a
-        pair is on disk, with the very bytes written (the MCAP log takes them from here)."""
+        """``on_pair(index line, left, right)``: called (in the writer's thread) once a pair is
+        on disk, with the very bytes written (the MCAP log takes them from here); ``encoding``:
+        the images' codec (default: lossless ``png-huffman``)."""
         self.directory = Path(directory)
         self.directory.mkdir(parents=True, exist_ok=False)
         (self.directory / "left").mkdir()
@@ -100,6 +95,7 @@ class FrameRecordingWriter:
         self.stop_reason: str | None = None
         self.source = source
         self.on_pair = on_pair
+        self.encoding = FrameEncoding() if encoding is None else encoding
         self._t0 = time.monotonic()
         self._queue: queue.Queue[tuple[StereoFrame, int | None] | None] = queue.Queue(queue_pairs)
         self._lines = open(self.directory / "frames.jsonl", "ab")
@@ -133,6 +129,7 @@ class FrameRecordingWriter:
             "max_bytes": self.max_bytes,
             "stop_reason": self.stop_reason,
             "source": self.source,
+            "encoding": self.encoding.to_json(),
         }
 
     def _write_meta(self, status: str) -> None:
@@ -168,8 +165,9 @@ class FrameRecordingWriter:
 
     def _write(self, frame: StereoFrame, record_seq: int | None) -> None:
         i = self.pairs
-        names = (f"left/{i:06d}.png", f"right/{i:06d}.png")
-        blobs = list(self._pool.map(_encode_png, (frame.left, frame.right)))
+        ext = self.encoding.extension
+        names = (f"left/{i:06d}{ext}", f"right/{i:06d}{ext}")
+        blobs = list(self._pool.map(self.encoding.encode, (frame.left, frame.right)))
         size = sum(len(b) for b in blobs)
         if self.bytes + size > self.max_bytes:
             self.stop_reason = f"reached {self.max_bytes / 1e6:g} MB"

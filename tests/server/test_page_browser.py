@@ -265,12 +265,22 @@ def test_operators_page_end_to_end(service) -> None:
             )
             # 4. record a few seconds from the page, then replay the .viser file offline in
             #    the locally served viser client
+            #    (issue 33: the panel says how long a recording can run before it starts,
+            #    and the time left during it)
+            page.wait_for_function(
+                "document.getElementById('rec-budget').textContent.includes('can run')",
+                timeout=20_000,
+            )
             page.click("#rec-start")
             page.wait_for_function(
                 "document.getElementById('rec-msg').textContent.startsWith('recording')",
                 timeout=10_000,
             )
-            page.wait_for_timeout(2000)
+            page.wait_for_function(
+                "document.getElementById('rec-budget').textContent.includes(' left')",
+                timeout=10_000,
+            )
+            page.wait_for_timeout(1000)
             page.click("#rec-stop")
             page.wait_for_selector("#rec-list a:has-text('replay 3-D')", timeout=20_000)
             replay_href = page.get_attribute("#rec-list a:has-text('replay 3-D')", "href")

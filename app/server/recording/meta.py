@@ -46,6 +46,7 @@ class RecordingMeta(RecordingInfo):
     recovered_wall: float | None = None  # when an interrupted recording was recovered
     recovery_note: str | None = None
     frames_dir: str | None = None  # raw stereo frames (app.streams.recording), if recorded
+    frames_encoding: str | None = None  # the frames' codec (app.streams.frame_encoding)
     frame_pairs: int = 0
     frames_bytes: int = 0
     frames_dropped: int = 0  # pairs the frame writer could not keep up with

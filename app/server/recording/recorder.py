@@ -18,6 +18,14 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any, Literal, Protocol
 
+from app.server.recording.budget import (
+    Bounds,
+    RateProbe,
+    RecordingProgress,
+    Written,
+    estimated_progress,
+    measured_progress,
+)
 from app.server.recording.disk import free_mb, try_lock, write_all, write_atomic
 from app.server.recording.meta import (
     ID_RE,
@@ -29,6 +37,7 @@ from app.server.recording.meta import (
 )
 from app.server.recording.recovery import recover_recordings
 from app.server.schemas import TickRecord
+from app.streams.frame_encoding import FrameEncoding
 from app.streams.frames import RawFrame
 
 if TYPE_CHECKING:
@@ -83,7 +92,10 @@ class Recorder:
         self.max_mb = max_mb
         self.max_bytes = int(max_mb * 1e6)
         self.max_frames_bytes = int(max_frames_mb * 1e6)  # raw frames: a bound of their own
-        self.min_free_mb = min_free_mb  # a frame recording needs this much free space to start
+        self.min_free_mb = min_free_mb  # a frame recording starts, and goes on, above this
+        self.max_frames_mb = max_frames_mb
+        self.probe = RateProbe()  # the ticks' rate and a sample frame: the estimate before a start
+        self._encoding: FrameEncoding | None = None  # the active recording's frames (None: none)
         self.scene_serializer_factory = scene_serializer_factory
         self._lock = threading.Lock()
         self._info: RecordingMeta | None = None
@@ -129,9 +141,11 @@ class Recorder:
         accept_frame: Callable[[RawFrame], bool] | None = None,
         source: str | None = None,
         drogue: DrogueProfile | None = None,
+        encoding: FrameEncoding | None = None,
     ) -> RecordingMeta:
         """Start a recording. ``frames``: also the raw stereo pairs of every tick that has
-        images (lossless PNG + times + ``calibration``, in ``<id>.frames``); ``accept_frame``
+        images (encoded with ``encoding``, default lossless ``png-huffman``, + times +
+        ``calibration``, in ``<id>.frames``); ``accept_frame``
         filters the raw ticks whose pairs are written (a stream's fresh-track epoch);
         ``drogue``: the profile the source's navigation looks for, stored with the frames and
         in the MCAP log (a replay uses it)."""
@@ -160,7 +174,8 @@ class Recorder:
                     scene_file = f"{rec_id}.viser"
                 except Exception:
                     log.exception("could not start the scene serializer")
-            mcap = self._open_mcap(rec_id, calibration, drogue)
+            encoding = (encoding or FrameEncoding()) if frames else None
+            mcap = self._open_mcap(rec_id, calibration, drogue, encoding)
             writer = None
             if frames:
                 from app.streams.recording import FrameRecordingWriter
@@ -174,6 +189,7 @@ class Recorder:
                         source=source,
                         on_pair=None if mcap is None else mcap.on_pair,
                         drogue=drogue,
+                        encoding=encoding,
                     )
                 except Exception as exc:
                     self._discard_mcap(mcap)
@@ -193,6 +209,7 @@ class Recorder:
                 max_s=self.max_s,
                 max_mb=self.max_mb,
                 frames_dir=None if writer is None else writer.directory.name,
+                frames_encoding=None if encoding is None else encoding.label,
                 mcap_file=None if mcap is None else mcap.path.name,
                 mcap_note=None if mcap is not None or not self.mcap else "could not be opened",
             )
@@ -209,6 +226,7 @@ class Recorder:
                     raise storage_error("cannot write the recording's metadata", exc) from None
                 raise
             self._frames = writer
+            self._encoding = encoding
             self._mcap = mcap
             self._accept_frame = accept_frame
             self._fh = fh
@@ -231,6 +249,8 @@ class Recorder:
 
     def on_tick(self, record: TickRecord, raw: RawFrame | None = None) -> None:
         """Tick-loop subscriber: append and flush the record; request a stop at a bound."""
+        if self.probe.on_tick():
+            self._sample(record, raw)
         with self._lock:
             info, fh = self._info, self._fh
             if info is None or fh is None or self._limit_reason is not None:
@@ -258,6 +278,33 @@ class Recorder:
             elif writer is not None and writer.stop_reason is not None:
                 self._frames_stopped(info, writer.stop_reason)
 
+    def _sample(self, record: TickRecord, raw: RawFrame | None) -> None:
+        """Give the probe a telemetry line's size and the tick's left image (if any)."""
+        image = None
+        if raw is not None:
+            frame = raw.stereo_frame
+            image = frame.left if frame is not None else raw.left_image
+        self.probe.take_sample(len(record.model_dump_json()) + 1, image)
+
+    def progress(self, encoding: FrameEncoding | None = None) -> RecordingProgress:
+        """``GET /recording``: the active recording's write rate (bytes/s over the recording)
+        and the time left at it against each bound; with none active, the estimate for a
+        recording with ``encoding`` (None: without frames)."""
+        bounds = Bounds(self.max_s, self.max_mb, self.max_frames_mb, self.min_free_mb)
+        free = free_mb(self.directory) if self.directory.is_dir() else None
+        with self._lock:
+            info, writer, mcap = self._info, self._frames, self._mcap
+            active_encoding, elapsed = self._encoding, time.monotonic() - self._t0
+            telemetry = 0 if info is None else info.telemetry_bytes + self._scene_bytes_est
+        if info is None:
+            return estimated_progress(self.probe, encoding, self.mcap, bounds, free)
+        written = Written(
+            telemetry=telemetry,
+            frames=0 if writer is None else writer.bytes,
+            mcap=0 if mcap is None else mcap.bytes_on_disk,
+        )
+        return measured_progress(info.id, active_encoding, elapsed, written, bounds, free)
+
     def _total_bytes(self, info: RecordingMeta) -> int:
         """Telemetry + scene (``max_mb``); the frames have their own bound (the writer's)."""
         return info.telemetry_bytes + self._scene_bytes_est
@@ -284,6 +331,7 @@ class Recorder:
         rec_id: str,
         calibration: StereoCalibration | None,
         drogue: DrogueProfile | None = None,
+        encoding: FrameEncoding | None = None,
     ) -> RecordingMcap | None:
         """(lock held) The recording's MCAP log, or None (disabled, or it cannot be opened:
         logged; the recording goes on without it)."""
@@ -293,7 +341,8 @@ class Recorder:
             from app.server.mcap_recording import RecordingMcap
 
             path = self.directory / f"{rec_id}.mcap"
-            return RecordingMcap(path, calibration, self._rig_mount(), drogue)
+            fmt = "png" if encoding is None else encoding.image_format
+            return RecordingMcap(path, calibration, self._rig_mount(), drogue, fmt)
         except Exception:
             log.exception("recording %s: the MCAP log could not be opened", rec_id)
             return None
@@ -316,6 +365,15 @@ class Recorder:
             self._fail(info, f"frames: {why}")
         else:
             self._request_stop(f"frames: {why}")
+
+    def _under_floor(self) -> str | None:
+        """(lock held) Why a frame recording must stop for the free-space floor, or None."""
+        if self._frames is None or self.min_free_mb <= 0:
+            return None
+        free = free_mb(self.directory)
+        if free is None or free >= self.min_free_mb:
+            return None
+        return f"free space {free:.4g} MB under the floor of {self.min_free_mb:g} MB"
 
     def _check_free_space(self) -> None:
         """(lock held) 507 when a frame recording would start under the free-space floor."""
@@ -346,6 +404,8 @@ class Recorder:
                 reason = f"reached {self.max_s:g} s"
             if reason is None and self._total_bytes(info) > self.max_bytes:
                 reason = f"reached {self.max_bytes / 1e6:g} MB"
+            if reason is None:
+                reason = self._under_floor()
             if reason is None and self._frames is not None and self._frames.stop_reason:
                 self._frames_stopped(info, self._frames.stop_reason)
                 reason = self._limit_reason
@@ -399,6 +459,7 @@ class Recorder:
             fh, self._fh = self._fh, None
             ser, self._serializer = self._serializer, None
             writer, self._frames = self._frames, None
+            encoding, self._encoding = self._encoding, None
             mcap, self._mcap = self._mcap, None
             wake, self._wake = self._wake, None
             failure, self._failure = self._failure, None
@@ -421,6 +482,8 @@ class Recorder:
                 update["frame_pairs"] = int(fmeta["pairs"])
                 update["frames_bytes"] = int(fmeta["bytes"])
                 update["frames_dropped"] = int(fmeta["dropped"])
+                if encoding is not None and fmeta["pairs"]:
+                    self.probe.measured(encoding, int(fmeta["bytes"]) / int(fmeta["pairs"]))
                 why = str(fmeta.get("stop_reason") or "")
                 if why.startswith("write failed") and f"frames: {why}" not in errors:
                     errors.append(f"frames: {why}")

@@ -20,11 +20,41 @@ from fastapi.responses import FileResponse
 
 from app.server.dependencies import StateDep, require_token
 from app.server.recording import RecordingError, RecordingMeta
+from app.server.recording.budget import RecordingProgress
 from app.server.schemas import Message
+from app.streams.frame_encoding import FrameCodec, FrameEncoding
 from app.streams.frames import RawFrame
 from app.streams.processor import StreamTick
 
 router = APIRouter(tags=["recording"])
+
+CodecQuery = Annotated[
+    FrameCodec,
+    Query(
+        description="the frames' codec: png-huffman (lossless, the default: the smallest and "
+        "fastest lossless form of dark, noisy LED frames), png (lossless, deflate at "
+        "png_level) or jpeg (LOSSY, at jpeg_quality: a replay is close, not identical)"
+    ),
+]
+PngLevelQuery = Annotated[int, Query(ge=1, le=9, description="deflate level of codec=png")]
+JpegQualityQuery = Annotated[int, Query(ge=1, le=100, description="quality of codec=jpeg")]
+
+
+@router.get("/recording", response_model=RecordingProgress)
+def recording_progress(
+    state: StateDep,
+    frames: Annotated[bool, Query(description="estimate a recording with frames")] = True,
+    codec: CodecQuery = "png-huffman",
+    png_level: PngLevelQuery = 1,
+    jpeg_quality: JpegQualityQuery = 90,
+) -> RecordingProgress:
+    """The active recording's write rate (bytes/s over the recording, MB a minute) and the
+    time left at that rate against its bounds (``max_s``, the frames' budget, the telemetry's
+    size bound, the free space above ``AAR_RECORDING_MIN_FREE_MB``), and which bound comes
+    first. With no recording active: an estimate of how long one with these options can run,
+    from a frame of the current stream encoded with them (or the last measured pair size)."""
+    encoding = FrameEncoding(codec, png_level, jpeg_quality) if frames else None
+    return state.recorder.progress(encoding)
 
 
 @router.post(
@@ -41,8 +71,11 @@ def recording_start(
     state: StateDep,
     frames: Annotated[
         bool,
-        Query(description="also record the raw stereo frames (lossless PNG, times, calibration)"),
+        Query(description="also record the raw stereo frames (images, times, calibration)"),
     ] = False,
+    codec: CodecQuery = "png-huffman",
+    png_level: PngLevelQuery = 1,
+    jpeg_quality: JpegQualityQuery = 90,
 ) -> RecordingMeta:
     """Start a recording. With ``frames=true`` the stereo pairs are recorded too, and a
     camera stream's track restarts with a full-frame acquisition on the first recorded pair,
@@ -66,6 +99,7 @@ def recording_start(
             accept_frame=accept,
             source=None if streams is None else streams.spec,
             drogue=None if streams is None else streams.drogue_in_use(),
+            encoding=FrameEncoding(codec, png_level, jpeg_quality),
         )
     except RecordingError as exc:
         raise HTTPException(exc.status, exc.detail) from None

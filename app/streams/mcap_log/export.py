@@ -66,7 +66,7 @@ def export_recording(
                         EncodedPair(
                             (d / str(found["left"])).read_bytes(),
                             (d / str(found["right"])).read_bytes(),
-                            "png",
+                            "jpeg" if str(found["left"]).endswith(".jpg") else "png",
                             frame_info(found),
                         ),
                         tick.seq,
