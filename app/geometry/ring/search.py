@@ -67,17 +67,22 @@ def find_ring(
     points: FloatArray,
     params: RingParams,
     prior: RingPrior | None = None,
-    consistent: Callable[[RingFit], bool] | None = None,
+    consistency: Callable[[RingFit], int] | None = None,
 ) -> RingFit | RingRejection:
     """Locate the LED ring among ``points`` (N×3, mm, left camera frame) with the integrity
     tests of :mod:`app.geometry.ring`. ``prior``: a recent lock (for 3-LED hypotheses).
 
-    ``consistent``: whether a hypothesis' own residuals agree with the measurement noise (the
-    caller's χ² test, :mod:`app.vision.error_bound`). When hypotheses compete ("ambiguous"),
-    the one that alone passes it is taken: a ring of sun glints on polished bolts fits the
-    slots as well as the LEDs but its specular points triangulate off any circle by far more
-    than the centroid noise allows (χ² ≈ 270 for 6 dof against ≈ 1 for the LEDs on the
-    held-back optics set). With none or several passing, the frame stays ambiguous."""
+    ``consistency``: how well a hypothesis' own residuals agree with the measurement noise
+    (the caller's χ² test, :mod:`app.vision.error_bound`): 0 not at all, higher for agreement
+    with a stricter noise model. When hypotheses compete ("ambiguous"), the one that alone
+    reaches the highest rank any of them reaches is taken: a ring of sun glints on polished
+    bolts fits the slots as well as the LEDs but its specular points triangulate off any
+    circle by far more than the sensor's noise allows (χ² ≈ 270 for 6 dof against ≈ 1 for
+    the LEDs on the held-back optics set). With none or several at that rank, the frame stays
+    ambiguous. A competitor is a hypothesis outside the best with as many points, or one
+    fewer and an NFA within ``params.ambiguity_log10`` decades, or any number of points none
+    of which the best has and an NFA meaningful on its own (a concentric ring of five bolt
+    glints is no more an LED ring than three LEDs beside it)."""
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     index_map = np.flatnonzero(np.isfinite(pts).all(axis=1))
     p = pts[index_map]
@@ -132,20 +137,27 @@ def find_ring(
         h
         for h in hyps[1:]
         if not set(h.members.tolist()) <= best_set
-        and h.log10_nfa <= params.log10_nfa_max
         and (
-            len(h.members) == m
-            or (len(h.members) == m - 1 and h.log10_nfa <= best.log10_nfa + params.ambiguity_log10)
+            (
+                h.log10_nfa <= params.log10_nfa_max
+                and (
+                    len(h.members) == m
+                    or (
+                        len(h.members) == m - 1
+                        and h.log10_nfa <= best.log10_nfa + params.ambiguity_log10
+                    )
+                )
+            )
+            or (
+                best_set.isdisjoint(h.members.tolist())
+                and h.log10_nfa <= _nfa_limit(h, params, prior)
+            )
         )
     ]
     if rivals:
-        passing = (
-            []
-            if consistent is None
-            else [h for h in [best, *rivals] if consistent(_ring_fit(h, index_map, n, len(hyps)))]
-        )
+        passing = _most_consistent([best, *rivals], consistency, index_map, n, len(hyps))
         if len(passing) != 1:
-            noise = "" if consistent is None else f"; {len(passing)} consistent with the noise"
+            noise = "" if consistency is None else f"; {len(passing)} consistent with the noise"
             return RingRejection(
                 f"ambiguous: {len(rivals) + 1} ring hypotheses fit ({m} and "
                 f"{len(rivals[0].members)} LEDs, NFA 10^{best.log10_nfa:.1f} vs "
@@ -170,6 +182,22 @@ def find_ring(
             f"need at least {params.min_leds}"
         )
     return _ring_fit(best, index_map, n, len(hyps))
+
+
+def _most_consistent(
+    hyps: list[RingHypothesis],
+    consistency: Callable[[RingFit], int] | None,
+    index_map: np.ndarray,
+    candidates: int,
+    hypotheses: int,
+) -> list[RingHypothesis]:
+    """The hypotheses at the highest consistency rank any of them reaches (none when that is
+    0 or there is no test)."""
+    if consistency is None:
+        return []
+    ranks = [consistency(_ring_fit(h, index_map, candidates, hypotheses)) for h in hyps]
+    top = max(ranks)
+    return [h for h, r in zip(hyps, ranks, strict=True) if r == top] if top > 0 else []
 
 
 def _nfa_limit(h: RingHypothesis, params: RingParams, prior: RingPrior | None) -> float:
