@@ -67,10 +67,9 @@ class LocalCentroidConfig:
     weights_from_level: bool = True  # weights I − level (True) or I − local background
     # σ also from the image itself: the blob's residuals to its own profile mirrored through
     # the centroid (compression, blur, demosaicing, saturated edges), the larger of that and
-    # the sensor model's; False (default): the sensor model only. Off by default: on the
-    # physically based dev set it lets a 5-point hypothesis of 3 LEDs and 2 bolt glints
-    # through the χ² test (docs/integrity.md, "Degraded images")
-    image_noise: bool = False
+    # the sensor model's (which the blob keeps apart: rival ring hypotheses are ranked by it
+    # first, app.geometry.ring.find_ring); False: the sensor model only
+    image_noise: bool = True
 
     def params(self) -> NDArray[np.float64]:
         return np.array(

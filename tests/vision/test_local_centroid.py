@@ -28,7 +28,13 @@ def test_local_centroid_finds_the_led_centre_beside_its_reflection():
     assert np.hypot(out.centroid_px[0] - 40.3, out.centroid_px[1] - 30.7) < 0.03
     su, sv = out.centroid_sigma_px
     assert 0.02 < su < 0.2 and 0.02 < sv < 0.2  # σ: the 0.03 px floor plus pixel noise
-    assert out.model_sigma_px == out.centroid_sigma_px  # the sensor model's σ alone: the same
+    # the sensor model's share kept apart: at most the σ, which the image's own noise may raise
+    mu, mv = out.model_sigma_px
+    assert 0.02 < mu <= su and 0.02 < mv <= sv
+    (sensor,) = with_local_centroids(
+        [blob], measure_blobs(gray, [blob], LocalCentroidConfig(image_noise=False))
+    )
+    assert sensor.centroid_sigma_px == sensor.model_sigma_px == out.model_sigma_px
     assert abs(out.local_bg - 20.0) <= 1.0
 
 
