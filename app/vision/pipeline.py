@@ -19,7 +19,7 @@ import numpy as np
 from app.geometry.calibration import StereoCalibration
 from app.geometry.led_ids import DEFAULT_PHASE_DEG, led_ids_for_angles, roll_from_offset
 from app.geometry.projection import undistort_pixels
-from app.geometry.ring import RingFit, RingParams, RingPrior, find_ring
+from app.geometry.ring import STRICT_RANK, RingFit, RingParams, RingPrior, find_ring
 from app.geometry.triangulation import refine_reprojection, triangulate_linear
 from app.vision.appearance import (
     AppearanceConfig,
@@ -437,7 +437,7 @@ class NavigationPipeline:
             br = [feats_r.blobs[int(matches.right[j])] for j in rows]
             ul = np.array([b.centroid_px for b in bl])
             ur = np.array([b.centroid_px for b in br])
-            rank = 2
+            rank = STRICT_RANK
             for sigma in (isotropic_model_sigma_px, isotropic_sigma_px):
                 bound = lock_bound(
                     cal,

@@ -26,6 +26,8 @@ from app.geometry.ring.params import (
 )
 from app.types import FloatArray
 
+# the consistency rank of a hypothesis whose residuals agree with the strictest noise model
+STRICT_RANK = 2
 MAX_SEEDS = 20_000  # refinement budget; seeds are ordered by fit quality (never reached in tests)
 
 
@@ -80,9 +82,9 @@ def find_ring(
     circle by far more than the sensor's noise allows (χ² ≈ 270 for 6 dof against ≈ 1 for
     the LEDs on the held-back optics set). With none or several at that rank, the frame stays
     ambiguous. A competitor is a hypothesis outside the best with as many points, or one
-    fewer and an NFA within ``params.ambiguity_log10`` decades, or any number of points none
-    of which the best has and an NFA meaningful on its own (a concentric ring of five bolt
-    glints is no more an LED ring than three LEDs beside it)."""
+    fewer and an NFA within ``params.ambiguity_log10`` decades; when the best falls short of
+    :data:`STRICT_RANK`, also any hypothesis of any size that shares none of its points and is
+    meaningful on its own (three LEDs beside a concentric ring of five bolt glints)."""
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     index_map = np.flatnonzero(np.isfinite(pts).all(axis=1))
     p = pts[index_map]
@@ -137,23 +139,28 @@ def find_ring(
         h
         for h in hyps[1:]
         if not set(h.members.tolist()) <= best_set
+        and h.log10_nfa <= params.log10_nfa_max
         and (
-            (
-                h.log10_nfa <= params.log10_nfa_max
-                and (
-                    len(h.members) == m
-                    or (
-                        len(h.members) == m - 1
-                        and h.log10_nfa <= best.log10_nfa + params.ambiguity_log10
-                    )
-                )
-            )
-            or (
-                best_set.isdisjoint(h.members.tolist())
-                and h.log10_nfa <= _nfa_limit(h, params, prior)
-            )
+            len(h.members) == m
+            or (len(h.members) == m - 1 and h.log10_nfa <= best.log10_nfa + params.ambiguity_log10)
         )
     ]
+    # a ring of any size that shares none of the best's points and is meaningful on its own
+    # competes with a best that is suspect (short of the strictest noise model)
+    taken = {id(h) for h in rivals}
+    disjoint = [
+        h
+        for h in hyps[1:]
+        if id(h) not in taken
+        and best_set.isdisjoint(h.members.tolist())
+        and h.log10_nfa <= _nfa_limit(h, params, prior)
+    ]
+    if (
+        disjoint
+        and consistency is not None
+        and consistency(_ring_fit(best, index_map, n, len(hyps))) < STRICT_RANK
+    ):
+        rivals += disjoint
     if rivals:
         passing = _most_consistent([best, *rivals], consistency, index_map, n, len(hyps))
         if len(passing) != 1:
