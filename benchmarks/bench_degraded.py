@@ -15,6 +15,7 @@ coverage: the true errors of a lock all inside its reported 99.9 % protection le
 
     .venv/bin/python benchmarks/bench_degraded.py [--sets degraded,mjpg,hostile,optics]
         [--seeds 6] [--frames 45] [--hostile-seeds 12] [--optics dev] [--eq11]
+        [--noise default|sensor|image]
 """
 
 from __future__ import annotations
@@ -146,10 +147,18 @@ def main() -> None:
     ap.add_argument("--optics", default="dev", choices=["dev", "holdout", "both"])
     ap.add_argument("--optics-seeds", type=int, default=2)
     ap.add_argument("--eq11", action="store_true", help="the paper's eq. 11 centroid instead")
+    ap.add_argument(
+        "--noise",
+        default="default",
+        choices=["default", "sensor", "image"],
+        help="centroid σ: the sensor model only, or also the image's own (default: the config's)",
+    )
     args = ap.parse_args()
     cfg = PipelineConfig()
     if args.eq11:
         cfg = replace(cfg, centroid=LocalCentroidConfig(enabled=False))
+    if args.noise != "default":
+        cfg = replace(cfg, centroid=replace(cfg.centroid, image_noise=args.noise == "image"))
     sets = args.sets.split(",")
     t0 = time.perf_counter()
     print(HEAD)

@@ -77,6 +77,15 @@ def isotropic_sigma_px(blob: Blob) -> float:
     return math.sqrt(0.5 * (s[0] * s[0] + s[1] * s[1]))
 
 
+def isotropic_model_sigma_px(blob: Blob) -> float:
+    """:func:`isotropic_sigma_px` of the sensor model's share alone (shot and read noise,
+    :attr:`Blob.model_sigma_px`); the blob's σ where that is not kept apart."""
+    s = blob.model_sigma_px
+    if s is None:
+        return isotropic_sigma_px(blob)
+    return math.sqrt(0.5 * (s[0] * s[0] + s[1] * s[1]))
+
+
 def lock_bound(
     calib: StereoCalibration,
     left_px: FloatArray,

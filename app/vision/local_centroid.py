@@ -39,6 +39,8 @@ from numpy.typing import NDArray
 from app.vision.local_centroid_kernels import (
     OUT_BACKGROUND,
     OUT_COLUMNS,
+    OUT_MODEL_SIGMA_U,
+    OUT_MODEL_SIGMA_V,
     OUT_SIGMA_U,
     OUT_SIGMA_V,
     OUT_U,
@@ -47,9 +49,9 @@ from app.vision.local_centroid_kernels import (
 )
 from app.vision.types import Blob
 
-# the leading columns of a :func:`local_centroids` row that a blob keeps, in this order
-_MEASURED_COLUMNS = 5
-assert (OUT_U, OUT_V, OUT_SIGMA_U, OUT_SIGMA_V, OUT_BACKGROUND) == tuple(range(_MEASURED_COLUMNS))
+# the columns of a :func:`local_centroids` row that a blob keeps, in this order
+_MEASURED_COLUMNS = [OUT_U, OUT_V, OUT_SIGMA_U, OUT_SIGMA_V, OUT_BACKGROUND]
+_MEASURED_COLUMNS += [OUT_MODEL_SIGMA_U, OUT_MODEL_SIGMA_V]
 
 
 @dataclass(frozen=True)
@@ -65,10 +67,9 @@ class LocalCentroidConfig:
     weights_from_level: bool = True  # weights I − level (True) or I − local background
     # σ also from the image itself: the blob's residuals to its own profile mirrored through
     # the centroid (compression, blur, demosaicing, saturated edges), the larger of that and
-    # the sensor model's; False (default): the sensor model only. Off by default: on the
-    # physically based dev set it lets a 5-point hypothesis of 3 LEDs and 2 bolt glints
-    # through the χ² test (docs/integrity.md, "Degraded images")
-    image_noise: bool = False
+    # the sensor model's (which the blob keeps apart: rival ring hypotheses are ranked by it
+    # first, app.geometry.ring.find_ring); False: the sensor model only
+    image_noise: bool = True
 
     def params(self) -> NDArray[np.float64]:
         return np.array(
@@ -128,6 +129,7 @@ def local_blob(
             color_bgr,
             (row[OUT_SIGMA_U], row[OUT_SIGMA_V]),
             row[OUT_BACKGROUND],
+            (row[OUT_MODEL_SIGMA_U], row[OUT_MODEL_SIGMA_V]),
         )
     nan = float("nan")
     return Blob(centroid_px, area_px, bbox, peak, mass, color_bgr, (nan, nan), row[OUT_BACKGROUND])
@@ -141,11 +143,11 @@ def local_blobs(
     (the same records; the per-blob call and the unused columns left out)."""
     nan = float("nan")
     return [
-        Blob((u, v), area, (x, y, w, h), pk, m, None, (su, sv), bg)
+        Blob((u, v), area, (x, y, w, h), pk, m, None, (su, sv), bg, (mu, mv))
         if u == u  # not NaN: measured
         else Blob((cu, cv), area, (x, y, w, h), pk, m, None, (nan, nan), bg)
-        for (x, y, w, h, area), (cu, cv, m, pk), (u, v, su, sv, bg) in zip(
-            stats, cents, table[:, :_MEASURED_COLUMNS].tolist(), strict=True
+        for (x, y, w, h, area), (cu, cv, m, pk), (u, v, su, sv, bg, mu, mv) in zip(
+            stats, cents, table[:, _MEASURED_COLUMNS].tolist(), strict=True
         )
     ]
 

@@ -22,7 +22,9 @@ OUT_U, OUT_V, OUT_SIGMA_U, OUT_SIGMA_V, OUT_BACKGROUND, OUT_LEVEL, OUT_SATURATED
     8
 )
 OUT_X0, OUT_Y0, OUT_X1, OUT_Y1 = range(8, 12)  # the pixels read (the background ring included)
-OUT_COLUMNS = 12
+# the sensor model's σ alone (u, v px; equal to OUT_SIGMA_U/V unless the image's noise is on)
+OUT_MODEL_SIGMA_U, OUT_MODEL_SIGMA_V = 12, 13
+OUT_COLUMNS = 14
 # (support fraction at least, window pad multiple) tried in turn until the support is bounded:
 # a wider window for an LED that the threshold cut down to its core, then higher levels for
 # an LED next to something brighter than its own low level (a sunlit rim, the canopy)
@@ -200,12 +202,15 @@ def _measure(
                 var = read_sigma * read_sigma + shot_k * max(g - bg, 0.0)
                 vu += var * du * du
                 vv += var * dv * dv
+    floor2 = floor_px * floor_px
+    out[OUT_MODEL_SIGMA_U] = np.sqrt(vu / (sw * sw) + floor2)
+    out[OUT_MODEL_SIGMA_V] = np.sqrt(vv / (sw * sw) + floor2)
     if image_noise:  # the larger of the model's and the image's
         vu, vv = max(vu, au), max(vv, av)
     out[OUT_U] = cu
     out[OUT_V] = cv
-    out[OUT_SIGMA_U] = np.sqrt(vu / (sw * sw) + floor_px * floor_px)
-    out[OUT_SIGMA_V] = np.sqrt(vv / (sw * sw) + floor_px * floor_px)
+    out[OUT_SIGMA_U] = np.sqrt(vu / (sw * sw) + floor2)
+    out[OUT_SIGMA_V] = np.sqrt(vv / (sw * sw) + floor2)
     return True
 
 
@@ -274,7 +279,7 @@ def local_centroids(
     """For each (x, y, w, h) row of ``boxes`` (a blob's bounding box, image px) the local
     centroid (module docstring): rows of ``OUT_COLUMNS`` (u, v, σ_u, σ_v px, local background
     DN, support level DN, saturated pixels, support area px, the pixels read: x0, y0, x1, y1
-    half-open); u, v NaN when not measured. A support that reaches its window's edge is
+    half-open, the sensor model's σ_u, σ_v px); u, v NaN when not measured. A support that reaches its window's edge is
     measured again as ``ATTEMPTS`` lists (wider windows, higher levels) before it is given
     up."""
     n = boxes.shape[0]

@@ -19,7 +19,7 @@ import numpy as np
 from app.geometry.calibration import StereoCalibration
 from app.geometry.led_ids import DEFAULT_PHASE_DEG, led_ids_for_angles, roll_from_offset
 from app.geometry.projection import undistort_pixels
-from app.geometry.ring import RingFit, RingParams, RingPrior, find_ring
+from app.geometry.ring import STRICT_RANK, RingFit, RingParams, RingPrior, find_ring
 from app.geometry.triangulation import refine_reprojection, triangulate_linear
 from app.vision.appearance import (
     AppearanceConfig,
@@ -33,6 +33,7 @@ from app.vision.error_bound import (
     ErrorBoundConfig,
     bound_lock,
     drogue_with_bound,
+    isotropic_model_sigma_px,
     isotropic_sigma_px,
     led_bound_fields,
     lock_bound,
@@ -426,24 +427,34 @@ class NavigationPipeline:
         params = self.ring_params
         prior = None if track is None else RingPrior.at_range(track.center_mm, track.normal, params)
 
-        def consistent(fit: RingFit) -> bool:
-            """Does this hypothesis pass the error bound's χ² test? (True when not measured)"""
+        def consistency(fit: RingFit) -> int:
+            """How well this hypothesis' residuals agree with the centroid noise (the error
+            bound's χ² test): 2 with the sensor model's σ alone (shot and read noise), 1 only
+            with the σ the image itself shows (compression, blur: a glint's lopsided blob
+            excuses its own offset that way), 0 with neither; 2 when not measured."""
             rows = [int(idx[k]) for k in fit.indices]
             bl = [feats_l.blobs[int(matches.left[j])] for j in rows]
             br = [feats_r.blobs[int(matches.right[j])] for j in rows]
-            bound = lock_bound(
-                cal,
-                np.array([b.centroid_px for b in bl]),
-                np.array([b.centroid_px for b in br]),
-                np.array([isotropic_sigma_px(b) for b in bl]),
-                np.array([isotropic_sigma_px(b) for b in br]),
-                X[rows],
-                fit.circle,
-                cfg.error_bound,
-            )
-            return bound is None or bound.consistent
+            ul = np.array([b.centroid_px for b in bl])
+            ur = np.array([b.centroid_px for b in br])
+            rank = STRICT_RANK
+            for sigma in (isotropic_model_sigma_px, isotropic_sigma_px):
+                bound = lock_bound(
+                    cal,
+                    ul,
+                    ur,
+                    np.array([sigma(b) for b in bl]),
+                    np.array([sigma(b) for b in br]),
+                    X[rows],
+                    fit.circle,
+                    cfg.error_bound,
+                )
+                if bound is None or bound.consistent:
+                    return rank
+                rank -= 1
+            return 0
 
-        ring = find_ring(X[idx], params, prior, consistent)
+        ring = find_ring(X[idx], params, prior, consistency)
         self._stage_ms["pose"] = (time.perf_counter() - t2) * 1e3
         if not isinstance(ring, RingFit):
             return PoseResult(lock=False, reason=ring.reason)

@@ -25,6 +25,9 @@ class Blob:
     # None: eq. 11's centroid, not measured; NaN: the local centroid could not be measured
     centroid_sigma_px: tuple[float, float] | None = None
     local_bg: float | None = None  # local background level (DN) around the blob
+    # the sensor model's share of ``centroid_sigma_px`` (px): shot and read noise only, without
+    # what the image itself shows (LocalCentroidConfig.image_noise); None: not measured
+    model_sigma_px: tuple[float, float] | None = None
 
 
 @dataclass(frozen=True)

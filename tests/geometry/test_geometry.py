@@ -241,17 +241,47 @@ def test_competing_rings_are_told_apart_only_by_a_unique_consistent_one():
     params = RingParams()
     assert "ambiguous" in find_ring(pts, params).reason
 
-    def only_leds(fit: RingFit) -> bool:
-        return min(fit.indices) >= 4
+    def only_leds(fit: RingFit) -> int:
+        return int(min(fit.indices) >= 4)
 
-    fit = find_ring(pts, params, consistent=only_leds)
+    fit = find_ring(pts, params, consistency=only_leds)
     assert isinstance(fit, RingFit) and sorted(fit.indices) == [4, 5, 6, 7]
-    fit = find_ring(pts, params, consistent=lambda f: not only_leds(f))
+    fit = find_ring(pts, params, consistency=lambda f: 1 - only_leds(f))
     assert isinstance(fit, RingFit) and sorted(fit.indices) == [0, 1, 2, 3]
-    both = find_ring(pts, params, consistent=lambda f: True)
-    none = find_ring(pts, params, consistent=lambda f: False)
+    both = find_ring(pts, params, consistency=lambda f: 1)
+    none = find_ring(pts, params, consistency=lambda f: 0)
     assert "2 consistent with the noise" in both.reason
     assert "0 consistent with the noise" in none.reason
+    # consistent with a looser noise model both, with the stricter one only the LEDs: the LEDs
+    fit = find_ring(pts, params, consistency=lambda f: 1 + only_leds(f))
+    assert isinstance(fit, RingFit) and sorted(fit.indices) == [4, 5, 6, 7]
+
+
+def test_a_disjoint_smaller_ring_competes_with_the_best():
+    """Three LEDs of the 75 mm ring (two occluded) and five sun glints on the rim's bolts,
+    concentric at 80 mm and evenly spaced (the physically based set at 1 m): the five-point
+    ring is not the only meaningful explanation: when the noise test finds it suspect the three
+    LEDs compete with it and that test decides."""
+    centre = np.array([0.0, 0.0, 1000.0])
+
+    def on_ring(radius: float, deg: np.ndarray) -> np.ndarray:
+        a = np.radians(deg)
+        return centre + radius * np.column_stack([np.sin(a), -np.cos(a), np.zeros(len(a))])
+
+    leds = on_ring(75.0, 36 + 72 * np.array([0, 2, 3]))
+    bolts = on_ring(80.0, 72 * np.arange(5))
+    pts = np.vstack([bolts, leds])
+    params = RingParams()
+
+    def leds_only(fit: RingFit) -> int:
+        return 2 * int(min(fit.indices) >= 5)
+
+    fit = find_ring(pts, params, consistency=leds_only)
+    assert isinstance(fit, RingFit) and sorted(fit.indices) == [5, 6, 7]
+    # the five-point ring consistent with the strictest noise model: it stands (a smaller
+    # disjoint ring competes only with a best that is suspect)
+    fit = find_ring(pts, params, consistency=lambda f: 2)
+    assert isinstance(fit, RingFit) and sorted(fit.indices) == [0, 1, 2, 3, 4]
 
 
 def test_ring_of_wrong_radius_is_rejected():

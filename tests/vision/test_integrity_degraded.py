@@ -22,8 +22,8 @@ from tests.support.degraded_frames import (
     score,
 )
 
-# the noise measured on each blob (LocalCentroidConfig.image_noise, off by default: see there)
-MEASURED = PipelineConfig(centroid=replace(LocalCentroidConfig(), image_noise=True))
+# the defaults: the noise measured on each blob as well (LocalCentroidConfig.image_noise)
+MEASURED = PipelineConfig()
 
 
 @pytest.fixture(scope="module")
@@ -65,9 +65,9 @@ def test_degraded_renders_lock_inside_their_bound(calib, case: str) -> None:
 
 
 def test_sensor_model_alone_refuses_the_compressed_colour_frames(calib) -> None:
-    """The same clip with σ from the sensor model only (the default): refused by the χ² test
-    on some frames, which is what the image's own noise estimate fixes."""
-    cfg = PipelineConfig()
+    """The same clip with σ from the sensor model only: refused by the χ² test on some frames,
+    which is what the image's own noise estimate fixes."""
+    cfg = PipelineConfig(centroid=replace(LocalCentroidConfig(), image_noise=False))
     clip = mjpg_clip(calib, 12, start_mm=1200.0, end_mm=1000.0)
     tracker = StereoTracker(calib, cfg)
     results = [

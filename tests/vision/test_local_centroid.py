@@ -28,6 +28,13 @@ def test_local_centroid_finds_the_led_centre_beside_its_reflection():
     assert np.hypot(out.centroid_px[0] - 40.3, out.centroid_px[1] - 30.7) < 0.03
     su, sv = out.centroid_sigma_px
     assert 0.02 < su < 0.2 and 0.02 < sv < 0.2  # σ: the 0.03 px floor plus pixel noise
+    # the sensor model's share kept apart: at most the σ, which the image's own noise may raise
+    mu, mv = out.model_sigma_px
+    assert 0.02 < mu <= su and 0.02 < mv <= sv
+    (sensor,) = with_local_centroids(
+        [blob], measure_blobs(gray, [blob], LocalCentroidConfig(image_noise=False))
+    )
+    assert sensor.centroid_sigma_px == sensor.model_sigma_px == out.model_sigma_px
     assert abs(out.local_bg - 20.0) <= 1.0
 
 
@@ -37,7 +44,7 @@ def test_with_local_centroids_keeps_every_other_field():
     flat = np.zeros_like(gray)  # no contrast: not measured, eq. 11's centroid kept, σ NaN
     for image in (gray, flat):
         (out,) = with_local_centroids([blob], measure_blobs(image, [blob], LocalCentroidConfig()))
-        changed = {"centroid_px", "centroid_sigma_px", "local_bg"}
+        changed = {"centroid_px", "centroid_sigma_px", "local_bg", "model_sigma_px"}
         for f in dataclasses.fields(Blob):
             if f.name not in changed:
                 assert getattr(out, f.name) == getattr(blob, f.name), f.name

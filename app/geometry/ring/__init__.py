@@ -65,10 +65,11 @@ from app.geometry.ring.params import (
     RingRejection,
     agrees_with_prior,
 )
-from app.geometry.ring.search import MAX_SEEDS, find_ring, refined_hypotheses
+from app.geometry.ring.search import MAX_SEEDS, STRICT_RANK, find_ring, refined_hypotheses
 
 __all__ = [
     "MAX_SEEDS",
+    "STRICT_RANK",
     "RingFit",
     "RingHypothesis",
     "RingMeasures",

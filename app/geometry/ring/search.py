@@ -26,6 +26,8 @@ from app.geometry.ring.params import (
 )
 from app.types import FloatArray
 
+# the consistency rank of a hypothesis whose residuals agree with the strictest noise model
+STRICT_RANK = 2
 MAX_SEEDS = 20_000  # refinement budget; seeds are ordered by fit quality (never reached in tests)
 
 
@@ -67,17 +69,22 @@ def find_ring(
     points: FloatArray,
     params: RingParams,
     prior: RingPrior | None = None,
-    consistent: Callable[[RingFit], bool] | None = None,
+    consistency: Callable[[RingFit], int] | None = None,
 ) -> RingFit | RingRejection:
     """Locate the LED ring among ``points`` (N×3, mm, left camera frame) with the integrity
     tests of :mod:`app.geometry.ring`. ``prior``: a recent lock (for 3-LED hypotheses).
 
-    ``consistent``: whether a hypothesis' own residuals agree with the measurement noise (the
-    caller's χ² test, :mod:`app.vision.error_bound`). When hypotheses compete ("ambiguous"),
-    the one that alone passes it is taken: a ring of sun glints on polished bolts fits the
-    slots as well as the LEDs but its specular points triangulate off any circle by far more
-    than the centroid noise allows (χ² ≈ 270 for 6 dof against ≈ 1 for the LEDs on the
-    held-back optics set). With none or several passing, the frame stays ambiguous."""
+    ``consistency``: how well a hypothesis' own residuals agree with the measurement noise
+    (the caller's χ² test, :mod:`app.vision.error_bound`): 0 not at all, higher for agreement
+    with a stricter noise model. When hypotheses compete ("ambiguous"), the one that alone
+    reaches the highest rank any of them reaches is taken: a ring of sun glints on polished
+    bolts fits the slots as well as the LEDs but its specular points triangulate off any
+    circle by far more than the sensor's noise allows (χ² ≈ 270 for 6 dof against ≈ 1 for
+    the LEDs on the held-back optics set). With none or several at that rank, the frame stays
+    ambiguous. A competitor is a hypothesis outside the best with as many points, or one
+    fewer and an NFA within ``params.ambiguity_log10`` decades; when the best falls short of
+    :data:`STRICT_RANK`, also any hypothesis of any size that shares none of its points and is
+    meaningful on its own (three LEDs beside a concentric ring of five bolt glints)."""
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     index_map = np.flatnonzero(np.isfinite(pts).all(axis=1))
     p = pts[index_map]
@@ -138,14 +145,26 @@ def find_ring(
             or (len(h.members) == m - 1 and h.log10_nfa <= best.log10_nfa + params.ambiguity_log10)
         )
     ]
+    # a ring of any size that shares none of the best's points and is meaningful on its own
+    # competes with a best that is suspect (short of the strictest noise model)
+    taken = {id(h) for h in rivals}
+    disjoint = [
+        h
+        for h in hyps[1:]
+        if id(h) not in taken
+        and best_set.isdisjoint(h.members.tolist())
+        and h.log10_nfa <= _nfa_limit(h, params, prior)
+    ]
+    if (
+        disjoint
+        and consistency is not None
+        and consistency(_ring_fit(best, index_map, n, len(hyps))) < STRICT_RANK
+    ):
+        rivals += disjoint
     if rivals:
-        passing = (
-            []
-            if consistent is None
-            else [h for h in [best, *rivals] if consistent(_ring_fit(h, index_map, n, len(hyps)))]
-        )
+        passing = _most_consistent([best, *rivals], consistency, index_map, n, len(hyps))
         if len(passing) != 1:
-            noise = "" if consistent is None else f"; {len(passing)} consistent with the noise"
+            noise = "" if consistency is None else f"; {len(passing)} consistent with the noise"
             return RingRejection(
                 f"ambiguous: {len(rivals) + 1} ring hypotheses fit ({m} and "
                 f"{len(rivals[0].members)} LEDs, NFA 10^{best.log10_nfa:.1f} vs "
@@ -170,6 +189,22 @@ def find_ring(
             f"need at least {params.min_leds}"
         )
     return _ring_fit(best, index_map, n, len(hyps))
+
+
+def _most_consistent(
+    hyps: list[RingHypothesis],
+    consistency: Callable[[RingFit], int] | None,
+    index_map: np.ndarray,
+    candidates: int,
+    hypotheses: int,
+) -> list[RingHypothesis]:
+    """The hypotheses at the highest consistency rank any of them reaches (none when that is
+    0 or there is no test)."""
+    if consistency is None:
+        return []
+    ranks = [consistency(_ring_fit(h, index_map, candidates, hypotheses)) for h in hyps]
+    top = max(ranks)
+    return [h for h, r in zip(hyps, ranks, strict=True) if r == top] if top > 0 else []
 
 
 def _nfa_limit(h: RingHypothesis, params: RingParams, prior: RingPrior | None) -> float:
