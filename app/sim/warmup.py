@@ -1,7 +1,7 @@
 """Compile the navigation core's compiled loops before real work starts.
 
 The inner loops of the pipeline and the tracker are compiled by numba on first use and cached
-on disk (``__pycache__`` beside the sources, or ``NUMBA_CACHE_DIR``). On a fresh install the
+on disk (a folder keyed by the kernels' sources, :mod:`app.numba_cache`, or ``NUMBA_CACHE_DIR``). On a fresh install the
 first frame would otherwise take 15–30 s to compile on this class of machine; with the cache,
 loading takes ≈ 0.1 s. :func:`compile_kernels` runs a few rendered stereo pairs through
 :class:`~app.vision.pipeline.NavigationPipeline` and :class:`~app.vision.tracking.StereoTracker`
