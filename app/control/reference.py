@@ -55,7 +55,12 @@ class GuidanceConfig:
     # at 1 m/s all the way the rejoin alone took ≈ 25 s of a 90 s run)
     rejoin_far_m: float = 10.0
     rejoin_far_speed_mps: float = 2.0
+    rejoin_accel_mps2: float = 0.3  # the most each rejoin rate changes per second
+    rejoin_settle_s: float = 2.0  # each slows to the end as remaining distance / this
     rejoin_dwell_s: float = 4.0  # stabilised at the pre-contact position this long, then close
+
+
+REJOIN_CREEP_MPS = 0.05  # the rejoin's slowest closing speed near its end (m/s)
 
 
 class ReferenceGenerator:
@@ -74,6 +79,7 @@ class ReferenceGenerator:
         self.rejoin_below_m = 0.0  # rejoin: the reference's height below the drogue (m)
         self.rejoin_side_m = 0.0  # rejoin: the reference's offset to the drogue's right (m)
         self.rejoin_dwell = 0.0  # s at the pre-contact position
+        self._rejoin_v = np.zeros(3)  # m/s: the gap's, the height's and the side's closing speed
 
     @property
     def holding(self) -> bool:
@@ -105,34 +111,46 @@ class ReferenceGenerator:
         self.rejoin_below_m = max(float(below_m), 0.0)
         self.rejoin_side_m = float(side_m)
         self.rejoin_dwell = 0.0
+        self._rejoin_v = np.zeros(3)  # m/s: the gap's, the height's and the side's closing speed
         self.gap_rate = 0.0
         self.committed = False
 
     def _rejoin_step(self, dt: float) -> tuple[float, float, float]:
         """One tick of the rejoin; returns the rates (m/s) of the gap, of the height below
-        and of the offset to the side."""
+        and of the offset to the side. Each closes at up to its speed (fore-aft: the far
+        speed while far), slowing within ``rejoin_settle_s`` × its speed of the end, and each
+        rate changes at most ``rejoin_accel_mps2``: the reference's velocity (the LQR's
+        feed-forward) never steps — a step at the hand-back gave a pitch transient that
+        crossed the monitor's α bound."""
         c = self.cfg
-        step = c.rejoin_speed_mps * dt
-        below_step = min(step, self.rejoin_below_m)
-        side_step = float(np.clip(self.rejoin_side_m, -step, step))
-        self.rejoin_below_m -= below_step
-        self.rejoin_side_m -= side_step
-        rate = 0.0
-        if self.gap_cmd > c.rejoin_gap_m:
-            far = self.gap_cmd > c.rejoin_gap_m + c.rejoin_far_m
-            speed = c.rejoin_far_speed_mps if far else c.rejoin_speed_mps
-            move = min(speed * dt, self.gap_cmd - c.rejoin_gap_m)
-            self.gap_cmd -= move
-            rate = -move / dt
-        if (
-            self.rejoin_below_m == 0.0
-            and self.rejoin_side_m == 0.0
-            and self.gap_cmd <= c.rejoin_gap_m + 1e-9
-        ):
+        remaining = np.array(
+            [self.gap_cmd - c.rejoin_gap_m, self.rejoin_below_m, self.rejoin_side_m]
+        )
+        far = remaining[0] > c.rejoin_far_m
+        v_max = np.array(
+            [
+                c.rejoin_far_speed_mps if far else c.rejoin_speed_mps,
+                c.rejoin_speed_mps,
+                c.rejoin_speed_mps,
+            ]
+        )
+        slowing = np.maximum(np.abs(remaining) / c.rejoin_settle_s, REJOIN_CREEP_MPS)
+        wanted = np.sign(remaining) * np.minimum(v_max, slowing)
+        dv = c.rejoin_accel_mps2 * dt
+        self._rejoin_v = np.clip(wanted, self._rejoin_v - dv, self._rejoin_v + dv)
+        step = self._rejoin_v * dt
+        done = np.abs(step) >= np.abs(remaining)  # (the creep speed gets there)
+        step[done] = remaining[done]
+        self._rejoin_v[done] = 0.0
+        self.gap_cmd -= step[0]
+        self.rejoin_below_m -= step[1]
+        self.rejoin_side_m -= step[2]
+        if bool(np.all(np.abs(remaining - step) < 1e-9)):
             self.rejoin_dwell += dt
             if self.rejoin_dwell >= c.rejoin_dwell_s:
                 self.phase = "approach"
-        return rate, -below_step / dt, -side_step / dt
+        rate = -step / dt
+        return float(rate[0]), float(rate[1]), float(rate[2])
 
     def start_backoff(self) -> None:
         self.phase = "backoff"
