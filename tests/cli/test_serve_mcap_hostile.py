@@ -10,8 +10,16 @@ from pathlib import Path
 
 from mcap.opcode import Opcode
 
-from tests.cli.test_track_mcap import MAX_RSS_MB, MAX_WALL_S, _unpaired
-from tests.support.hostile_mcap import chunk, finish, head_records, run_measured, zstd_of_zeros
+from tests.support.hostile_mcap import (
+    MAX_RSS_MB,
+    MAX_WALL_S,
+    chunk,
+    finish,
+    head_records,
+    run_measured,
+    unpaired_images,
+    zstd_of_zeros,
+)
 
 MiB = 1 << 20
 
@@ -33,5 +41,5 @@ def test_serve_refuses_a_zstd_bomb_and_unpaired_images_bounded(tmp_path: Path, m
     honest = tmp_path / "bomb.mcap"
     honest.write_bytes(finish(head_records() + chunk(b"", data=bomb, declared_size=1 << 30)))
     _serve_refuses(honest, tmp_path, "over the limit")
-    unpaired = _unpaired(tmp_path / "unpaired.mcap", 1000, MiB)  # 2 GB of one-sided images
+    unpaired = unpaired_images(tmp_path / "unpaired.mcap", 1000, MiB)  # 2 GB of one-sided images
     _serve_refuses(unpaired, tmp_path, "holds no stereo pair")

@@ -13,7 +13,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import zstandard
 from mcap.opcode import Opcode
 
 from app.calibration.plausibility import DEFAULT_MAX_PIXELS, validated
@@ -23,6 +22,8 @@ from app.streams.mcap_log import TOPIC_FRAME
 from tests.support.hostile_mcap import (
     FRAME,
     LEFT,
+    MAX_RSS_MB,
+    MAX_WALL_S,
     RIGHT,
     LogWriter,
     Measured,
@@ -30,17 +31,15 @@ from tests.support.hostile_mcap import (
     compressed_image,
     finish,
     head_records,
-    message,
     png,
     record,
     run_measured,
     tiny_messages,
+    unpaired_images,
     valid_log,
     zstd_of_zeros,
 )
 
-MAX_RSS_MB = 1500.0
-MAX_WALL_S = 60.0
 MiB = 1 << 20
 
 
@@ -72,22 +71,6 @@ def _bytes(tmp: Path, name: str, data: bytes) -> Path:
     p = tmp / name
     p.write_bytes(data)
     return p
-
-
-def _unpaired(path: Path, n: int, size: int) -> Path:
-    """``n`` left and ``n`` right images of ``size`` bytes, never at the same log time
-    (8 messages a chunk, zstd: the file stays small)."""
-    cctx = zstandard.ZstdCompressor(level=1)
-    blob = bytes(size)
-    parts = [head_records()]
-    for k in range(0, 2 * n, 8):
-        records = b"".join(
-            message(1 if i % 2 == 0 else 2, 1_000_000_000 + i * 1000, compressed_image(blob))
-            for i in range(k, min(k + 8, 2 * n))
-        )
-        parts.append(chunk(records, data=cctx.compress(records)))
-    path.write_bytes(finish(b"".join(parts)))
-    return path
 
 
 def test_a_zstd_chunk_of_1_gib_zeros_and_one_declaring_1_pib_are_refused(tmp_path: Path) -> None:
@@ -126,7 +109,7 @@ def test_a_chunk_of_200_mb_of_zero_records_is_refused(tmp_path: Path) -> None:
 
 
 def test_images_that_never_pair_stay_bounded_and_end_cleanly(tmp_path: Path) -> None:
-    p = _unpaired(tmp_path / "unpaired.mcap", 1000, MiB)  # 2 GB of images, one side each
+    p = unpaired_images(tmp_path / "unpaired.mcap", 1000, MiB)  # 2 GB of images, one side each
     assert p.stat().st_size < 8 * MiB
     _refused(p, tmp_path, "holds no stereo pair")
 

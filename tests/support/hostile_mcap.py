@@ -259,3 +259,23 @@ def run_measured(args: list[str], tmp: Path, timeout_s: float = 120.0) -> Measur
         usage.ru_maxrss / 1024,  # KiB on Linux
         time.monotonic() - t0,
     )
+
+
+MAX_RSS_MB = 1500.0  # the issue's bound on a replay's peak RSS
+MAX_WALL_S = 60.0  # and on its time
+
+
+def unpaired_images(path: Path, n: int, size: int) -> Path:
+    """``n`` left and ``n`` right images of ``size`` bytes, never at the same log time
+    (8 messages a chunk, zstd: the file stays small)."""
+    cctx = zstandard.ZstdCompressor(level=1)
+    blob = bytes(size)
+    parts = [head_records()]
+    for k in range(0, 2 * n, 8):
+        records = b"".join(
+            message(1 if i % 2 == 0 else 2, 1_000_000_000 + i * 1000, compressed_image(blob))
+            for i in range(k, min(k + 8, 2 * n))
+        )
+        parts.append(chunk(records, data=cctx.compress(records)))
+    path.write_bytes(finish(b"".join(parts)))
+    return path

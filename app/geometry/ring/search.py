@@ -65,6 +65,47 @@ def refined_hypotheses(
     return hyps
 
 
+def _rivals(
+    best: RingHypothesis,
+    hyps: list[RingHypothesis],
+    params: RingParams,
+    prior: RingPrior | None,
+    consistency: Callable[[RingFit], int] | None,
+    index_map: np.ndarray,
+    n: int,
+) -> list[RingHypothesis]:
+    """The hypotheses that compete with ``best`` (:func:`find_ring`'s docstring): outside it
+    with as many points, or one fewer and an NFA within ``ambiguity_log10`` decades; and,
+    when ``best`` is suspect (short of :data:`STRICT_RANK`), any disjoint meaningful ring."""
+    m = len(best.members)
+    best_set = set(best.members.tolist())
+    rivals = [
+        h
+        for h in hyps[1:]
+        if not set(h.members.tolist()) <= best_set
+        and h.log10_nfa <= params.log10_nfa_max
+        and (
+            len(h.members) == m
+            or (len(h.members) == m - 1 and h.log10_nfa <= best.log10_nfa + params.ambiguity_log10)
+        )
+    ]
+    taken = {id(h) for h in rivals}
+    disjoint = [
+        h
+        for h in hyps[1:]
+        if id(h) not in taken
+        and best_set.isdisjoint(h.members.tolist())
+        and h.log10_nfa <= _nfa_limit(h, params, prior)
+    ]
+    if (
+        disjoint
+        and consistency is not None
+        and consistency(_ring_fit(best, index_map, n, len(hyps))) < STRICT_RANK
+    ):
+        rivals += disjoint
+    return rivals
+
+
 def find_ring(
     points: FloatArray,
     params: RingParams,
@@ -134,33 +175,7 @@ def find_ring(
             f"not distinctive: a {m}-LED ring fit is expected by chance "
             f"(NFA 10^{best.log10_nfa:.1f} > 10^{limit:.1f}) among {n} candidate points"
         )
-    best_set = set(best.members.tolist())
-    rivals = [
-        h
-        for h in hyps[1:]
-        if not set(h.members.tolist()) <= best_set
-        and h.log10_nfa <= params.log10_nfa_max
-        and (
-            len(h.members) == m
-            or (len(h.members) == m - 1 and h.log10_nfa <= best.log10_nfa + params.ambiguity_log10)
-        )
-    ]
-    # a ring of any size that shares none of the best's points and is meaningful on its own
-    # competes with a best that is suspect (short of the strictest noise model)
-    taken = {id(h) for h in rivals}
-    disjoint = [
-        h
-        for h in hyps[1:]
-        if id(h) not in taken
-        and best_set.isdisjoint(h.members.tolist())
-        and h.log10_nfa <= _nfa_limit(h, params, prior)
-    ]
-    if (
-        disjoint
-        and consistency is not None
-        and consistency(_ring_fit(best, index_map, n, len(hyps))) < STRICT_RANK
-    ):
-        rivals += disjoint
+    rivals = _rivals(best, hyps, params, prior, consistency, index_map, n)
     if rivals:
         passing = _most_consistent([best, *rivals], consistency, index_map, n, len(hyps))
         if len(passing) != 1:
