@@ -52,6 +52,7 @@ class Stack:
     app_port: int  # the service, loopback
     proxy_port: int  # the proxy's HTTP port, where the attacks go
     nginx_log: Path  # nginx's error log (stderr)
+    app_log: Path  # the service's log (uvicorn's access lines)
 
 
 def config_value(directive: str) -> str:
@@ -88,7 +89,7 @@ def render(prefix: Path, values: dict[str, str]) -> Path:
 @pytest.fixture(scope="module")
 def stack(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Stack]:
     tmp = tmp_path_factory.mktemp("proxy")
-    with serve(tmp, behind_proxy_env()) as (_proc, app_port, _log):
+    with serve(tmp, behind_proxy_env()) as (_proc, app_port, app_log):
         prefix = tmp / "nginx"
         prefix.mkdir()
         proxy_port = free_port()
@@ -123,7 +124,7 @@ def stack(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Stack]:
                     nginx_log,
                     timeout_s=20,
                 )
-                yield Stack(app_port, proxy_port, nginx_log)
+                yield Stack(app_port, proxy_port, nginx_log, app_log)
             finally:
                 stop_process(proc)
 
@@ -226,17 +227,26 @@ def test_too_many_connections_from_one_address_refused_by_limit_conn(stack: Stac
                 refused = read_head(extra)
             for s in held:  # the held ones are still open: a byte more each
                 s.sendall(b"-")
+            last_byte = time.monotonic()
             readable, _, _ = select.select(held, [], [], 0.2)
-            time.sleep(0.5)
+            # then silence: the proxy ends each slow body within client_body_timeout
+            body_timeout_s = seconds(config_value("client_body_timeout"))
+            pending = list(held)
+            while pending and time.monotonic() < last_byte + body_timeout_s + 3:
+                done, _, _ = select.select(pending, [], [], 0.2)
+                pending = [s for s in pending if s not in done]
+            ended_after = time.monotonic() - last_byte
     finally:
         for s in held:
             s.close()
     log = stack.nginx_log.read_bytes()[log0:].decode(errors="replace")
     print(f"{cap} held from one address; one more: {refused[:40]!r}; healthz max "
-          f"{max(probe.latencies) * 1e3:.0f} ms over {len(probe.latencies)} probes")  # fmt: skip
+          f"{max(probe.latencies) * 1e3:.0f} ms over {len(probe.latencies)} probes; the slow "
+          f"bodies ended {ended_after:.1f} s after their last byte")  # fmt: skip
     assert status_of(refused) == 429
     assert "limiting connections by zone" in log and '"aar_conn_per_addr"' in log
     assert not readable  # none of the held ones was answered or closed
+    assert not pending and body_timeout_s - 1 <= ended_after <= body_timeout_s + 3, ended_after
     assert not probe.failures, probe.failures
     assert max(probe.latencies) < 1.0
 
@@ -305,3 +315,28 @@ def test_upload_and_telemetry_websocket_through_the_proxy(stack: Stack) -> None:
         assert len(r.json()["leds"]) == 5
         record = ws.recv(timeout=30)
     assert isinstance(record, str) and '"source":"upload"' in record.replace(" ", "")
+
+
+def test_oversized_request_head_is_refused_at_the_proxy(stack: Stack) -> None:
+    with socket.create_connection(("127.0.0.1", stack.proxy_port), timeout=5) as s:
+        s.sendall(
+            b"GET /api/v1/healthz HTTP/1.1\r\nHost: 127.0.0.1\r\nX-Big: "
+            + b"a" * 20_000
+            + b"\r\n\r\n"
+        )
+        resp = read_head(s)
+    assert status_of(resp) == 400 and b"Too Large" in resp, resp[:300]
+
+
+def test_the_service_sees_the_clients_address_and_checks_its_host(stack: Stack) -> None:
+    """The proxy passes the Host the client sent (the service's DNS-rebinding check still
+    answers) and the client's address (X-Forwarded-For, trusted from the proxy)."""
+    url = f"http://127.0.0.1:{stack.proxy_port}/api/v1/healthz"
+    bad = httpx.get(url, headers={"Host": "rebound.example.org"}, timeout=5)
+    assert bad.status_code == 400 and "untrusted Host" in bad.json()["detail"]
+    transport = httpx.HTTPTransport(local_address="127.0.0.6")
+    with httpx.Client(transport=transport, timeout=5) as client:
+        assert client.get(url).status_code == 200
+    time.sleep(0.3)
+    access = [ln for ln in stack.app_log.read_text().splitlines() if "/api/v1/healthz" in ln]
+    assert any("127.0.0.6:" in ln for ln in access), access[-3:]
