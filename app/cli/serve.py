@@ -3,12 +3,60 @@
 from __future__ import annotations
 
 import argparse
+import ipaddress
 import sys
-from typing import Any
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
 
 from app.cli.drogue_options import add_drogue_options
 
+if TYPE_CHECKING:
+    from app.server.settings import Settings
+
 MAX_HEADER_BYTES = 16 * 1024  # a request's headers (h11_max_incomplete_event_size)
+PROXY_CONFIG = "deploy/nginx/nginx.conf.template"
+WS_FRAME_OVERHEAD_BYTES = 4096  # above the push route's largest message, for the frame
+
+
+@dataclass(frozen=True)
+class ServerLimits:
+    """uvicorn's own limits, as ``aar-dock serve`` passes them (``uvicorn.Config``)."""
+
+    limit_concurrency: int  # connections or in-flight tasks; a request beyond them gets 503
+    timeout_keep_alive_s: int  # idle keep-alive (AAR_KEEP_ALIVE_S)
+    ws_max_size_bytes: int  # the largest WebSocket message of any route (push)
+    h11_max_incomplete_event_size_bytes: int  # a request's headers
+
+
+def server_limits(settings: Settings, max_connections: int) -> ServerLimits:
+    """``max_connections``: the connection guard's total cap (``AAR_MAX_CONNECTIONS``, at most
+    the descriptor limit minus ``AAR_FD_RESERVE``). uvicorn's ``limit_concurrency`` sits one
+    above it: the guard makes room at its cap by closing the oldest connection still waiting
+    for its headers (a 503 there would answer the operators, not the slowloris), and uvicorn
+    holds the same cap with 503s should the guard ever be switched off."""
+    return ServerLimits(
+        limit_concurrency=max_connections + 1,
+        timeout_keep_alive_s=max(1, round(settings.keep_alive_s)),
+        ws_max_size_bytes=settings.push_limit_bytes + WS_FRAME_OVERHEAD_BYTES,
+        h11_max_incomplete_event_size_bytes=MAX_HEADER_BYTES,
+    )
+
+
+def exposure_notice(host: str) -> str | None:
+    """The line ``serve`` prints when it listens beyond this machine (None on loopback)."""
+    name = host.strip().strip("[]").lower()
+    if name == "localhost":
+        return None
+    try:
+        if ipaddress.ip_address(name).is_loopback:
+            return None
+    except ValueError:
+        pass  # a host name: not known to be loopback
+    return (
+        f"aar-dock: listening on {host}, beyond this machine: an exposed deployment runs "
+        f"behind the proxy ({PROXY_CONFIG}; docs/service.md, 'Behind the proxy'; "
+        "docker compose up does)"
+    )
 
 
 def register(subparsers: Any) -> None:
@@ -139,6 +187,9 @@ def run(args: argparse.Namespace) -> int:
     except (CalibrationError, DrogueProfileError) as exc:
         print(f"aar-dock serve: {exc}", file=sys.stderr)
         return 2
+    notice = exposure_notice(settings.host)
+    if notice:
+        print(notice, flush=True)
     print(f"aar-dock: drogue: {drogue.label}", flush=True)
     if settings.source.strip() not in ("", "sim", "push"):
         from app.streams.frames import SourceError
@@ -197,6 +248,7 @@ def run(args: argparse.Namespace) -> int:
     registry = new_registry(settings, PUSH_PATH)
     http_protocol, ws_protocol = protocol_classes(registry)
     mark_guarded(app, registry)  # else the app warns, and /healthz says degraded
+    limits = server_limits(settings, registry.policy.max_connections)
     config = uvicorn.Config(
         app,
         host=settings.host,
@@ -205,13 +257,14 @@ def run(args: argparse.Namespace) -> int:
         log_level=settings.log_level,
         http=http_protocol,
         ws=ws_protocol,
+        limit_concurrency=limits.limit_concurrency,
         # the largest message of any route (push); each connection gets its route's limit
-        ws_max_size=settings.push_limit_bytes + 4096,
+        ws_max_size=limits.ws_max_size_bytes,
         # no per-message compression: deflating every telemetry message once per client was
         # the web process's largest user of the GIL with 50 clients (benchmarks/bench_load.py)
         ws_per_message_deflate=False,
-        timeout_keep_alive=max(1, round(settings.keep_alive_s)),
-        h11_max_incomplete_event_size=MAX_HEADER_BYTES,
+        timeout_keep_alive=limits.timeout_keep_alive_s,
+        h11_max_incomplete_event_size=limits.h11_max_incomplete_event_size_bytes,
     )
     log_hygiene.install()  # after uvicorn configured its loggers
     server = uvicorn.Server(config)

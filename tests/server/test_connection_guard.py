@@ -29,7 +29,7 @@ from typing import Any
 import httpx
 import pytest
 
-from tests.support.live_server import serve, ws_connect
+from tests.support.live_server import LatencyProbe, serve, ws_connect
 
 ROOT = Path(__file__).resolve().parents[2]
 MB = 1_000_000
@@ -87,56 +87,6 @@ def read_close(s: socket.socket, timeout: float = 10.0) -> tuple[int, str] | Non
                 return code, payload[2:].decode(errors="replace")
     except OSError:
         return None
-
-
-class LatencyProbe:
-    """``GET /healthz`` every ``period_s`` from its own thread; latencies (s), failures."""
-
-    def __init__(self, port: int, period_s: float = 0.1, timeout_s: float = 1.0) -> None:
-        self.port = port
-        self.period_s, self.timeout_s = period_s, timeout_s
-        self.latencies: list[float] = []
-        self.failures: list[str] = []
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, daemon=True)
-
-    def _get(self) -> bool:
-        """One ``GET /healthz`` on a new connection: 200 within the timeout."""
-        try:
-            s = socket.create_connection(("127.0.0.1", self.port), timeout=self.timeout_s)
-        except OSError as exc:
-            raise OSError(f"connect: {exc}") from None
-        with s:
-            s.sendall(
-                b"GET /api/v1/healthz HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: close\r\n\r\n"
-            )
-            resp = b""
-            while chunk := s.recv(65536):
-                resp += chunk
-        return resp.startswith(b"HTTP/1.1 200")
-
-    def _run(self) -> None:
-        while not self._stop.is_set():
-            t0 = time.monotonic()
-            try:
-                if not self._get():
-                    self.failures.append("status")
-            except OSError as exc:
-                self.failures.append(str(exc))
-            self.latencies.append(time.monotonic() - t0)
-            self._stop.wait(self.period_s)
-
-    def __enter__(self) -> LatencyProbe:
-        self._thread.start()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self._stop.set()
-        self._thread.join(timeout=5)
-
-    def p99(self) -> float:
-        lat = sorted(self.latencies)
-        return lat[min(len(lat) - 1, int(0.99 * len(lat)))]
 
 
 @pytest.fixture(scope="module")
