@@ -30,6 +30,9 @@ def test_query_values_are_redacted() -> None:
 def test_accept_failures_are_logged_once_per_interval(caplog: pytest.LogCaptureFixture) -> None:
     limiter = AcceptErrorLimiter(interval_s=60.0)
     logger = logging.getLogger("asyncio")
+    installed = list(logger.filters)  # a serve run earlier in this process installed its own
+    for f in installed:
+        logger.removeFilter(f)
     logger.addFilter(limiter)
     loop = asyncio.new_event_loop()
     try:
@@ -44,6 +47,8 @@ def test_accept_failures_are_logged_once_per_interval(caplog: pytest.LogCaptureF
     finally:
         loop.close()
         logger.removeFilter(limiter)
+        for f in installed:
+            logger.addFilter(f)
     lines = [r for r in caplog.records if "accept()" in r.getMessage()]
     assert len(lines) == 1 and lines[0].exc_info is None
     assert "Too many open files" in lines[0].getMessage()
