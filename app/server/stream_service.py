@@ -302,7 +302,10 @@ class StreamService:
             restart_at = self._restart_at
         if restart_at is None:
             stalled = self._stalled(source)
-            if thread is not None and not thread.is_alive() and self.state == "running":
+            # (a thread not started yet — ident None — is a switch in progress: _start
+            # publishes the new generation and thread before it starts it)
+            exited = thread is not None and thread.ident is not None and not thread.is_alive()
+            if exited and self.state == "running":
                 self._fail(gen, "the stream thread exited")
             elif stalled is not None:
                 self._fail(gen, stalled)
