@@ -7,13 +7,20 @@ rad/s) with the model's control effectiveness ``L_δa = ∂ṗ/∂δa``, ``M_δe
 ``N_δr = ∂ṙ/∂δr`` (the linearisation's B matrix):
 
 * throttle: ``δt = clip(k_v (v_c − v_x), −throttle_back, +throttle_back)`` — the receiver's
-  speed relative to the tanker ``v_x`` (tanker frame, m/s) held at ``v_c = −drop_back_mps``
-  until it is ``standoff_aft_m`` behind the drogue, then at 0 (it keeps station there);
+  speed relative to the tanker ``v_x`` (tanker frame, m/s) held at the drop-back profile
+  ``v_c = −min(drop_back_mps, √(2 a_b d_x))``, ``d_x`` the distance still to go to
+  ``standoff_aft_m + standoff_margin_aft_m`` behind the drogue (0 beyond: it keeps station):
+  the speed from which a deceleration ``a_b = brake_mps2`` stops there. A step to 0 at the
+  standoff let the engine's spool-up (≈ 2–3 s) carry the receiver 20–30 m past it, each metre
+  flown back by the rejoin;
 * elevator: ``δe = −(ω_θ² (θ − θ_c) + 2 ζ ω_θ q) / M_δe`` — a pitch attitude hold, with
   ``θ_c = −(ż_c + k_z e + k_i ∫e) / V``, ``e = ż_c − ż``: the attitude of a descent at
-  ``ż_c = sink_mps`` (down) until it is ``standoff_below_m`` below the drogue, then 0, with
-  a PI correction on the sink rate ``ż`` flown (a lighter aircraft or the tanker's downwash
-  would otherwise turn the descent into a climb);
+  ``ż_c = min(sink_mps, d_z / sink_settle_s)`` (down), ``d_z`` the height still to lose to
+  ``standoff_below_m + standoff_margin_below_m`` below the drogue (0 beyond), with a PI
+  correction on the sink rate ``ż`` flown (a lighter aircraft or the tanker's downwash would
+  otherwise turn the descent into a climb); ``|∫e| ≤ sink_integral_max_m`` — a wound-up
+  integral (a climb while the probe passes the drogue) kept the receiver sinking at 3 m/s
+  for seconds after the command was 0, 10–18 m below the standoff;
 * aileron: ``δa = −(ω_φ² (φ − φ_c) + 2 ζ ω_φ p) / L_δa`` with
   ``φ_c = clip(−k_ψ (ẏ − ẏ_c) / V, ±10°)`` — wings level on the tanker's track: ``ẏ / V`` is
   the receiver's track angle relative to the tanker's (small angles; ``ẏ`` its measured
@@ -28,7 +35,7 @@ rad/s) with the model's control effectiveness ``L_δa = ∂ṗ/∂δa``, ``M_δe
   230 KCAS;
 * rudder: ``δr = −(2 ζ ω_ψ r) / N_δr`` — a yaw damper;
 * speed brakes (:meth:`RecoveryLaw.speedbrake`): out while short of the standoff and faster
-  than the drop-back speed, in otherwise (the A-4's add ΔC_D 0.021: with the engine at idle
+  (forward) than the drop-back profile, in otherwise (the A-4's add ΔC_D 0.021: with the engine at idle
   the receiver then decelerates at ≈ 0.17 g instead of ≈ 0.1 g).
 
 Each surface command is clipped to ``± max_fraction`` of its travel. The law is done
@@ -57,6 +64,7 @@ class RecoveryGains:
     sink_mps: float = 3.0  # the descent's sink rate
     sink_gain: float = 2.0  # k_z (per unit: m/s of sink-rate error per m/s)
     sink_integral_per_s: float = 0.5  # k_i
+    sink_integral_max_m: float = 3.0  # |∫e| (m): the integrator's clip (anti-windup)
     heading_gain: float = 4.0  # k_ψ (rad of bank per rad of track angle)
     side_position_gain: float = 0.1  # k_y (m/s of sideways speed per m of offset)
     side_return_max_mps: float = 1.0  # the most sideways speed it commands back to station
@@ -68,6 +76,13 @@ class RecoveryGains:
     max_fraction: float = 0.3  # of each command's travel
     standoff_aft_m: float = 10.0
     standoff_below_m: float = 3.0
+    # the drop-back and the descent aim this far beyond the standoff (m) and slow into it:
+    # at ``brake_mps2`` fore-aft (the A-4 decelerates at ≈ 1 m/s² with the speed brakes out
+    # and ≈ 1.7 m/s² at idle; spooling back up is slower) and with ``sink_settle_s`` vertically
+    standoff_margin_aft_m: float = 6.0
+    standoff_margin_below_m: float = 2.5
+    brake_mps2: float = 1.0
+    sink_settle_s: float = 0.5
     side_speed_max_mps: float = 1.5  # hand back only while drifting sideways slower than this
 
 
@@ -113,11 +128,13 @@ class RecoveryLaw:
         sideways offset from the station held when the take-over began (m, right +)."""
         g = self.gains
         p, q, r, phi, theta = x_dev[3], x_dev[4], x_dev[5], x_dev[6], x_dev[7]
-        v_c = -g.drop_back_mps if aft_m < g.standoff_aft_m else 0.0
-        zdot_c = g.sink_mps if below_m < g.standoff_below_m else 0.0
+        v_c = self.drop_back_profile(aft_m)
+        to_lose = max(g.standoff_below_m + g.standoff_margin_below_m - below_m, 0.0)
+        zdot_c = min(g.sink_mps, to_lose / g.sink_settle_s)
         err = zdot_c - sink_rate_mps
+        cap = g.sink_integral_max_m
         self.sink_error_integral = float(
-            np.clip(self.sink_error_integral + err * self.dt, -10.0, 10.0)
+            np.clip(self.sink_error_integral + err * self.dt, -cap, cap)
         )
         theta_c = -(zdot_c + g.sink_gain * err + g.sink_integral_per_s * self.sink_error_integral)
         theta_c /= self.airspeed_mps
@@ -144,11 +161,20 @@ class RecoveryLaw:
         u[1:] = np.clip(u[1:], -self.u_max[1:], self.u_max[1:])
         return u
 
+    def drop_back_profile(self, aft_m: float) -> float:
+        """The commanded speed relative to the tanker (m/s, forward +) at ``aft_m`` behind the
+        drogue: ``−min(drop_back_mps, √(2 a_b d_x))`` (module docstring)."""
+        g = self.gains
+        to_go = max(g.standoff_aft_m + g.standoff_margin_aft_m - aft_m, 0.0)
+        return -min(g.drop_back_mps, math.sqrt(2.0 * g.brake_mps2 * to_go))
+
     def speedbrake(self, speed_mps: float, aft_m: float) -> float:
         """Speed-brake command (0 in … 1 out) for the speed relative to the tanker and the
-        distance aft of the drogue (m)."""
+        distance aft of the drogue (m): out while short of the standoff and faster than the
+        drop-back profile."""
         g = self.gains
-        return 1.0 if aft_m < g.standoff_aft_m and speed_mps > -g.drop_back_mps else 0.0
+        short = aft_m < g.standoff_aft_m
+        return 1.0 if short and speed_mps > self.drop_back_profile(aft_m) else 0.0
 
     def settled(
         self,

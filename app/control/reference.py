@@ -49,18 +49,20 @@ class GuidanceConfig:
     # after a break-away: climb back to the drogue's height and close to this gap (m; the
     # pre-contact position, 3–4.5 m in practice) at ``rejoin_speed_mps``
     rejoin_gap_m: float = 5.0
-    rejoin_speed_mps: float = 1.0
+    rejoin_speed_mps: float = 1.5
     # farther than ``rejoin_far_m`` beyond the pre-contact gap the rejoin closes at
     # ``rejoin_far_speed_mps`` (the break-away's drop-back carries the receiver 20–30 m aft;
     # at 1 m/s all the way the rejoin alone took ≈ 25 s of a 90 s run)
     rejoin_far_m: float = 10.0
     rejoin_far_speed_mps: float = 2.0
     rejoin_accel_mps2: float = 0.3  # the most each rejoin rate changes per second
-    rejoin_settle_s: float = 2.0  # each slows to the end as remaining distance / this
-    rejoin_dwell_s: float = 4.0  # stabilised at the pre-contact position this long, then close
+    rejoin_dwell_s: float = 3.0  # stabilised at the pre-contact position this long, then close
 
 
 REJOIN_CREEP_MPS = 0.05  # the rejoin's slowest closing speed near its end (m/s)
+# each rejoin rate slows into its end at this fraction of ``rejoin_accel_mps2`` (the rest is
+# the margin that lets the rate-limited speed follow the braking curve without overshooting)
+REJOIN_BRAKE_FRACTION = 0.8
 
 
 class ReferenceGenerator:
@@ -118,10 +120,12 @@ class ReferenceGenerator:
     def _rejoin_step(self, dt: float) -> tuple[float, float, float]:
         """One tick of the rejoin; returns the rates (m/s) of the gap, of the height below
         and of the offset to the side. Each closes at up to its speed (fore-aft: the far
-        speed while far), slowing within ``rejoin_settle_s`` × its speed of the end, and each
+        speed while far), slowing into the end on its braking curve ``√(2 a d)`` (``a`` =
+        ``REJOIN_BRAKE_FRACTION`` × ``rejoin_accel_mps2``, ``d`` the distance left), and each
         rate changes at most ``rejoin_accel_mps2``: the reference's velocity (the LQR's
         feed-forward) never steps — a step at the hand-back gave a pitch transient that
-        crossed the monitor's α bound."""
+        crossed the monitor's α bound. (A slowing as distance / 2 s overshot the end under
+        the rate limit and hunted about it for ≈ 10 s.)"""
         c = self.cfg
         remaining = np.array(
             [self.gap_cmd - c.rejoin_gap_m, self.rejoin_below_m, self.rejoin_side_m]
@@ -134,7 +138,8 @@ class ReferenceGenerator:
                 c.rejoin_speed_mps,
             ]
         )
-        slowing = np.maximum(np.abs(remaining) / c.rejoin_settle_s, REJOIN_CREEP_MPS)
+        braking = np.sqrt(2.0 * REJOIN_BRAKE_FRACTION * c.rejoin_accel_mps2 * np.abs(remaining))
+        slowing = np.maximum(braking, REJOIN_CREEP_MPS)
         wanted = np.sign(remaining) * np.minimum(v_max, slowing)
         dv = c.rejoin_accel_mps2 * dt
         self._rejoin_v = np.clip(wanted, self._rejoin_v - dv, self._rejoin_v + dv)

@@ -84,9 +84,9 @@ def test_recovery_law_levels_the_wings_pulls_power_and_holds_a_descent() -> None
     # level at trim pitch, asked to descend: the elevator pitches the nose down
     u2 = law.command(np.zeros(12), speed_mps=0.0, sink_rate_mps=0.0, aft_m=1.0, below_m=0.0)
     assert u2[2] * model.b[4, 2] < 0
-    # at the standoff, moving with the tanker: no more throttle back
+    # beyond the drop-back's aim (standoff + margin), moving with the tanker: no more throttle
     law.reset()
-    u3 = law.command(np.zeros(12), speed_mps=0.0, sink_rate_mps=0.0, aft_m=12.0, below_m=4.0)
+    u3 = law.command(np.zeros(12), speed_mps=0.0, sink_rate_mps=0.0, aft_m=17.0, below_m=6.0)
     assert u3[0] == 0.0
 
 
@@ -106,3 +106,27 @@ def test_recovery_law_drifts_back_to_its_lateral_station_slowly() -> None:
     # moving back at the capped speed already: no more bank
     back = law.command(np.zeros(12), 0.0, 0.0, 12.0, 4.0, -1.0, 80.0)
     assert back[1] == pytest.approx(0.0, abs=1e-12)
+
+
+def test_the_drop_back_slows_into_the_standoff_on_its_braking_curve() -> None:
+    """The commanded drop-back speed is −min(8, √(2 · 1 m/s² · distance to 16 m aft)), by hand;
+    the speed brakes are out only while short of the standoff and faster than that; the
+    sink-rate integrator is clipped (a wound-up integral kept the receiver sinking 10–18 m
+    below the standoff)."""
+    model = design_for(DockingConfig(plant="jsbsim", vision=False)).design.model
+    law = RecoveryLaw(model)
+    g = law.gains
+    aim = g.standoff_aft_m + g.standoff_margin_aft_m
+    assert aim == 16.0 and g.brake_mps2 == 1.0
+    assert law.drop_back_profile(0.0) == pytest.approx(-math.sqrt(32.0))  # under the 8 m/s cap
+    assert law.drop_back_profile(-20.0) == -g.drop_back_mps
+    assert law.drop_back_profile(8.0) == pytest.approx(-4.0)  # √(2 · 8)
+    assert law.drop_back_profile(14.0) == pytest.approx(-2.0)  # √(2 · 2)
+    assert law.drop_back_profile(16.0) == 0.0 and law.drop_back_profile(30.0) == 0.0
+    assert law.speedbrake(-3.0, 8.0) == 1.0  # faster (forward) than −4 m/s at 8 m
+    assert law.speedbrake(-5.0, 8.0) == 0.0  # already dropping back faster than the curve
+    assert law.speedbrake(-1.0, 12.0) == 0.0  # past the standoff
+    law.reset(0.02)
+    for _ in range(2000):  # 40 s asked to sink at 3 m/s while climbing
+        law.command(np.zeros(12), 0.0, -1.0, 0.0, 0.0)
+    assert abs(law.sink_error_integral) == pytest.approx(g.sink_integral_max_m)
