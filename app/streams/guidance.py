@@ -24,8 +24,8 @@ import numpy as np
 
 from app.control.abort import predicted_miss_m
 from app.control.drogue_filter import DrogueFilter
+from app.model.pose import PoseResult
 from app.types import FloatArray
-from app.vision.result import PoseResult
 
 MAX_GAP_S = 1.0  # a longer gap between frames (or time going back) restarts the filter
 

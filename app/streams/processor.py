@@ -11,11 +11,12 @@ import time
 from dataclasses import dataclass, field
 
 from app.geometry.calibration import StereoCalibration
-from app.streams.frames import SourceKind, StereoFrame
+from app.model.frames import StereoFrame
+from app.model.pose import PoseResult
+from app.streams.frames import SourceKind
 from app.streams.guidance import GuidanceConfig, GuidanceState, StreamGuidance
 from app.types import UInt8Array
 from app.vision.pipeline import PipelineConfig
-from app.vision.result import PoseResult
 from app.vision.tracking import StereoTracker
 
 

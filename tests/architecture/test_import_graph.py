@@ -191,7 +191,7 @@ def test_geometry_is_the_floor() -> None:
 def test_control_knows_nothing_of_the_simulation() -> None:
     """The controller and the guidance's models (app.control) import nothing of the simulator
     (app.sim): what the guidance knows of the drogue is its own nominal model
-    (app.control.drogue_model), never the simulated drogue's parameters."""
+    (app.model.drogue), never the simulated drogue's parameters."""
     bad = [
         f"{m}:{line} imports {imported}"
         for m, tree in MODULES.items()

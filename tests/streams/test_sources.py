@@ -10,7 +10,9 @@ import cv2
 import numpy as np
 import pytest
 
-from app.streams.frames import EndOfStream, SourceError, StereoFrame
+from app.model.frames import StereoFrame
+from app.model.pose import DrogueResult, PoseResult
+from app.streams.frames import EndOfStream, SourceError
 from app.streams.guidance import GuidanceConfig, StreamGuidance
 from app.streams.protocol import ProtocolError, decode_message, encode_message
 from app.streams.recording import FrameRecordingSource, FrameRecordingWriter, read_index
@@ -22,7 +24,6 @@ from app.streams.sources import (
     open_source,
     parse_source,
 )
-from app.vision.result import DrogueResult, PoseResult
 
 
 def _img(value: int, shape: tuple[int, int] = (24, 32)) -> np.ndarray:

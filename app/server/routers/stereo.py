@@ -23,6 +23,7 @@ import numpy as np
 from fastapi import APIRouter, Depends, File, Form, HTTPException, UploadFile, status
 
 from app.geometry.calibration import StereoCalibration
+from app.model.pose import PoseResult
 from app.server import records
 from app.server.dependencies import AppState, StateDep, require_token
 from app.server.image_guard import ImageHeader, screen
@@ -38,7 +39,6 @@ from app.server.upload_pool import (
     process_upload,
 )
 from app.types import UInt8Array
-from app.vision.result import PoseResult
 
 log = logging.getLogger(__name__)
 router = APIRouter(tags=["stereo"])

@@ -15,7 +15,7 @@ from __future__ import annotations
 import math
 from dataclasses import replace
 
-from app.control.drogue_model import DrogueModel
+from app.model.drogue import DrogueModel
 from app.sim.docking.config import DockingConfig
 from app.sim.docking.multibody_drogue import MultibodyDrogue, MultibodyDrogueParams
 from app.sim.docking.results import HoseState
