@@ -502,10 +502,6 @@ class StreamService:
         if isinstance(source, PushSource):
             source.begin_session()
 
-    @property
-    def accepts_push(self) -> bool:
-        return self._parsed is not None and self._parsed.kind == "push"
-
     # ---- status -----------------------------------------------------------------------
     def status(self) -> dict[str, Any]:
         source = self.source

@@ -57,11 +57,6 @@ class TelemetryBus:
             else:
                 self._subscribers.append(fn)
 
-    def unsubscribe(self, fn: Subscriber) -> None:
-        with self._lock:
-            if fn in self._subscribers:
-                self._subscribers.remove(fn)
-
     # ---- publication ----------------------------------------------------------------
     def _next_seq(self) -> int:
         with self._lock:

@@ -612,6 +612,3 @@ class Recorder:
         if not path.is_file():
             return None, f"the {kind} file of recording {rec_id!r} is missing"
         return path, ""
-
-    def file_path(self, rec_id: str, kind: str) -> Path | None:
-        return self.locate(rec_id, "telemetry" if kind == "telemetry" else "scene")[0]

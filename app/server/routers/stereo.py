@@ -92,7 +92,7 @@ async def _read_limited(upload: UploadFile, limit: int, name: str) -> bytes:
     return b"".join(chunks)
 
 
-def decode_image(data: bytes, name: str) -> np.ndarray:
+def decode_or_400(data: bytes, name: str) -> np.ndarray:
     """Bytes (PNG/JPEG/BMP/TIFF) → uint8 grey image; ``HTTPException(400)`` if not an image."""
     try:
         return decode_upload_image(data, name)
@@ -101,7 +101,7 @@ def decode_image(data: bytes, name: str) -> np.ndarray:
 
 
 def _decode_pair(left: bytes, right: bytes) -> tuple[np.ndarray, np.ndarray]:
-    return decode_image(left, "left"), decode_image(right, "right")
+    return decode_or_400(left, "left"), decode_or_400(right, "right")
 
 
 def _shape_header(img: np.ndarray) -> ImageHeader:
