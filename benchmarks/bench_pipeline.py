@@ -37,13 +37,13 @@ import numpy as np
 from app.geometry.calibration import CameraIntrinsics, StereoCalibration
 from app.geometry.projection import undistort_pixels
 from app.geometry.triangulation import refine_reprojection, triangulate_linear
+from app.model.pose import PoseResult
 from app.resources import load_default_calibration
 from app.sim.led_ring import stereo_center_x_mm, tilted_normal
 from app.sim.stereo_render import RenderedPair, RenderSettings, render_pair
 from app.sim.warmup import compile_kernels
 from app.vision.ihwt import describe
 from app.vision.pipeline import NavigationPipeline
-from app.vision.result import PoseResult
 from app.vision.tracking import StereoTracker
 
 

@@ -28,9 +28,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from app.model.pose import PoseResult  # noqa: E402
 from app.server.main import create_app  # noqa: E402
 from app.server.settings import Settings  # noqa: E402
-from app.vision.result import PoseResult  # noqa: E402
 
 
 class TrivialSource:

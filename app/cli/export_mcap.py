@@ -29,7 +29,8 @@ def register(subparsers: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from app.geometry.calibration import CalibrationError, StereoCalibration
-    from app.server.mcap_recording import default_mount, telemetry_schema
+    from app.server.mcap_recording import telemetry_schema
+    from app.sim.rig_mount import default_mount
     from app.streams.mcap_log import export_recording
     from app.streams.recording import recording_calibration
 

@@ -12,10 +12,10 @@ from pathlib import Path
 from typing import Any, Literal
 
 from app.geometry.calibration import StereoCalibration
+from app.model.pose import PoseResult
 from app.streams.mcap_log import FrameInfo, McapLogWriter, McapTick, encode_pair
 from app.streams.processor import StreamTick
 from app.vision.drogue import DrogueProfile
-from app.vision.result import PoseResult
 
 
 def row_schema() -> dict[str, object]:

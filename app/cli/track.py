@@ -1,6 +1,6 @@
 """``aar-dock track``: the navigation pipeline with tracking over a recorded stereo sequence.
 
-One JSON line per pair: the :class:`~app.vision.result.PoseResult` contract plus ``frame``
+One JSON line per pair: the :class:`~app.model.pose.PoseResult` contract plus ``frame``
 (the source's frame number), ``t_s`` (its time) and ``mode`` (acquired / tracked / lost).
 """
 
@@ -109,9 +109,9 @@ def _mavlink(url: str, mount_name: str | None) -> tuple[Any, Any]:
     if mount_name == "camera":
         mount = RigMount.forward_looking()
     else:
-        from app.server.mavlink_output import default_mount
+        from app.sim.rig_mount import default_mount
 
-        mount = default_mount(mount_name or DEFAULT_PLANT)
+        mount = RigMount.on_airframe(default_mount(mount_name or DEFAULT_PLANT))
     return MavlinkLink(url), mount
 
 

@@ -1,7 +1,7 @@
 """Bow-wave feed-forward: where the receiver's nose will have pushed the drogue when the probe
 arrives.
 
-The guidance carries its own bow-wave model (:class:`app.control.drogue_model.DrogueModel`: a
+The guidance carries its own bow-wave model (:class:`app.model.drogue.DrogueModel`: a
 force ``F₀ exp(−s/ℓ)`` away from the nose axis and up, ``s`` the axial distance nose → drogue)
 acting on the drogue's lateral/vertical mode (ω, ζ, effective mass). Its *nominal* parameters
 only: a flown bow wave of another strength, or a drogue of another mass, is not known to it.
@@ -19,8 +19,8 @@ import math
 
 import numpy as np
 
-from app.control.drogue_model import DrogueModel
 from app.control.drogue_swing import predict_swing_offset
+from app.model.drogue import DrogueModel
 from app.types import FloatArray
 
 FORECAST_STEPS = 64  # quadrature points of the forced response over the horizon

@@ -2,7 +2,7 @@
 
 The guidance predicts the drogue's swing about its mean as a damped oscillator
 ``d̈ + 2ζω ḋ + ω² d = F/m`` (:func:`app.control.drogue_swing.predict_swing_offset`). Its
-nominal ω and ζ (:class:`app.control.drogue_model.DrogueModel`) are the catalogue values of the
+nominal ω and ζ (:class:`app.model.drogue.DrogueModel`) are the catalogue values of the
 hose type; the flown hose and drogue differ (length, mass, drag: ±30 % in the ``standard`` and
 ``harsh`` presets, and a multi-body hose swings faster than the reduced model). So the guidance
 identifies them while it flies, from nothing but its estimates of the drogue:
@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from app.control.drogue_model import DrogueModel
+from app.model.drogue import DrogueModel
 from app.types import FloatArray
 
 

@@ -19,9 +19,9 @@ from typing import Literal
 
 import cv2
 
-from app.server.schemas import TickRecord
+from app.model.frames import RawFrame
+from app.model.tick import TickRecord
 from app.streams.annotations import Side, draw_marks, image_marks
-from app.streams.frames import RawFrame
 
 Kind = Literal["live", "upload"]
 

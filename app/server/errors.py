@@ -59,10 +59,6 @@ def field_name(loc: Any) -> str:
     return ".".join(parts) or "<root>"
 
 
-def error_fields(errors: list[dict[str, Any]]) -> list[str]:
-    return [field_name(e.get("loc")) for e in errors]
-
-
 async def validation_exception_handler(request: Request, exc: Exception) -> JSONResponse:
     assert isinstance(exc, RequestValidationError)
     raw = list(exc.errors())

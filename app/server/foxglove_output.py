@@ -14,12 +14,13 @@ from __future__ import annotations
 import time
 
 from app.geometry.calibration import StereoCalibration
+from app.model.frames import RawFrame
+from app.model.tick import TickRecord
 from app.server.foxglove_gate import FoxgloveGate, GateHealth, GatePolicy
 from app.server.loopback_tls import LOOPBACK, make_loopback_tls
-from app.server.mcap_recording import default_mount, mcap_tick, telemetry_schema
-from app.server.schemas import TickRecord
+from app.server.mcap_recording import mcap_tick, telemetry_schema
+from app.sim.rig_mount import default_mount
 from app.streams.foxglove_live import FoxgloveLive
-from app.streams.frames import RawFrame
 from app.streams.mcap_log import FrameInfo, RawPair
 from app.types import UInt8Array
 

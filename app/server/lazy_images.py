@@ -6,7 +6,7 @@ import threading
 
 import numpy as np
 
-from app.streams.frames import StereoFrame
+from app.model.frames import StereoFrame
 from app.types import FloatArray, Rect
 
 ImagePair = tuple[np.ndarray | None, np.ndarray | None]

@@ -168,11 +168,13 @@ def _start_outputs(st: AppState, settings: Settings) -> None:
     bus.subscribe(st.recorder.on_tick)
     bus.subscribe(st.camera_view.on_tick)
     if settings.mavlink is not None:
-        from app.server.mavlink_output import MavlinkOutput, default_mount
+        from app.server.mavlink_output import MavlinkOutput
+        from app.sim.rig_mount import default_mount
+        from app.streams.landing_target import RigMount
 
         st.mavlink = MavlinkOutput(
             settings.mavlink,
-            default_mount(settings.sim_plant),
+            RigMount.on_airframe(default_mount(settings.sim_plant)),
             bus.sources,
             simulated=settings.mavlink_sim,
             max_age_s=settings.mavlink_max_age_s,

@@ -36,11 +36,10 @@ import dataclasses
 import threading
 import time
 
-from app.server import mcap_recording
+from app.model.frames import RawFrame
+from app.model.tick import TickRecord
 from app.server.clock import Clock, MonotonicClock
-from app.server.schemas import TickRecord
 from app.server.source_epoch import SourceEpoch
-from app.streams.frames import RawFrame
 from app.streams.landing_target import RigMount, landing_target, no_target
 from app.streams.mavlink_link import (
     MAV_SEVERITY_CRITICAL,
@@ -56,12 +55,6 @@ SIMULATED_TEXT = "SIMULATED targets, target_num 255: not a real fix"  # one STAT
 MAX_AGE_S = 0.25  # a fix older than this is not valid (Settings.mavlink_max_age_s)
 # the record's latency up to its publication, by kind: the first of these timings it has (ms)
 LATENCY_TIMINGS = ("frame_age", "relay", "step")
-
-
-def default_mount(plant: str) -> RigMount:
-    """The rig's mount on ``plant``'s airframe as the simulation flies it (documented default)."""
-    m = mcap_recording.default_mount(plant)
-    return RigMount.on_airframe(m.r_bc, m.camera_b, m.probe_tip_b)
 
 
 def exposure_time_s(record: TickRecord) -> float:

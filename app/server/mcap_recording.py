@@ -1,6 +1,6 @@
 """The service's recordings as MCAP logs (``<id>.mcap``, :mod:`app.streams.mcap_log`).
 
-Adapter between the tick loop's records (:class:`~app.server.schemas.TickRecord` + the raw
+Adapter between the tick loop's records (:class:`~app.model.tick.TickRecord` + the raw
 tick) and the MCAP writer: one :class:`~app.streams.mcap_log.McapTick` per record (the
 telemetry exactly as its JSONL line), the frame recording's own image bytes (PNG, or JPEG with
 the lossy codec) for the images.
@@ -12,9 +12,9 @@ from pathlib import Path
 from typing import Any
 
 from app.geometry.calibration import StereoCalibration
-from app.server.schemas import TickRecord
-from app.sim.rig_mount import CameraMount
-from app.streams.frames import RawFrame
+from app.model.frames import RawFrame
+from app.model.mount import CameraMount
+from app.model.tick import TickRecord
 from app.streams.mcap_log import (
     EncodedPair,
     ImageFormat,
@@ -31,14 +31,6 @@ def telemetry_schema() -> dict[str, Any]:
     schema: dict[str, Any] = TickRecord.model_json_schema()
     schema["title"] = "aar_dock.TickRecord"
     return schema
-
-
-def default_mount(plant: str | None = None) -> CameraMount:
-    """The rig's mount on ``plant``'s airframe (the simulation's default plant if None)."""
-    from app.sim.docking import DockingConfig
-    from app.sim.rig_mount import camera_mount
-
-    return camera_mount(DockingConfig() if plant is None else DockingConfig(plant=plant))
 
 
 def mcap_tick(record: TickRecord, line: bytes, raw: RawFrame | None = None) -> McapTick:

@@ -8,10 +8,10 @@ one builder here:
 * a camera stream (video, camera, push: ``StreamService``) → :func:`from_stream`, from the
   :class:`~app.streams.processor.StreamTick` of :class:`~app.streams.processor.StreamProcessor`;
 * an uploaded pair (``POST /stereo``) → :func:`from_upload`, from the pipeline's
-  :class:`~app.vision.result.PoseResult`.
+  :class:`~app.model.pose.PoseResult`.
 
 The bus stamps a :class:`Tick` (publication counter, loop clock, run) and turns it into the
-:class:`~app.server.schemas.TickRecord` with :func:`to_record`; its ``raw`` side (the images,
+:class:`~app.model.tick.TickRecord` with :func:`to_record`; its ``raw`` side (the images,
 read lazily, and whatever a subscriber may read of the producer's tick) goes to the
 subscribers with the record. Positions ``*_m`` are in the tanker-fixed frame (simulation) or
 the left camera's approach frame (streams), in metres; ``pose`` is in the left-camera frame
@@ -29,10 +29,10 @@ from typing import TYPE_CHECKING, Literal, Protocol
 import numpy as np
 import numpy.typing as npt
 
-from app.server.schemas import Control, Guidance, HoseInfo, StreamInfo, TickRecord
-from app.streams.frames import RawFrame
+from app.model.frames import RawFrame
+from app.model.pose import PoseResult
+from app.model.tick import Control, Guidance, HoseInfo, StreamInfo, TickRecord
 from app.types import FloatArray
-from app.vision.result import PoseResult
 
 if TYPE_CHECKING:
     from app.streams.guidance import GuidanceState

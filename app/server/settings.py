@@ -10,7 +10,7 @@ Hardening (see ``app/server/security.py``): ``AAR_TRUSTED_HOSTS`` and ``AAR_ALLO
 ``AAR_MAX_CALIBRATION_PIXELS``, ``AAR_MAX_CHECKERBOARD_MPX``) and concurrency
 (``AAR_MAX_CONCURRENT_UPLOADS``, ``AAR_MAX_CONCURRENT_CALIBRATIONS``, ``AAR_RETRY_AFTER_S``).
 
-Hardening round 2 (docs/service.md): stream supervision (``AAR_STREAM_FAILURE_STREAK``,
+Stream supervision and connection limits (docs/service.md): stream supervision (``AAR_STREAM_FAILURE_STREAK``,
 ``AAR_STREAM_RESTART_BACKOFF_S``, ``AAR_STREAM_RESTART_BACKOFF_MAX_S``, ``AAR_STREAM_STALL_S``,
 ``AAR_PUSH_MAX_CLIENTS``) and connection limits (``AAR_MAX_CONNECTIONS``,
 ``AAR_MAX_CONNECTIONS_PER_CLIENT``, ``AAR_FD_RESERVE``, ``AAR_HEADER_TIMEOUT_S``,
@@ -154,7 +154,7 @@ class Settings(BaseSettings):
         description="largest pushed WebSocket message (MB); default AAR_MAX_REQUEST_MB",
     )
 
-    # ---- hardening round 2: stream supervision (app/server/stream_service.py) --------
+    # ---- stream supervision (app/server/stream_service.py) ---------------------------
     stream_failure_streak: int = Field(
         20, ge=1, le=100_000, description="failed pairs in a row that restart a frame source"
     )
@@ -175,7 +175,7 @@ class Settings(BaseSettings):
         1, ge=1, le=64, description="pushers connected at once; one more is refused (1008)"
     )
 
-    # ---- hardening round 2: connections (app/server/connection_guard.py) -------------
+    # ---- connections (app/server/connection_guard.py) --------------------------------
     max_connections: int = Field(
         1024,
         ge=8,

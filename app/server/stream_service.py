@@ -33,9 +33,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
+from app.model.tick import StreamInfo
 from app.server import records
 from app.server.limits import ConcurrencyLimit
-from app.server.schemas import StreamInfo
 from app.server.settings import Settings
 from app.server.telemetry_bus import TelemetryBus
 from app.server.tick_loop import TickLoop
@@ -501,10 +501,6 @@ class StreamService:
         source = self.source
         if isinstance(source, PushSource):
             source.begin_session()
-
-    @property
-    def accepts_push(self) -> bool:
-        return self._parsed is not None and self._parsed.kind == "push"
 
     # ---- status -----------------------------------------------------------------------
     def status(self) -> dict[str, Any]:

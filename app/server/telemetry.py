@@ -5,8 +5,8 @@ from __future__ import annotations
 import asyncio
 import threading
 
-from app.server.schemas import TickRecord
-from app.streams.frames import RawFrame
+from app.model.frames import RawFrame
+from app.model.tick import TickRecord
 
 # The images are never part of a record; these bulky fields are left out of the stream too.
 STREAM_EXCLUDE = {"led_truth_cam_mm": True}

@@ -4,7 +4,7 @@ The simulation (:class:`~app.server.tick_loop.TickLoop`), a camera stream
 (:class:`~app.server.stream_service.StreamService`) and an upload (``POST /stereo``) each hand
 a :class:`~app.server.records.Tick` to :meth:`TelemetryBus.publish`, which stamps it (the
 publication counter ``seq``, the loop clock), builds the
-:class:`~app.server.schemas.TickRecord`, keeps it (the latest, a bounded history), adds its
+:class:`~app.model.tick.TickRecord`, keeps it (the latest, a bounded history), adds its
 stage timings to the statistics behind ``/metrics`` and calls every subscriber with
 ``(record, raw)`` in the publishing thread: the WebSocket hub, the 3-D scene, the recorder,
 the camera view, the MAVLink and Foxglove outputs.
@@ -20,9 +20,9 @@ from collections.abc import Callable
 
 import numpy as np
 
+from app.model.tick import TickRecord
 from app.server.clock import Clock
 from app.server.records import RawFrame, Tick, to_record
-from app.server.schemas import TickRecord
 from app.server.source_epoch import SourceEpoch
 
 log = logging.getLogger(__name__)
@@ -56,11 +56,6 @@ class TelemetryBus:
                 self._subscribers.insert(0, fn)
             else:
                 self._subscribers.append(fn)
-
-    def unsubscribe(self, fn: Subscriber) -> None:
-        with self._lock:
-            if fn in self._subscribers:
-                self._subscribers.remove(fn)
 
     # ---- publication ----------------------------------------------------------------
     def _next_seq(self) -> int:

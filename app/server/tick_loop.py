@@ -30,10 +30,11 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
+from app.model.tick import TickRecord
 from app.server import records
 from app.server.clock import Clock, MonotonicClock
 from app.server.records import PacedTiming
-from app.server.schemas import SimConfig, TickRecord
+from app.server.schemas import SimConfig
 from app.server.sim_source import (
     PacedSource,
     SimSource,

@@ -26,11 +26,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from app.geometry.calibration import StereoCalibration
+from app.model.pose import PoseResult
 from app.sim.led_ring import LedRing
 from app.sim.stereo_render import RenderedPair, RenderSettings, render_pair
 from app.types import FloatArray, Rect
 from app.vision.pipeline import PipelineConfig
-from app.vision.result import PoseResult
 from app.vision.tracking import StereoTracker
 
 RenderMode = Literal["full", "windows"]

@@ -31,7 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from app.control.drogue_model import DrogueModel
+from app.model.drogue import DrogueModel
 from app.types import FloatArray
 
 GRAVITY = 9.80665
@@ -73,7 +73,7 @@ class HoseDrogueParams:
         return float(np.arctan2(self.drogue_mass_kg * GRAVITY, self.drag_n))
 
     def guidance_model(self) -> DrogueModel:
-        """These parameters as the guidance's model (:class:`~app.control.drogue_model.
+        """These parameters as the guidance's model (:class:`~app.model.drogue.
         DrogueModel`): build it from a *nominal* drogue, never from a run's dispersed one."""
         rest = self.equilibrium_m()
         return DrogueModel(

@@ -16,10 +16,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from app.geometry.calibration import StereoCalibration
+from app.model.pose import PoseResult
 from app.sim.led_ring import LedRing, random_pose
 from app.sim.stereo_render import RenderedPair, RenderSettings, render_pair
 from app.vision.pipeline import NavigationPipeline, PipelineConfig
-from app.vision.result import PoseResult
 
 WRONG_MM = 5.0
 

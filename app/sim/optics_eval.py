@@ -29,10 +29,10 @@ from numpy.typing import NDArray
 
 from app.geometry.calibration import CameraIntrinsics, StereoCalibration
 from app.geometry.projection import project_stereo
+from app.model.pose import PoseResult
 from app.sim.optics_set import OpticsCase, sensor_pair
 from app.types import FloatArray
 from app.vision.pipeline import NavigationPipeline, PipelineConfig
-from app.vision.result import PoseResult
 
 
 def allowance_mm(range_mm: float) -> float:

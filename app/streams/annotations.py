@@ -18,8 +18,8 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from app.model.pose import PoseResult
 from app.types import Rect
-from app.vision.result import PoseResult
 
 Side = Literal["left", "right"]
 

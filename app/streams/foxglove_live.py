@@ -19,7 +19,7 @@ from app.geometry.calibration import StereoCalibration
 from app.streams.mcap_log import FoxgloveLogger
 
 if TYPE_CHECKING:
-    from app.sim.rig_mount import CameraMount
+    from app.model.mount import CameraMount
 
 log = logging.getLogger(__name__)
 

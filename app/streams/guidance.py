@@ -24,14 +24,14 @@ import numpy as np
 
 from app.control.abort import predicted_miss_m
 from app.control.drogue_filter import DrogueFilter
+from app.model.pose import PoseResult
 from app.types import FloatArray
-from app.vision.result import PoseResult
 
 MAX_GAP_S = 1.0  # a longer gap between frames (or time going back) restarts the filter
 
 
 @dataclass(frozen=True)
-class GuidanceConfig:
+class StreamGuidanceConfig:
     probe_tip_cam_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
     focal_px: float = 2350.0  # for the measurement noise model
     baseline_mm: float = 115.0
@@ -66,8 +66,8 @@ def _vec(v: FloatArray) -> tuple[float, float, float]:
 
 
 class StreamGuidance:
-    def __init__(self, config: GuidanceConfig | None = None) -> None:
-        self.config = config or GuidanceConfig()
+    def __init__(self, config: StreamGuidanceConfig | None = None) -> None:
+        self.config = config or StreamGuidanceConfig()
         self.filter = DrogueFilter()
         self.tip_m = cam_mm_to_approach_m(np.asarray(self.config.probe_tip_cam_mm, float))
         self._last_t: float | None = None

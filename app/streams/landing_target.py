@@ -30,8 +30,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from app.model.mount import CameraMount
+from app.model.pose import PoseResult
 from app.types import FloatArray
-from app.vision.result import PoseResult
 
 MAV_FRAME_BODY_FRD = 12  # MAVLink common.xml, MAV_FRAME
 LANDING_TARGET_TYPE_VISION_FIDUCIAL = 2  # MAVLink common.xml, LANDING_TARGET_TYPE
@@ -66,16 +67,14 @@ class RigMount:
         object.__setattr__(self, "r_bc", r)
 
     @classmethod
-    def on_airframe(
-        cls, r_bc: FloatArray, camera_b: FloatArray, probe_tip_b: FloatArray
-    ) -> RigMount:
-        """The mount of a rig at ``camera_b`` with axes ``r_bc`` and a probe at
-        ``probe_tip_b`` (body frame, m: e.g. :func:`app.sim.rig_mount.camera_mount`'s)."""
-        cam = np.asarray(camera_b, dtype=float)
-        tip = np.asarray(probe_tip_b, dtype=float)
+    def on_airframe(cls, mount: CameraMount) -> RigMount:
+        """The rig of ``mount`` with its probe (body frame, m: e.g.
+        :func:`app.sim.rig_mount.default_mount`'s)."""
+        cam = np.asarray(mount.camera_b, dtype=float)
+        tip = np.asarray(mount.probe_tip_b, dtype=float)
         return cls(
             camera_body_m=(float(cam[0]), float(cam[1]), float(cam[2])),
-            r_bc=np.asarray(r_bc, dtype=float),
+            r_bc=np.asarray(mount.r_bc, dtype=float),
             probe_tip_body_m=(float(tip[0]), float(tip[1]), float(tip[2])),
         )
 

@@ -32,13 +32,8 @@ from pathlib import Path
 import numpy as np
 
 from app.geometry.calibration import CalibrationError, StereoCalibration
-from app.streams.frames import (
-    RecordedPairs,
-    SourceCorrupt,
-    SourceError,
-    SourceStats,
-    StereoFrame,
-)
+from app.model.frames import StereoFrame
+from app.streams.frames import RecordedPairs, SourceCorrupt, SourceError, SourceStats
 from app.streams.image_header import ImageHeaderError, env_max_image_pixels, peek_header
 from app.streams.mcap_log import (
     TOPIC_FRAME,

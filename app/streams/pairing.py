@@ -7,7 +7,7 @@ dropped and counted. A side that ends ends the stream.
 
 from __future__ import annotations
 
-from app.streams.frames import StereoFrame
+from app.model.frames import StereoFrame
 from app.streams.readers import MonoReader
 from app.types import UInt8Array
 

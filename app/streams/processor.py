@@ -11,11 +11,12 @@ import time
 from dataclasses import dataclass, field
 
 from app.geometry.calibration import StereoCalibration
-from app.streams.frames import SourceKind, StereoFrame
-from app.streams.guidance import GuidanceConfig, GuidanceState, StreamGuidance
+from app.model.frames import StereoFrame
+from app.model.pose import PoseResult
+from app.streams.frames import SourceKind
+from app.streams.guidance import GuidanceState, StreamGuidance, StreamGuidanceConfig
 from app.types import UInt8Array
 from app.vision.pipeline import PipelineConfig
-from app.vision.result import PoseResult
 from app.vision.tracking import StereoTracker
 
 
@@ -74,12 +75,12 @@ class StreamProcessor:
         self,
         calibration: StereoCalibration,
         pipeline: PipelineConfig | None = None,
-        guidance: GuidanceConfig | None = None,
+        guidance: StreamGuidanceConfig | None = None,
     ) -> None:
         self.calibration = calibration
         self.pipeline_config = pipeline or PipelineConfig()
         if guidance is None:
-            guidance = GuidanceConfig(
+            guidance = StreamGuidanceConfig(
                 focal_px=float(calibration.left.fx), baseline_mm=float(calibration.baseline_mm)
             )
         self.guidance_config = guidance

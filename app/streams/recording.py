@@ -33,13 +33,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from app.model.frames import StereoFrame
 from app.streams.frame_encoding import FrameEncoding
-from app.streams.frames import (
-    RecordedPairs,
-    SourceError,
-    SourceStats,
-    StereoFrame,
-)
+from app.streams.frames import RecordedPairs, SourceError, SourceStats
 from app.vision.drogue import DrogueProfile, DrogueProfileError
 from app.vision.io import read_image
 from app.vision.preprocess import ImageError

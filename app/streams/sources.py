@@ -21,13 +21,8 @@ from typing import Any, Literal
 
 import numpy as np
 
-from app.streams.frames import (
-    EndOfStream,
-    SourceError,
-    SourceKind,
-    SourceStats,
-    StereoFrame,
-)
+from app.model.frames import StereoFrame
+from app.streams.frames import EndOfStream, SourceError, SourceKind, SourceStats
 from app.streams.mcap_source import McapRecordingSource, is_mcap, mcap_drogue
 from app.streams.pairing import TimestampPairer
 from app.streams.protocol import PushMessage

@@ -1,4 +1,4 @@
-"""The drogue the navigation looks for: its LED ring, as one JSON file (issue 31 item 5).
+"""The drogue the navigation looks for: its LED ring, as one JSON file.
 
 A :class:`DrogueProfile` holds what the pipeline must know of the target — the ring radius
 (mm), the LED count, optionally the LEDs' angles on the ring (deg, clockwise from the top at

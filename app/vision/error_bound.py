@@ -23,8 +23,8 @@ from scipy.special.cython_special import chdtrc  # scipy.special.chdtrc without 
 from app.geometry.calibration import StereoCalibration
 from app.geometry.circle_fit import Circle3D, FitError
 from app.geometry.uncertainty import eigen_protection_levels_mm, lock_terms
+from app.model.pose import DrogueResult
 from app.types import FloatArray
-from app.vision.result import DrogueResult
 from app.vision.types import Blob
 
 

@@ -21,6 +21,7 @@ from app.geometry.led_ids import DEFAULT_PHASE_DEG, led_ids_for_angles, roll_fro
 from app.geometry.projection import undistort_pixels
 from app.geometry.ring import STRICT_RANK, RingFit, RingParams, RingPrior, find_ring
 from app.geometry.triangulation import refine_reprojection, triangulate_linear
+from app.model.pose import MAX_REJECTED_SHOWN, LedResult, PoseResult, StageTimings
 from app.vision.appearance import (
     AppearanceConfig,
     BlobTable,
@@ -65,7 +66,6 @@ from app.vision.preprocess import (
     validate_image,
 )
 from app.vision.preprocess_kernels import frame_levels, frame_summary
-from app.vision.result import MAX_REJECTED_SHOWN, LedResult, PoseResult, StageTimings
 from app.vision.track_memory import TrackMemory
 from app.vision.types import Blob, FeatureSet, Match, RejectedBlob
 

@@ -63,6 +63,7 @@ from app.geometry.ring import (
     view_angle_deg,
 )
 from app.geometry.triangulation import refine_reprojection, triangulate_linear
+from app.model.pose import LedResult, PoseResult, StageTimings
 from app.types import Rect
 from app.vision.appearance import (
     BlobTable,
@@ -95,7 +96,6 @@ from app.vision.preprocess import (
     choose_threshold,
     detection_image,
 )
-from app.vision.result import LedResult, PoseResult, StageTimings
 from app.vision.types import Blob
 
 __all__ = ["ImageError", "Rect", "StereoTracker", "TrackerStats"]

@@ -13,16 +13,11 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from app.geometry.rotations import euler_to_matrix
-
-if TYPE_CHECKING:
-    from app.server.schemas import (
-        TickRecord,  # the record's type only: viz imports no server module
-    )
+from app.model.tick import TickRecord
 
 #: Viewing direction (from the target towards the camera): right of and above the approach,
 #: slightly behind the receiver (tanker frame, z down → negative z is up).

@@ -23,21 +23,17 @@ from collections import deque
 from collections.abc import Callable, Coroutine
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 import viser
 import viser.uplot as uplot
 
+from app.model.frames import RawFrame
+from app.model.tick import TickRecord
 from app.sim.sim_config import LED_COUNT, TURBULENCE_LEVELS, SimConfig
 from app.streams.annotations import Side, annotate
-from app.streams.frames import RawFrame
 from app.viz.access import MAX_TOKEN_CHARS, AccessPolicy
-
-if TYPE_CHECKING:
-    from app.server.schemas import (
-        TickRecord,  # the record's type only: viz imports no server module
-    )
 
 log = logging.getLogger(__name__)
 WINDOW = 300  # samples kept in each chart (fixed window)

@@ -16,7 +16,7 @@ import math
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import Any, Protocol
 
 import numpy as np
 import viser
@@ -24,14 +24,10 @@ import viser.transforms as vtf
 
 from app.geometry.led_ids import DEFAULT_PHASE_DEG
 from app.geometry.rotations import euler_to_matrix
+from app.model.frames import RawFrame
+from app.model.mount import CameraMount
+from app.model.tick import HoseInfo, TickRecord
 from app.streams.annotations import LED_COLORS_RGB, annotate, led_color
-from app.streams.frames import RawFrame
-
-if TYPE_CHECKING:
-    from app.server.schemas import (  # the records' types only: viz imports no server module
-        HoseInfo,
-        TickRecord,
-    )
 
 DROGUE_RADIUS_M = 0.305
 TRAIL_POINTS = 240
@@ -134,26 +130,6 @@ def polyline_segments(points: np.ndarray) -> np.ndarray:
     return np.stack([pts[:-1], pts[1:]], axis=1)
 
 
-@dataclass(frozen=True)
-class ReceiverGeometry:
-    """Where things sit on the receiver (body frame: x forward, y right, z down; m)."""
-
-    R_BC: np.ndarray  # left camera axes in the body frame
-    camera_b: np.ndarray  # left camera origin
-    nose_b: np.ndarray
-    probe_tip_b: np.ndarray
-
-    @classmethod
-    def from_docking_defaults(cls, plant: str | None = None) -> ReceiverGeometry:
-        """The mounting of :class:`app.sim.docking.DockingConfig` (its defaults; the airframe
-        of ``plant`` when given)."""
-        from app.sim.docking import DockingConfig
-        from app.sim.rig_mount import camera_mount
-
-        m = camera_mount(DockingConfig() if plant is None else DockingConfig(plant=plant))
-        return cls(m.r_bc, m.camera_b, m.nose_b, m.probe_tip_b)
-
-
 class HasUavState(Protocol):
     """A tick record, or the receiver state of the frame's time: ``uav_state`` (12 states)."""
 
@@ -169,7 +145,7 @@ class FrameUavState:
 
 
 def camera_pose_from_tick(
-    record: HasUavState, raw: RawFrame | None, geometry: ReceiverGeometry | None
+    record: HasUavState, raw: RawFrame | None, geometry: CameraMount | None
 ) -> CameraPose | None:
     """The left camera's pose in the tanker frame for a simulated tick, if it can be known.
 
@@ -184,7 +160,7 @@ def camera_pose_from_tick(
     if geometry is None or uav is None or len(uav) < 12:
         return None
     R_TB = euler_matrix(uav[6], uav[7], uav[8])
-    return CameraPose(R_TB @ geometry.R_BC, np.asarray(uav[9:12], float) + R_TB @ geometry.camera_b)
+    return CameraPose(R_TB @ geometry.r_bc, np.asarray(uav[9:12], float) + R_TB @ geometry.camera_b)
 
 
 def hose_readout(hose: HoseInfo | None) -> str | None:
@@ -206,7 +182,7 @@ class DockingScene:
         self,
         server: viser.ViserServer,
         calibration: Any,
-        geometry: ReceiverGeometry | None = None,
+        geometry: CameraMount | None = None,
     ) -> None:
         self.server = server
         self.geometry = geometry

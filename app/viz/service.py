@@ -12,21 +12,18 @@ import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 import viser
 
-from app.streams.frames import RawFrame
+from app.model.frames import RawFrame
+from app.model.mount import CameraMount
+from app.model.tick import TickRecord
 from app.viz.access import AccessPolicy, handshake_path, install_gate
 from app.viz.framing import docking_targets, frame_view
 from app.viz.gui import DockingGui
-from app.viz.scene import DockingScene, ReceiverGeometry
-
-if TYPE_CHECKING:
-    from app.server.schemas import (
-        TickRecord,  # the record's type only: viz imports no server module
-    )
+from app.viz.scene import DockingScene
 
 log = logging.getLogger(__name__)
 UPLOAD_HOLD_S = 8.0  # an uploaded pair stays on the image panels this long
@@ -120,9 +117,11 @@ class VizService:
         cam.position, cam.look_at = DEFAULT_VIEW
         cam.fov = INITIAL_FOV_RAD
         self.server.on_client_connect(self._on_client_connect)
+        from app.sim.rig_mount import default_mount
+
         try:
             plant = getattr(settings, "sim_plant", None)
-            geometry: ReceiverGeometry | None = ReceiverGeometry.from_docking_defaults(plant)
+            geometry: CameraMount | None = default_mount(plant)
         except ImportError:  # pragma: no cover - the simulation is part of the package
             geometry = None
         self.scene = DockingScene(self.server, self.calibration, geometry)

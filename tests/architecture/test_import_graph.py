@@ -10,6 +10,7 @@
 from __future__ import annotations
 
 import ast
+import sys
 from pathlib import Path
 
 import pytest
@@ -190,7 +191,7 @@ def test_geometry_is_the_floor() -> None:
 def test_control_knows_nothing_of_the_simulation() -> None:
     """The controller and the guidance's models (app.control) import nothing of the simulator
     (app.sim): what the guidance knows of the drogue is its own nominal model
-    (app.control.drogue_model), never the simulated drogue's parameters."""
+    (app.model.drogue), never the simulated drogue's parameters."""
     bad = [
         f"{m}:{line} imports {imported}"
         for m, tree in MODULES.items()
@@ -220,3 +221,62 @@ def test_no_private_name_is_imported_from_another_module() -> None:
         if n.startswith("_") and not n.startswith("__")
     ]
     assert not bad, bad
+
+
+def test_viz_imports_nothing_of_the_server_not_even_for_type_checking() -> None:
+    """The 3-D scene (app.viz) is handed its records and actions: it imports no module of the
+    web layer, not even under ``if TYPE_CHECKING:`` (the records it draws live in app.model)."""
+    bad = [
+        f"{m}:{line} imports {imported}"
+        for m, tree in MODULES.items()
+        if _starts(m, ("app.viz",))
+        for imported, _, line in all_imports(m, tree)
+        if _starts(imported, ("app.server", "app.cli"))
+    ]
+    assert not bad, bad
+
+
+#: what the domain model may import besides the standard library
+MODEL_ALLOWED = ("app.types", "app.model", "numpy", "pydantic")
+
+
+def test_the_model_is_the_bottom() -> None:
+    """The domain model (app.model: the tick record and its parts, the rig mount, the drogue
+    model, the stereo frame) imports nothing of the package but app.types, and no library but
+    numpy and pydantic: every other package imports it downward."""
+    assert "app.model" in MODULES, "app.model is not a package"
+    stdlib = sys.stdlib_module_names
+    bad = [
+        f"{m}:{line} imports {imported}"
+        for m, tree in MODULES.items()
+        if _starts(m, ("app.model",))
+        for imported, _, line in all_imports(m, tree)
+        if not _starts(imported, MODEL_ALLOWED) and imported.split(".")[0] not in stdlib
+    ]
+    assert not bad, bad
+
+
+def test_no_two_public_classes_share_a_name() -> None:
+    """One name per concept: a public class name is defined in one module only (two
+    ``GuidanceConfig`` or two ``Blob`` read as one thing and are not)."""
+    homes: dict[str, list[str]] = {}
+    for m, tree in MODULES.items():
+        for node in tree.body:
+            if isinstance(node, ast.ClassDef) and not node.name.startswith("_"):
+                homes.setdefault(node.name, []).append(m)
+    twice = {name: ms for name, ms in homes.items() if len(ms) > 1}
+    assert not twice, twice
+
+
+@pytest.mark.parametrize("name", ["decode_image", "default_mount"])
+def test_one_function_per_concept(name: str) -> None:
+    """The image decoder and the rig's default mount have one home each (a second function
+    of the same name that does something else — raise an HTTP error, return another type —
+    reads as the same thing)."""
+    homes = [
+        m
+        for m, tree in MODULES.items()
+        for node in tree.body
+        if isinstance(node, ast.FunctionDef) and node.name == name
+    ]
+    assert len(homes) == 1, homes

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 import scipy.signal as ss
 
-from app.control.drogue_model import DrogueModel
 from app.control.swing_identifier import SwingIdentifier
+from app.model.drogue import DrogueModel
 
 NOMINAL = DrogueModel(
     omega_rad_s=1.6,

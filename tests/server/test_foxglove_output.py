@@ -14,12 +14,12 @@ from typing import Any
 import numpy as np
 import websockets
 
+from app.model.pose import PoseResult
+from app.model.tick import TickRecord
 from app.resources import load_default_calibration
 from app.server.foxglove_gate import GatePolicy
 from app.server.foxglove_output import FoxgloveOutput
-from app.server.schemas import TickRecord
 from app.server.settings import Settings
-from app.vision.result import PoseResult
 from tests.support.raw_frames import RawPair
 
 TOPICS = {

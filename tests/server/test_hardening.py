@@ -379,7 +379,7 @@ def test_huge_image_refused_on_its_header_fast(
     def no_decode(*a: Any, **k: Any) -> Any:
         raise AssertionError("decoder reached")
 
-    monkeypatch.setattr(stereo, "decode_image", no_decode)
+    monkeypatch.setattr(stereo, "decode_or_400", no_decode)
     assert len(data) < 5000
     ok = (PAIR / "left.png").read_bytes()
     t0 = time.perf_counter()
@@ -421,7 +421,7 @@ def test_image_guard_size_format_and_off_loop_decoding(
     # with AAR_UPLOADS_IN_PROCESS, decoding happens in a worker thread (no event loop running
     # there); by default in a worker process (tests/server/test_processes.py)
     threads: list[bool] = []
-    original = stereo.decode_image
+    original = stereo.decode_or_400
 
     def spy(data: bytes, name: str) -> np.ndarray:
         try:
@@ -431,7 +431,7 @@ def test_image_guard_size_format_and_off_loop_decoding(
             threads.append(True)
         return original(data, name)
 
-    monkeypatch.setattr(stereo, "decode_image", spy)
+    monkeypatch.setattr(stereo, "decode_or_400", spy)
     with TestClient(_app(tmp_path, uploads_in_process=True)) as threaded:
         r = threaded.post(
             "/api/v1/stereo",

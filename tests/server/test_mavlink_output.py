@@ -16,8 +16,9 @@ from fastapi.testclient import TestClient
 from pymavlink import mavutil
 
 from app.server.main import create_app
-from app.server.mavlink_output import default_mount
 from app.server.settings import Settings
+from app.sim.rig_mount import default_mount
+from app.streams.landing_target import RigMount
 from app.streams.mavlink_link import MavlinkLink  # noqa: F401  (MAVLink 2 dialect first)
 
 
@@ -67,7 +68,7 @@ def test_landing_targets_follow_the_telemetry(tmp_path: Path) -> None:
     sent = [rec for rec in recs if round(rec["t_s"] * 1e6) in by_time]
     assert len(sent) >= 0.9 * len(recs), (len(sent), len(recs))
     assert stats.targets >= len(recs) and stats.send_errors == 0
-    mount = default_mount(settings.sim_plant)
+    mount = RigMount.on_airframe(default_mount(settings.sim_plant))
     locked = 0
     for rec in sent:
         m = by_time[round(rec["t_s"] * 1e6)]
@@ -130,8 +131,8 @@ def test_each_hand_over_is_one_statustext() -> None:
     when the recovery law takes over (CRITICAL for an envelope recovery, WARNING for a
     break-away; a long reason in MAVLink 2 chunks), one NOTICE when it hands back or the run
     changes; nothing while the reason stays; LANDING_TARGET goes on for every record."""
+    from app.model.tick import TickRecord
     from app.server.mavlink_output import RTA_OFF_TEXT, SIMULATED_TEXT, MavlinkOutput
-    from app.server.schemas import TickRecord
     from app.server.source_epoch import SourceEpoch
 
     sev = mavutil.mavlink
@@ -151,7 +152,10 @@ def test_each_hand_over_is_one_statustext() -> None:
     sources = SourceEpoch()
     epoch = sources.begin("sim")
     out = MavlinkOutput(
-        f"udpout:127.0.0.1:{port}", default_mount("jsbsim"), sources, simulated=True
+        f"udpout:127.0.0.1:{port}",
+        RigMount.on_airframe(default_mount("jsbsim")),
+        sources,
+        simulated=True,
     )
     try:
         for i, (run, reason) in enumerate(plan):

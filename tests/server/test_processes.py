@@ -150,13 +150,13 @@ def test_a_hung_worker_times_out_and_is_replaced(tmp_path: Path) -> None:
 
 def _in_process_result(matcher: str) -> Any:
     from app.geometry.calibration import StereoCalibration
-    from app.server.routers.stereo import decode_image
+    from app.server.routers.stereo import decode_or_400
     from app.server.settings import DEFAULT_CALIBRATION
     from app.vision.pipeline import NavigationPipeline, PipelineConfig
 
     calib = StereoCalibration.load(DEFAULT_CALIBRATION)
-    left = decode_image((PAIR / "left.png").read_bytes(), "left")
-    right = decode_image((PAIR / "right.png").read_bytes(), "right")
+    left = decode_or_400((PAIR / "left.png").read_bytes(), "left")
+    right = decode_or_400((PAIR / "right.png").read_bytes(), "right")
     return NavigationPipeline(calib, PipelineConfig(matcher=matcher)).process(left, right)  # type: ignore[arg-type]
 
 

@@ -20,10 +20,10 @@ import pytest
 from fastapi import FastAPI
 from fastapi.testclient import TestClient
 
+from app.model.tick import TickRecord
 from app.server.main import create_app
 from app.server.recording import Recorder
 from app.server.routers import recording as recording_router
-from app.server.schemas import TickRecord
 from app.server.settings import Settings
 from tests.support.fake_sim import FakeSim  # the tests' fake step source
 from tests.support.raw_frames import RawPair

@@ -20,9 +20,9 @@ import pytest
 from fastapi import FastAPI
 from fastapi.testclient import TestClient
 
+from app.model.tick import TickRecord
 from app.server.recording import SCENE_LOST_NOTE, Recorder
 from app.server.routers import recording as recording_router
-from app.server.schemas import TickRecord
 from tests.support.raw_frames import RawPair
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -10,8 +10,8 @@ from dataclasses import replace
 
 import numpy as np
 
+from app.model.tick import TickRecord
 from app.server import records
-from app.server.schemas import TickRecord
 from app.server.sim_worker.proxy import ProcessTick
 from app.server.telemetry import STREAM_EXCLUDE
 from app.sim.docking import DockingConfig, DockingSimulation, HoseState

@@ -10,9 +10,10 @@ from typing import Any, get_args
 
 import numpy as np
 
+from app.model.tick import RunOutcome, TickRecord
 from app.server import records
 from app.server.clock import FakeClock
-from app.server.schemas import RunOutcome, SimConfig, TickRecord
+from app.server.schemas import SimConfig
 from app.server.sim_worker.proxy import ProcessTick
 from app.server.sim_worker.worker import WorkerState
 from app.server.telemetry import STREAM_EXCLUDE

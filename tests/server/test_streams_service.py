@@ -245,11 +245,11 @@ def test_one_source_at_a_time_sim_start_stops_the_stream(
 
 def test_a_frame_recording_replays_with_its_own_calibration(tmp_path: Path) -> None:
     from app.geometry.calibration import StereoCalibration, paper_calibration
+    from app.model.frames import StereoFrame
     from app.resources import load_default_calibration
     from app.server.schemas import SimConfig
     from app.server.stream_service import StreamService
     from app.server.tick_loop import TickLoop
-    from app.streams.frames import StereoFrame
     from app.streams.recording import FrameRecordingWriter
 
     data = paper_calibration().to_dict()

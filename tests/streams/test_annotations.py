@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from app.model.pose import LedResult, PoseResult
 from app.streams.annotations import WINDOW_RGB, annotate, image_marks, led_color
-from app.vision.result import LedResult, PoseResult
 
 
 def _led(led_id: int, left: tuple[float, float], right: tuple[float, float]) -> LedResult:

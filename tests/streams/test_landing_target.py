@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from app.model.pose import DrogueResult, PoseResult
 from app.streams.landing_target import (
     LANDING_TARGET_TYPE_VISION_FIDUCIAL,
     MAV_FRAME_BODY_FRD,
@@ -17,7 +18,6 @@ from app.streams.landing_target import (
     landing_target,
     no_target,
 )
-from app.vision.result import DrogueResult, PoseResult
 
 
 def _pose(center_mm, normal, lock=True, radius_mm=37.5) -> PoseResult:

@@ -149,7 +149,7 @@ def test_loggers_left_open_are_finished_at_interpreter_exit(tmp_path: Path) -> N
     root = Path(__file__).resolve().parents[2]
     out = tmp_path / "open.mcap"
     script = f"""
-from app.server.schemas import TickRecord
+from app.model.tick import TickRecord
 from app.streams.foxglove_live import FoxgloveLive
 from app.streams.mcap_log import McapLogWriter
 schema = TickRecord.model_json_schema()

@@ -10,8 +10,10 @@ import cv2
 import numpy as np
 import pytest
 
-from app.streams.frames import EndOfStream, SourceError, StereoFrame
-from app.streams.guidance import GuidanceConfig, StreamGuidance
+from app.model.frames import StereoFrame
+from app.model.pose import DrogueResult, PoseResult
+from app.streams.frames import EndOfStream, SourceError
+from app.streams.guidance import StreamGuidance, StreamGuidanceConfig
 from app.streams.protocol import ProtocolError, decode_message, encode_message
 from app.streams.recording import FrameRecordingSource, FrameRecordingWriter, read_index
 from app.streams.sources import (
@@ -22,7 +24,6 @@ from app.streams.sources import (
     open_source,
     parse_source,
 )
-from app.vision.result import DrogueResult, PoseResult
 
 
 def _img(value: int, shape: tuple[int, int] = (24, 32)) -> np.ndarray:
@@ -278,7 +279,7 @@ def test_stream_guidance_against_constant_velocity_kinematics() -> None:
     """Closing at 1.2 m/s with a lateral drift: closure speed, time to contact and the
     predicted miss converge to the straight-line answers."""
     tip_mm = np.array([0.0, 100.0, 300.0])  # probe tip below and ahead of the left camera
-    g = StreamGuidance(GuidanceConfig(probe_tip_cam_mm=tuple(tip_mm)))
+    g = StreamGuidance(StreamGuidanceConfig(probe_tip_cam_mm=tuple(tip_mm)))
     p0 = np.array([50.0, 80.0, 3000.0])  # camera frame, mm
     v = np.array([30.0, -10.0, -1200.0])  # mm/s: right, up, closing
     dt = 1 / 30

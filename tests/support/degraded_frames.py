@@ -29,7 +29,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from app.geometry.calibration import StereoCalibration
-from app.vision.result import PoseResult
+from app.model.pose import PoseResult
 from tests.support.cv_render import render_pair_cv, skew_free
 
 RING_RADIUS_MM = 75.0

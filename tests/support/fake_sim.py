@@ -10,8 +10,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from app.model.pose import PoseResult
 from app.server.schemas import SimConfig
-from app.vision.result import PoseResult
 
 
 @dataclass

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from app.server.schemas import TickRecord
-from app.vision.result import DrogueResult, LedResult, PoseResult
+from app.model.pose import DrogueResult, LedResult, PoseResult
+from app.model.tick import TickRecord
 from tests.support.raw_frames import RawPair
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from app.streams.frames import StereoFrame
+from app.model.frames import StereoFrame
 from app.types import FloatArray, Rect, UInt8Array
 
 

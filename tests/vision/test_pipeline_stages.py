@@ -11,6 +11,7 @@ from hypothesis.extra.numpy import arrays
 
 from app.geometry.calibration import StereoCalibration
 from app.geometry.projection import project_stereo, undistort_pixels
+from app.model.pose import PoseResult
 from app.vision.features import BlobGate, extract_blobs
 from app.vision.ihwt import DESCRIPTOR_SIZE, box_sum, describe_point, integral_image
 from app.vision.matching import (
@@ -28,7 +29,6 @@ from app.vision.preprocess import (
     to_gray,
     validate_image,
 )
-from app.vision.result import PoseResult
 
 
 def gaussian_blob(shape, centre, sigma=1.5, peak=200.0, bg=10.0):

@@ -13,12 +13,12 @@ import app.vision.features as features_mod
 import app.vision.pipeline as pipeline_mod
 import app.vision.preprocess as preprocess_mod
 import app.vision.tracking as tracking_mod
+from app.model.pose import PoseResult
 from app.resources import load_default_calibration
 from app.sim.led_ring import stereo_center_x_mm, tilted_normal
 from app.sim.stereo_render import RenderedPair, RenderSettings, render_pair
 from app.vision.pipeline import NavigationPipeline
 from app.vision.preprocess import ImageError
-from app.vision.result import PoseResult
 from app.vision.tracking import StereoTracker
 
 TOL_MM = 0.05

@@ -9,7 +9,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from app.server.schemas import Control, TickRecord
+from app.model.tick import Control, TickRecord
 from app.sim.sim_config import SimConfig
 from app.viz.framing import docking_targets, frame_view, project
 from app.viz.gui import DockingGui

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from app.geometry.calibration import paper_calibration
-from app.server.schemas import Control, TickRecord
-from app.vision.result import DrogueResult, LedResult, PoseResult
+from app.model.pose import DrogueResult, LedResult, PoseResult
+from app.model.tick import Control, TickRecord
 from app.viz.scene import NODE_NAMES, CameraPose, DockingScene
 from app.viz.service import ViserPortError, start_viser
 from tests.support.raw_frames import RawPair
@@ -138,7 +138,8 @@ def test_camera_pose_from_real_sim_tick_puts_leds_on_the_drogue_rim() -> None:
     """Independent check of the camera mounting: the simulator's LED truth (camera frame, mm)
     mapped to the tanker frame must lie on the drogue rim around ``drogue_truth_m``."""
     from app.sim.docking import DockingConfig, DockingSimulation
-    from app.viz.scene import ReceiverGeometry, camera_pose_from_tick
+    from app.sim.rig_mount import default_mount
+    from app.viz.scene import camera_pose_from_tick
 
     cfg = DockingConfig(tick_hz=30.0, turbulence="light", seed=1)
     sim = DockingSimulation(cfg)
@@ -148,7 +149,7 @@ def test_camera_pose_from_real_sim_tick_puts_leds_on_the_drogue_rim() -> None:
     # the frame of tick k is rendered before the dynamics step: receiver state and drogue of
     # tick k−1 (what the scene gets as ``frame_uav``)
     rec = SimpleNamespace(uav_state=list(prev.uav_state))
-    cam = camera_pose_from_tick(rec, None, ReceiverGeometry.from_docking_defaults())
+    cam = camera_pose_from_tick(rec, None, default_mount())
     assert cam is not None
     world = cam.to_tanker(np.asarray(tick.led_truth_cam_mm))
     dist = np.linalg.norm(world - np.asarray(prev.drogue_truth_m), axis=1)
@@ -159,7 +160,7 @@ def test_camera_pose_from_real_sim_tick_puts_leds_on_the_drogue_rim() -> None:
 
 
 def test_scene_draws_the_flown_hose_and_its_readout(server) -> None:
-    from app.server.schemas import HoseInfo
+    from app.model.tick import HoseInfo
     from app.viz.scene import hose_readout
 
     scene = DockingScene(server, paper_calibration())

@@ -18,6 +18,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any, Literal, Protocol
 
+from app.model.frames import RawFrame
+from app.model.tick import TickRecord
 from app.server.recording.budget import (
     Bounds,
     RateProbe,
@@ -36,14 +38,12 @@ from app.server.recording.meta import (
     write_meta,
 )
 from app.server.recording.recovery import recover_recordings
-from app.server.schemas import TickRecord
 from app.streams.frame_encoding import FrameEncoding
-from app.streams.frames import RawFrame
 
 if TYPE_CHECKING:
     from app.geometry.calibration import StereoCalibration
+    from app.model.mount import CameraMount
     from app.server.mcap_recording import RecordingMcap
-    from app.sim.rig_mount import CameraMount
     from app.streams.recording import FrameRecordingWriter
     from app.vision.drogue import DrogueProfile
 
@@ -321,7 +321,7 @@ class Recorder:
             left, right = raw.left_image, raw.right_image
             if left is None or right is None:
                 return
-            from app.streams.frames import StereoFrame
+            from app.model.frames import StereoFrame
 
             frame = StereoFrame(left=left, right=right, t_s=record.t_s, seq=record.seq)
         writer.submit(frame, record.seq)
@@ -553,7 +553,7 @@ class Recorder:
     def _rig_mount(self) -> CameraMount:
         """The rig mount the MCAP logs' /tf uses (the airframe's ``mcap_plant``; made once)."""
         if self._mount is None:
-            from app.server.mcap_recording import default_mount
+            from app.sim.rig_mount import default_mount
 
             self._mount = default_mount(self.mcap_plant)
         return self._mount
@@ -612,6 +612,3 @@ class Recorder:
         if not path.is_file():
             return None, f"the {kind} file of recording {rec_id!r} is missing"
         return path, ""
-
-    def file_path(self, rec_id: str, kind: str) -> Path | None:
-        return self.locate(rec_id, "telemetry" if kind == "telemetry" else "scene")[0]

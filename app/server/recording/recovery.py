@@ -24,7 +24,7 @@ from app.server.recording.meta import (
 )
 
 if TYPE_CHECKING:
-    from app.sim.rig_mount import CameraMount
+    from app.model.mount import CameraMount
 
 log = logging.getLogger(__name__)
 

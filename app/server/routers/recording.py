@@ -18,12 +18,12 @@ from typing import Annotated, Literal
 from fastapi import APIRouter, Depends, HTTPException, Query, status
 from fastapi.responses import FileResponse
 
+from app.model.frames import RawFrame
 from app.server.dependencies import StateDep, require_token
 from app.server.recording import RecordingError, RecordingMeta
 from app.server.recording.budget import RecordingProgress
 from app.server.schemas import Message
 from app.streams.frame_encoding import FrameCodec, FrameEncoding
-from app.streams.frames import RawFrame
 from app.streams.processor import StreamTick
 
 router = APIRouter(tags=["recording"])

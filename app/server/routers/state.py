@@ -8,6 +8,7 @@ from fastapi import APIRouter, HTTPException, Query, Request, status
 from fastapi.responses import PlainTextResponse
 from pydantic import BaseModel, Field
 
+from app.model.tick import TickRecord
 from app.server import guard_events
 from app.server.connection_guard import UNGUARDED, is_guarded
 from app.server.dependencies import StateDep
@@ -19,7 +20,6 @@ from app.server.schemas import (
     HealthComponent,
     Message,
     ServiceConfig,
-    TickRecord,
 )
 from app.server.security import in_process
 

@@ -23,6 +23,7 @@ import numpy as np
 from fastapi import APIRouter, Depends, File, Form, HTTPException, UploadFile, status
 
 from app.geometry.calibration import StereoCalibration
+from app.model.pose import PoseResult
 from app.server import records
 from app.server.dependencies import AppState, StateDep, require_token
 from app.server.image_guard import ImageHeader, screen
@@ -38,7 +39,6 @@ from app.server.upload_pool import (
     process_upload,
 )
 from app.types import UInt8Array
-from app.vision.result import PoseResult
 
 log = logging.getLogger(__name__)
 router = APIRouter(tags=["stereo"])
@@ -92,7 +92,7 @@ async def _read_limited(upload: UploadFile, limit: int, name: str) -> bytes:
     return b"".join(chunks)
 
 
-def decode_image(data: bytes, name: str) -> np.ndarray:
+def decode_or_400(data: bytes, name: str) -> np.ndarray:
     """Bytes (PNG/JPEG/BMP/TIFF) → uint8 grey image; ``HTTPException(400)`` if not an image."""
     try:
         return decode_upload_image(data, name)
@@ -101,7 +101,7 @@ def decode_image(data: bytes, name: str) -> np.ndarray:
 
 
 def _decode_pair(left: bytes, right: bytes) -> tuple[np.ndarray, np.ndarray]:
-    return decode_image(left, "left"), decode_image(right, "right")
+    return decode_or_400(left, "left"), decode_or_400(right, "right")
 
 
 def _shape_header(img: np.ndarray) -> ImageHeader:

@@ -8,7 +8,7 @@ and counted). The handler answers only problems, as JSON text messages
 ``{"error": ...}`` (at most one a second), and a text message ``stats`` with the source's
 counters. A message above ``AAR_PUSH_MAX_MB`` closes the connection (1009).
 
-Close codes (docs/service.md, "Hardening round 2"): 1008 bad token, or a pusher beyond
+Close codes (docs/service.md, "health, limits"): 1008 bad token, or a pusher beyond
 ``AAR_PUSH_MAX_CLIENTS`` (refused; the first keeps pushing); 1007 a header that cannot be
 parsed; 1009 a message over the limit; 1013 the push source this pusher fed failed and is
 being restarted (the reason says why; reconnect). A repeated or backward ``seq`` is dropped

@@ -15,13 +15,13 @@ from __future__ import annotations
 import math
 from dataclasses import replace
 
-from app.control.drogue_model import DrogueModel
+from app.model.drogue import DrogueModel
 from app.sim.docking.config import DockingConfig
 from app.sim.docking.multibody_drogue import MultibodyDrogue, MultibodyDrogueParams
 from app.sim.docking.results import HoseState
 from app.sim.hose import (
-    ContactReport,
     CouplingParams,
+    CouplingReport,
     DrogueParams,
     FlowCondition,
     HoseParams,
@@ -98,7 +98,7 @@ def hose_state(drogue: FlownDrogue) -> HoseState:
     )
 
 
-def contact_report(drogue: FlownDrogue) -> ContactReport | None:
+def contact_report(drogue: FlownDrogue) -> CouplingReport | None:
     """The multi-body hose's contact (None before one, and for the reduced model)."""
     return drogue.contact_report() if isinstance(drogue, MultibodyDrogue) else None
 

@@ -15,9 +15,9 @@ import math
 import numpy as np
 
 from app.control.bow_wave import BowWaveModel, bow_force_n
-from app.control.drogue_model import DrogueModel
 from app.control.drogue_swing import predict_swing_offset
 from app.control.swing_identifier import SwingEstimate, SwingIdentifier
+from app.model.drogue import DrogueModel
 from app.sim.docking.config import DockingConfig
 from app.types import FloatArray
 

@@ -24,9 +24,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from app.sim.hose import (
-    ContactReport,
     Coupling,
     CouplingParams,
+    CouplingReport,
     DrogueParams,
     FlowCondition,
     FrozenGust,
@@ -159,6 +159,6 @@ class MultibodyDrogue:
             )
 
     # --- the run's report ----------------------------------------------------------------
-    def contact_report(self) -> ContactReport | None:
+    def contact_report(self) -> CouplingReport | None:
         """The contact's report (peak tension, slack, whip, release); None before a contact."""
         return self.coupling.report() if self.contacted else None

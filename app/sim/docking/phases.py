@@ -11,8 +11,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from app.model.pose import PoseResult
 from app.types import FloatArray
-from app.vision.result import PoseResult
 
 
 @dataclass(frozen=True)

@@ -11,12 +11,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from app.control.envelope import EnvelopeExtremes
+from app.model.pose import PoseResult
 from app.sim.receiver import INPUT_NAMES, STATE_NAMES
 from app.types import FloatArray, Rect
-from app.vision.result import PoseResult
 
 if TYPE_CHECKING:
-    from app.streams.frames import StereoFrame
+    from app.model.frames import StereoFrame
 
 
 @dataclass(frozen=True)

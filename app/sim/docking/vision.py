@@ -17,6 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from app.geometry.calibration import StereoCalibration
+from app.model.pose import PoseResult
 from app.sim.camera_sensor import StereoCameraSensor
 from app.sim.docking.config import DockingConfig
 from app.sim.imperfections import resolve
@@ -25,7 +26,6 @@ from app.sim.stereo_render import RenderSettings
 from app.types import FloatArray, Rect
 from app.vision.error_bound import ErrorBoundConfig
 from app.vision.pipeline import PipelineConfig
-from app.vision.result import PoseResult
 
 DISPARITY_PER_EXTRA_PX = 0.02  # ring-fit tolerance (disparity σ) per px of calibration doubt
 DISPARITY_SIGMA_PX = 0.15  # effective disparity noise of the ring-centre fit (conservative)

@@ -1,4 +1,4 @@
-"""Multi-body (lumped-mass) hose with its drogue, reel and coupling (issue 32).
+"""Multi-body (lumped-mass) hose with its drogue, reel and coupling.
 
 A standalone model with an API for the closed loop: :class:`MultibodyHose` (one tick at a
 time, with the air-field, drogue-force and probe hooks), :class:`Coupling` (latch, release,
@@ -7,7 +7,7 @@ hose") has the equations, parameters, sources and validation figures.
 """
 
 from app.sim.hose.atmosphere import FlowCondition, flow_from_kcas
-from app.sim.hose.contact import ContactReport, Coupling, SlackSample, push_in, push_in_path
+from app.sim.hose.contact import Coupling, CouplingReport, SlackSample, push_in, push_in_path
 from app.sim.hose.model import (
     AirField,
     FrozenGust,
@@ -21,7 +21,7 @@ from app.sim.hose.steady import SteadyShape, SwingMode, SwingModes, steady_shape
 
 __all__ = [
     "AirField",
-    "ContactReport",
+    "CouplingReport",
     "Coupling",
     "CouplingParams",
     "DrogueParams",

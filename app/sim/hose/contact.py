@@ -6,7 +6,7 @@ latches when the probe head enters at a closure inside the latch window
 after that the drogue follows the probe (a prescribed trajectory, one position per tick) and the
 hose follows through the reel. The coupling lets go when the hose pulls it forward off the probe
 harder than the release load. Each run reports its peak hose tension, its slack and any whip
-(:class:`ContactReport`): a whip is a hose that went slack while latched (a segment shorter than
+(:class:`CouplingReport`): a whip is a hose that went slack while latched (a segment shorter than
 its rest length: no tension) and then snapped taut above ``whip_tension_factor`` × the trail
 tension. :func:`push_in` flies the usual contact: the probe arrives along the flight path at the
 contact closure, pushes the drogue in by 1.5–3 m, stops and holds.
@@ -36,7 +36,7 @@ class SlackSample:
 
 
 @dataclass(frozen=True)
-class ContactReport:
+class CouplingReport:
     """One contact (module docstring). Tensions in N, times in s, lengths in m; ``released_t_s``
     NaN when the coupling held; ``peak_tension_at_m`` the arc position (from the reel exit) of
     the segment that carried the peak."""
@@ -141,10 +141,10 @@ class Coupling:
             )
         return tick
 
-    def report(self) -> ContactReport:
+    def report(self) -> CouplingReport:
         h = self.hose
         latched = self.reason == "latched" or self.released
-        return ContactReport(
+        return CouplingReport(
             latched=latched,
             reason=self.reason,
             contact_closure_mps=self.closure,
@@ -188,7 +188,7 @@ def push_in(
     hold_s: float = 4.0,
     coupling: CouplingParams | None = None,
     air: AirField | None = None,
-) -> ContactReport:
+) -> CouplingReport:
     """The probe meets the drogue (at rest) at ``closure_mps`` along the flight path, latches if
     it may, pushes the drogue in by ``push_in_m`` (:func:`push_in_path`) and holds ``hold_s``;
     returns the contact's report."""

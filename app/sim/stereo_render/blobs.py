@@ -21,7 +21,7 @@ from app.types import FloatArray
 
 
 @dataclass(frozen=True)
-class Blob:
+class LightSpot:
     center_px: FloatArray  # (2,) distorted px
     shape_px: FloatArray  # 2×2 A: unit disc → px ellipse around the centre
     peak: float  # DN
@@ -44,13 +44,13 @@ def _spectral_norms(m: FloatArray) -> FloatArray:
     return np.asarray(np.sqrt(0.5 * (s1 + np.sqrt(np.maximum(s1 * s1 - 4 * det * det, 0.0)))))
 
 
-def _patch_half(blob: Blob, blur_sigma: float) -> int:
+def _patch_half(blob: LightSpot, blur_sigma: float) -> int:
     """Half-size (px) of a blob's square patch: longest semi-axis + 2 px + the blur's reach."""
     kr = int(math.ceil(4.0 * blur_sigma)) if blur_sigma > 0 else 0
     return int(math.ceil(spectral_norm(blob.shape_px))) + 2 + kr
 
 
-def patch_box(blob: Blob, blur_sigma: float) -> tuple[int, int, int, int]:
+def patch_box(blob: LightSpot, blur_sigma: float) -> tuple[int, int, int, int]:
     """The patch's pixel rectangle (x0, y0, x1, y1), half-open."""
     half = _patch_half(blob, blur_sigma)
     x0 = int(round(float(blob.center_px[0]))) - half
@@ -79,7 +79,7 @@ def _blur_matrix(blur_sigma: float, n: int) -> NDArray[np.float64]:
 
 
 def blob_patches(
-    blobs: list[Blob], supersample: int, blur_sigma: float
+    blobs: list[LightSpot], supersample: int, blur_sigma: float
 ) -> list[tuple[int, int, NDArray[np.float32]]]:
     """Rendered blobs (float32 DN), each on its own square patch: [(x0, y0, patch)].
 

@@ -23,7 +23,7 @@ from numpy.typing import NDArray
 from app.geometry.calibration import StereoCalibration
 from app.sim.led_ring import LedRing, led_angles_rad, ring_basis
 from app.sim.stereo_render.blobs import (
-    Blob,
+    LightSpot,
     in_frame,
     project_checked,
     spectral_norm,
@@ -40,8 +40,8 @@ GLINT_TRIES = 2000  # draws per glint before it is given up (truth then has fewe
 
 @dataclass
 class Clutter:
-    left: list[Blob] = field(default_factory=list)
-    right: list[Blob] = field(default_factory=list)
+    left: list[LightSpot] = field(default_factory=list)
+    right: list[LightSpot] = field(default_factory=list)
     left_px: list[FloatArray] = field(default_factory=list)
     right_px: list[FloatArray] = field(default_factory=list)
     xyz: list[FloatArray] = field(default_factory=list)
@@ -121,9 +121,9 @@ def make_clutter(
                 continue
             pk, col = peak(), tint()
             if al is not None:
-                out.left.append(Blob(pl[0], al, pk, col))
+                out.left.append(LightSpot(pl[0], al, pk, col))
             if ar is not None:
-                out.right.append(Blob(pr[0], ar, pk, col))
+                out.right.append(LightSpot(pr[0], ar, pk, col))
             out.left_px.append(pl[0] if in_l else np.full(2, np.nan))
             out.right_px.append(pr[0] if in_r else np.full(2, np.nan))
             out.xyz.append(xyz[0])
@@ -137,7 +137,7 @@ def make_clutter(
             r_px = float(rng.uniform(1.5, 6.0))
             if not keep.ok(p, r_px):
                 continue
-            b = Blob(p, np.eye(2) * r_px, peak(), tint())
+            b = LightSpot(p, np.eye(2) * r_px, peak(), tint())
             nan2 = np.full(2, np.nan)
             (out.left if left_side else out.right).append(b)
             out.left_px.append(p if left_side else nan2)
@@ -159,8 +159,8 @@ def make_clutter(
             if not (keep_left.ok(pl[0], 15.0) and keep_right.ok(pr[0], 15.0)):
                 continue
             pk, col = peak(), tint()
-            out.left.append(Blob(pl[0], A, pk, col))
-            out.right.append(Blob(pr[0], A, pk, col))
+            out.left.append(LightSpot(pl[0], A, pk, col))
+            out.right.append(LightSpot(pr[0], A, pk, col))
             out.second_left, out.second_right = pl[0], pr[0]
             break
     return out
@@ -168,8 +168,8 @@ def make_clutter(
 
 @dataclass
 class Extras:
-    left: list[Blob] = field(default_factory=list)
-    right: list[Blob] = field(default_factory=list)
+    left: list[LightSpot] = field(default_factory=list)
+    right: list[LightSpot] = field(default_factory=list)
     glint_xyz: list[FloatArray] = field(default_factory=list)
     glint_left_px: list[FloatArray] = field(default_factory=list)
     glint_right_px: list[FloatArray] = field(default_factory=list)
@@ -183,7 +183,7 @@ class Extras:
 class _Occupied:
     """Discs (centre, radius px) already placed in one image; new glints keep a gap."""
 
-    def __init__(self, blobs: list[Blob]) -> None:
+    def __init__(self, blobs: list[LightSpot]) -> None:
         self.p = [b.center_px for b in blobs]
         self.r = [spectral_norm(b.shape_px) for b in blobs]
 
@@ -262,8 +262,8 @@ def make_extras(
                 if not (occ_l.ok(pl[0], rl) and occ_r.ok(pr[0], rr)):
                     continue
                 pk, col = peak(), colour()
-                out.left.append(Blob(pl[0], al, pk, col))
-                out.right.append(Blob(pr[0], ar, pk, col))
+                out.left.append(LightSpot(pl[0], al, pk, col))
+                out.right.append(LightSpot(pr[0], ar, pk, col))
                 occ_l.add(pl[0], rl)
                 occ_r.add(pr[0], rr)
                 out.glint_xyz.append(xyz[0])
@@ -285,7 +285,7 @@ def make_extras(
                 p = np.array([rng.uniform(0, w - 1), rng.uniform(0, h - 1)])
                 if not (_disc_inside(p, r_px, size) and keep_i.ok(p, r_px) and occ_i.ok(p, r_px)):
                     continue
-                b = Blob(p, np.eye(2) * r_px, peak(), colour())
+                b = LightSpot(p, np.eye(2) * r_px, peak(), colour())
                 (out.left if left_side else out.right).append(b)
                 occ_i.add(p, r_px)
                 nan2 = np.full(2, np.nan)
@@ -306,8 +306,8 @@ def make_extras(
         ar = sphere_shapes(calib.right, to_right(calib, xyz), rad)
         for k in range(len(xyz)):
             if in_l[k]:
-                out.left.append(Blob(pl[k], al[k], settings.led_peak, led_bgr))
+                out.left.append(LightSpot(pl[k], al[k], settings.led_peak, led_bgr))
             if in_r[k]:
-                out.right.append(Blob(pr[k], ar[k], settings.led_peak, led_bgr))
+                out.right.append(LightSpot(pr[k], ar[k], settings.led_peak, led_bgr))
         out.refl_xyz, out.refl_left_px, out.refl_right_px = xyz, pl, pr
     return out

@@ -25,7 +25,7 @@ import numpy as np
 from app.geometry.calibration import StereoCalibration
 from app.sim.led_ring import LedRing, check_pose, ring_points
 from app.sim.stereo_render.blobs import (
-    Blob,
+    LightSpot,
     blob_patches,
     in_frame,
     patch_box,
@@ -127,8 +127,8 @@ def render_pair(
     color = settings.color
     led_bgr = LED_BGR if color else np.ones(3, dtype=np.float32)
     gray_bgr = np.ones(3, dtype=np.float32)
-    blobs_l = [Blob(pl[k], a_l[k], settings.led_peak, led_bgr) for k in np.flatnonzero(draw_l)]
-    blobs_r = [Blob(pr[k], a_r[k], settings.led_peak, led_bgr) for k in np.flatnonzero(draw_r)]
+    blobs_l = [LightSpot(pl[k], a_l[k], settings.led_peak, led_bgr) for k in np.flatnonzero(draw_l)]
+    blobs_r = [LightSpot(pr[k], a_r[k], settings.led_peak, led_bgr) for k in np.flatnonzero(draw_r)]
 
     clutter = Clutter()
     keep: tuple[Keepout, Keepout] | None = None

@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from app.sim.stereo_render.blobs import Blob, blob_patches, patch_box
+from app.sim.stereo_render.blobs import LightSpot, blob_patches, patch_box
 from app.sim.stereo_render.scene import RenderSettings
 from app.types import Rect
 
@@ -76,7 +76,7 @@ def _region_mask(
 
 def compose(
     shape: tuple[int, ...],
-    blobs: list[Blob],
+    blobs: list[LightSpot],
     settings: RenderSettings,
     rng: np.random.Generator,
     windows: list[Rect] | None = None,

@@ -40,9 +40,9 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from app.model.pose import PoseResult
 from app.streams.annotations import Side
 from app.types import Rect
-from app.vision.result import PoseResult
 
 FORMAT = "aar-dock-mcap/1"
 METADATA_NAME = "aar-dock"

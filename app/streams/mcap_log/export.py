@@ -13,7 +13,7 @@ from app.streams.mcap_log.channels import EncodedPair, McapStats, frame_info, ti
 from app.streams.mcap_log.writer import McapLogWriter
 
 if TYPE_CHECKING:
-    from app.sim.rig_mount import CameraMount
+    from app.model.mount import CameraMount
 
 
 def export_recording(

@@ -19,7 +19,7 @@ from app.streams.annotations import REJECTED_RGB, WINDOW_RGB, Side, image_marks,
 from app.streams.mcap_log.channels import FRAME_IDS, LED_SPHERE_M, PROBE_SPHERE_M, McapTick, Vec3
 
 if TYPE_CHECKING:
-    from app.sim.rig_mount import CameraMount
+    from app.model.mount import CameraMount
 
 VecLike = Sequence[float] | NDArray[np.float64]
 

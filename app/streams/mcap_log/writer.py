@@ -59,7 +59,7 @@ from app.streams.mcap_log.messages import (
 from app.vision.drogue import DrogueProfile
 
 if TYPE_CHECKING:
-    from app.sim.rig_mount import CameraMount
+    from app.model.mount import CameraMount
 
 log = logging.getLogger(__name__)
 
