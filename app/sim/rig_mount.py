@@ -8,20 +8,13 @@ logs' ``/tf``, Foxglove and the MAVLink output. The record is :class:`app.model.
 
 from __future__ import annotations
 
-import numpy as np
-
-from app.geometry.rotations import look_at_camera
 from app.model.mount import CameraMount
 from app.sim.docking import DockingConfig
 
 
 def camera_mount(config: DockingConfig) -> CameraMount:
     """The mounting of ``config`` (its airframe's geometry unless overridden)."""
-    g = config.geometry()
-    cam = np.asarray(g.camera_body_m, float)
-    tip = np.asarray(g.probe_tip_body_m, float)
-    aim = tip + np.array([config.camera_aim_ahead_m, 0.0, 0.0])
-    return CameraMount(look_at_camera(cam, aim), cam, np.asarray(g.nose_body_m, float), tip)
+    return config.camera_mount()
 
 
 def default_mount(plant: str | None = None) -> CameraMount:

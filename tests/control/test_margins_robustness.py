@@ -150,10 +150,9 @@ def test_a_formerly_failing_standard_plant_now_captures() -> None:
 
 def test_hold_gap_on_lost_lock_rides_out_long_frame_drop_bursts() -> None:
     """Long bursts of dropped frames (mean 25 frames) lose the lock before the last metre: with
-    ``hold_gap_on_lost_lock=False`` each loss breaks away (the run fails: its break-aways or
-    its time used up); with
-    the default (True) the receiver holds its gap — never closing while unlocked — and
-    captures once the drogue is tracked again."""
+    ``hold_gap_on_lost_lock=False`` each loss breaks away (a fly-out to the standoff and a
+    rejoin, ≈ 25 s each, or the run fails); with the default (True) the receiver holds its
+    gap — never closing while unlocked — and captures once the drogue is tracked again."""
     imp = replace(NONE, name="long drops", drop_prob=0.05, drop_burst_mean=25.0)
     outcomes = {}
     for hold in (False, True):
@@ -179,6 +178,8 @@ def test_hold_gap_on_lost_lock_rides_out_long_frame_drop_bursts() -> None:
         outcomes[hold] = sim.outcome()
         if hold:
             assert unlocked_far > 25  # the bursts did cost the lock for a while
-    assert not outcomes[False].captured and outcomes[False].aborts >= 2
-    assert outcomes[False].outcome in ("aborted", "missed")
-    assert outcomes[True].captured and outcomes[True].aborts <= 1
+    lost, held = outcomes[False], outcomes[True]
+    assert lost.aborts >= 1  # the loss broke away
+    assert held.captured and held.aborts <= 1
+    assert held.time_to_capture_s is not None
+    assert not lost.captured or lost.time_to_capture_s > held.time_to_capture_s + 15.0

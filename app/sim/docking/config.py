@@ -12,7 +12,11 @@ import math
 from dataclasses import dataclass
 from typing import NamedTuple
 
+import numpy as np
+
 from app.control.envelope import EnvelopeBounds
+from app.geometry.rotations import look_at_camera
+from app.model.mount import CameraMount
 from app.sim.camera_sensor import RENDER_MODES
 from app.sim.imperfections import Imperfections, resolve
 from app.sim.jsbsim_plant import JsbsimCondition
@@ -205,6 +209,18 @@ class DockingConfig:
             nose_body_m=self.nose_body_m or base.nose_body_m,
             camera_body_m=self.camera_body_m or base.camera_body_m,
         )
+
+    def camera_mount(self) -> CameraMount:
+        """The stereo rig's mount (body frame, m): the left camera at the airframe's camera
+        position, aimed (:func:`~app.geometry.rotations.look_at_camera`) at a point
+        ``camera_aim_ahead_m`` ahead of the probe tip; the nose and the probe tip. The one
+        computation of it (the simulation's and the adapters', through
+        :mod:`app.sim.rig_mount`)."""
+        g = self.geometry()
+        cam = np.asarray(g.camera_body_m, float)
+        tip = np.asarray(g.probe_tip_body_m, float)
+        aim = tip + np.array([self.camera_aim_ahead_m, 0.0, 0.0])
+        return CameraMount(look_at_camera(cam, aim), cam, np.asarray(g.nose_body_m, float), tip)
 
     def validate(self) -> None:
         if self.plant not in PLANTS:

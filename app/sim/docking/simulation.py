@@ -55,7 +55,7 @@ from app.control.observer import StateObserver
 from app.control.recovery import RecoveryLaw
 from app.control.reference import GuidanceConfig, ReferenceGenerator
 from app.geometry.calibration import StereoCalibration
-from app.geometry.rotations import euler_to_matrix, look_at_camera
+from app.geometry.rotations import euler_to_matrix
 from app.resources import load_default_calibration
 from app.sim.camera_sensor import StereoCameraSensor
 from app.sim.docking.config import PLANT_GUIDANCE, DockingConfig
@@ -119,7 +119,6 @@ class DockingSimulation:
         config.validate()
         self.config = config
         self.dt = 1.0 / config.tick_hz
-        geo = config.geometry()
         self.plant_design = design_for(config)
         self.models = self.plant_design.design
         self.trim = self.plant_design.trim
@@ -150,11 +149,11 @@ class DockingSimulation:
             if self._calibration is None:
                 self._calibration = load_default_calibration()
             self._camera = camera_sensor(config, self._calibration, self.effective_render_mode)
-        self.r_probe_b = np.asarray(geo.probe_tip_body_m, float)
-        self.r_nose_b = np.asarray(geo.nose_body_m, float)
-        self.r_cam_b = np.asarray(geo.camera_body_m, float)
-        aim = self.r_probe_b + np.array([config.camera_aim_ahead_m, 0.0, 0.0])
-        self.R_bc = look_at_camera(self.r_cam_b, aim)
+        mount = config.camera_mount()  # the rig's mount, computed once
+        self.r_probe_b = mount.probe_tip_b
+        self.r_nose_b = mount.nose_b
+        self.r_cam_b = mount.camera_b
+        self.R_bc = mount.r_bc
         self.reset()
 
     # ------------------------------------------------------------------ set-up
