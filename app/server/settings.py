@@ -62,6 +62,14 @@ class Settings(BaseSettings):
 
     host: str = Field("127.0.0.1", description="FastAPI bind address")
     port: int = Field(8000, ge=0, le=65535, description="FastAPI port")
+    push_port: int | None = Field(
+        None,
+        ge=0,
+        le=65535,
+        description="a listener of its own for the push WebSocket (the proxy routes "
+        "/api/v1/stream/push there); set, the main port takes WebSocket messages of "
+        "AAR_WS_MAX_MESSAGE_KB only",
+    )
     viser_host: str | None = Field(None, description="viser bind address (default: host)")
     viser_port: int = Field(
         8080, ge=0, le=65535, description="viser port, pinned (0 = any free port)"
@@ -175,7 +183,7 @@ class Settings(BaseSettings):
         1, ge=1, le=64, description="pushers connected at once; one more is refused (1008)"
     )
 
-    # ---- hardening round 2: connections (app/server/connection_guard.py) -------------
+    # ---- connections (uvicorn's limits: app/server/server_limits.py; the ASGI guards) ---
     max_connections: int = Field(
         1024,
         ge=8,

@@ -9,7 +9,6 @@ from fastapi.responses import PlainTextResponse
 from pydantic import BaseModel, Field
 
 from app.server import guard_events
-from app.server.connection_guard import UNGUARDED, is_guarded
 from app.server.dependencies import StateDep
 from app.server.metrics import render_metrics
 from app.server.schemas import (
@@ -22,6 +21,7 @@ from app.server.schemas import (
     TickRecord,
 )
 from app.server.security import in_process
+from app.server.server_limits import UNGUARDED, is_guarded
 
 router = APIRouter(tags=["state"])
 
