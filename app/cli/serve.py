@@ -253,6 +253,8 @@ def uvicorn_config(
         lifespan=lifespan,  # type: ignore[arg-type]
         limit_concurrency=limits.limit_concurrency,
         backlog=limits.backlog,
+        ws=limits.ws_implementation,  # the one with backpressure (server_limits)
+        ws_max_queue=limits.ws_max_queue,
         ws_max_size=limits.ws_max_size_bytes,  # refused at the frame header (1009)
         # no per-message compression: deflating every telemetry message once per client was
         # the web process's largest user of the GIL with 50 clients (benchmarks/bench_load.py)

@@ -4,7 +4,9 @@ app runs under them.
 uvicorn enforces: connections and in-flight tasks at once (``limit_concurrency``: a request
 beyond them is answered ``503``), pending connections (``backlog``), idle keep-alive
 (``timeout_keep_alive``), a request head's size (``h11_max_incomplete_event_size``) and a
-WebSocket message's size at its frame header (``ws_max_size``). What no Python server offers
+WebSocket message's size at its frame header (``ws_max_size``), and reads a WebSocket's next
+message only once the app took the previous ones (``ws="websockets"``, ``ws_max_queue``: below).
+What no Python server offers
 (a deadline for a request's head against slowloris, connection caps and request rates per
 client address) is the reverse proxy's: ``deploy/nginx/nginx.conf.template``, docs/service.md
 "Behind the proxy".
@@ -19,13 +21,28 @@ from __future__ import annotations
 
 import resource
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal
 
 if TYPE_CHECKING:
     from app.server.settings import Settings
 
 MAX_HEADER_BYTES = 16 * 1024  # a request's head (h11_max_incomplete_event_size)
 WS_FRAME_OVERHEAD_BYTES = 4096  # above a route's largest message, for the frame
+
+# uvicorn's WebSocket implementation with backpressure through the closing handshake (measured:
+# tests/server/test_ws_guard.py, the flood of tiny messages). With "websockets" (the websockets
+# library's protocol) a connection's frames are parsed only while fewer than ``ws_max_queue``
+# messages wait for the app; once the app stopped receiving (it closed the connection: 1008,
+# 1009) nothing more is parsed and the kernel's buffers push back on the sender until the close
+# timeout ends it. The default "websockets-sansio" (and "wsproto") resume reading when the app
+# sends its close and parse, then drop, whatever the peer sends for 10 s: 20 clients flooding
+# one-byte messages held the event loop ≈ 1 s at a time (healthz p99 1.03 s; with this one
+# 42 ms). uvicorn 0.55 marks "websockets" deprecated (it is to point at "websockets-sansio" in a
+# later release; websockets keeps its legacy protocol until ≈ 2030): the pins in pyproject.toml
+# and the flood test guard the choice (docs/development.md, "Moving the pins").
+WsImplementation = Literal["websockets", "websockets-sansio", "wsproto"]
+WS_IMPLEMENTATION: WsImplementation = "websockets"
+WS_MAX_QUEUE = 1  # messages read ahead of the app, per connection (uvicorn's default: 32)
 
 
 def fd_limit() -> int | None:
@@ -55,6 +72,10 @@ class ServerLimits:
     timeout_keep_alive_s: int  # idle keep-alive (AAR_KEEP_ALIVE_S)
     ws_max_size_bytes: int  # the largest WebSocket message of the routes this listener serves
     h11_max_incomplete_event_size_bytes: int  # a request's head
+    ws_implementation: (
+        WsImplementation  # uvicorn's ``ws``: the one with backpressure (WS_IMPLEMENTATION)
+    )
+    ws_max_queue: int  # WebSocket messages read ahead of the app (WS_MAX_QUEUE)
 
 
 def server_limits(settings: Settings, *, push_listener: bool = True) -> ServerLimits:
@@ -68,6 +89,8 @@ def server_limits(settings: Settings, *, push_listener: bool = True) -> ServerLi
         timeout_keep_alive_s=max(1, round(settings.keep_alive_s)),
         ws_max_size_bytes=ws_bytes + WS_FRAME_OVERHEAD_BYTES,
         h11_max_incomplete_event_size_bytes=MAX_HEADER_BYTES,
+        ws_implementation=WS_IMPLEMENTATION,
+        ws_max_queue=WS_MAX_QUEUE,
     )
 
 

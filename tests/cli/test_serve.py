@@ -142,4 +142,7 @@ def test_serve_hands_uvicorn_these_limits(
     assert config.backlog == limits.backlog
     assert config.timeout_keep_alive == limits.timeout_keep_alive_s
     assert config.ws_max_size == limits.ws_max_size_bytes
+    assert (
+        (config.ws, config.ws_max_queue) == ("websockets", limits.ws_max_queue) == ("websockets", 1)
+    )
     assert config.h11_max_incomplete_event_size == MAX_HEADER_BYTES
