@@ -14,7 +14,7 @@ client address) is the reverse proxy's: ``deploy/nginx/nginx.conf.template``, do
 ``aar-dock serve`` records on the app that it runs with these limits (:func:`mark_guarded`).
 Served without them (plain ``uvicorn --factory``), the app logs :data:`UNGUARDED` at the first
 request from a real client, and ``/healthz`` says ``degraded`` (component
-``connection_guard``) to every real client.
+``server_limits``) to every real client.
 """
 
 from __future__ import annotations
@@ -103,11 +103,11 @@ UNGUARDED = (
 
 
 def mark_guarded(app: Any, limits: ServerLimits) -> None:
-    """Record on the app (``app.state.connection_guard``) the limits its server runs with."""
-    app.state.connection_guard = limits
+    """Record on the app (``app.state.server_limits``) the limits its server runs with."""
+    app.state.server_limits = limits
 
 
 def is_guarded(app: Any) -> bool:
     """True if :func:`mark_guarded` was called on ``app`` (``aar-dock serve`` does)."""
     state = getattr(app, "state", None)
-    return getattr(state, "connection_guard", None) is not None
+    return getattr(state, "server_limits", None) is not None

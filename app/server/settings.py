@@ -13,8 +13,8 @@ Hardening (see ``app/server/security.py``): ``AAR_TRUSTED_HOSTS`` and ``AAR_ALLO
 Hardening round 2 (docs/service.md): stream supervision (``AAR_STREAM_FAILURE_STREAK``,
 ``AAR_STREAM_RESTART_BACKOFF_S``, ``AAR_STREAM_RESTART_BACKOFF_MAX_S``, ``AAR_STREAM_STALL_S``,
 ``AAR_PUSH_MAX_CLIENTS``) and connection limits (``AAR_MAX_CONNECTIONS``,
-``AAR_MAX_CONNECTIONS_PER_CLIENT``, ``AAR_FD_RESERVE``, ``AAR_HEADER_TIMEOUT_S``,
-``AAR_KEEP_ALIVE_S``, ``AAR_MAX_WEBSOCKETS``, ``AAR_MAX_WEBSOCKETS_PER_CLIENT``,
+``AAR_FD_RESERVE``, ``AAR_KEEP_ALIVE_S``, ``AAR_PUSH_PORT``, ``AAR_HEADER_TIMEOUT_S`` (the Foxglove
+gate's), ``AAR_MAX_WEBSOCKETS``, ``AAR_MAX_WEBSOCKETS_PER_CLIENT``,
 ``AAR_WS_MAX_MESSAGE_KB``, ``AAR_WS_MAX_MESSAGES_PER_S``, ``AAR_WS_MESSAGE_BURST``,
 ``AAR_PUSH_MAX_MESSAGES_PER_S``, ``AAR_WS_ABUSE_PENALTY_S``).
 
@@ -191,14 +191,15 @@ class Settings(BaseSettings):
         description="open connections (HTTP and WebSocket); also capped at the file-descriptor "
         "limit minus AAR_FD_RESERVE",
     )
-    max_connections_per_client: int = Field(
-        128, ge=1, le=1_000_000, description="open connections from one client address"
-    )
     fd_reserve: int = Field(
         128, ge=16, le=100_000, description="file descriptors kept free for everything else"
     )
     header_timeout_s: float = Field(
-        10.0, gt=0.0, le=600.0, description="time to send a request's headers (slowloris) (s)"
+        10.0,
+        gt=0.0,
+        le=600.0,
+        description="time to send the handshake's head on the Foxglove "
+        "gate (s); on the HTTP port it is the proxy's client_header_timeout",
     )
     keep_alive_s: float = Field(5.0, gt=0.0, le=600.0, description="idle keep-alive timeout (s)")
     max_websockets: int = Field(

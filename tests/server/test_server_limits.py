@@ -21,17 +21,17 @@ def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[int, int,
         yield proc.pid, port, log
 
 
-def test_serve_reports_its_connection_guards(server: tuple[int, int, Path]) -> None:
+def test_serve_reports_its_server_limits(server: tuple[int, int, Path]) -> None:
     _pid, port, _log = server
     health = httpx.get(f"http://127.0.0.1:{port}/api/v1/healthz", timeout=5).json()
-    assert {"name": "connection_guard", "status": "ok", "reason": None} in health["components"]
+    assert {"name": "server_limits", "status": "ok", "reason": None} in health["components"]
 
 
 def test_plain_uvicorn_start_warns_and_reports_degraded(
     tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
     """``uvicorn --factory app.server.main:create_app`` as a deployer might: the app says,
-    in its log and in ``/healthz``, that it runs without the connection guards."""
+    in its log and in ``/healthz``, that it runs without ``aar-dock serve``'s limits."""
     import uvicorn
 
     from app.server.main import create_app
@@ -61,8 +61,8 @@ def test_plain_uvicorn_start_warns_and_reports_degraded(
     finally:
         server.should_exit = True
         thread.join(15)
-    guard = [c for c in health["components"] if c["name"] == "connection_guard"]
-    assert guard == [{"name": "connection_guard", "status": "degraded", "reason": UNGUARDED}]
+    guard = [c for c in health["components"] if c["name"] == "server_limits"]
+    assert guard == [{"name": "server_limits", "status": "degraded", "reason": UNGUARDED}]
     assert health["status"] == "degraded"
     warnings = [r for r in caplog.records if "aar-dock serve" in r.getMessage()]
     assert len(warnings) == 1 and warnings[0].levelno == logging.WARNING  # once, not per request

@@ -53,12 +53,12 @@ def get_history(
 
 
 def _guard_component(request: Request) -> HealthComponent | None:
-    """A real client's view: does the server run ``aar-dock serve``'s connection guards?"""
+    """A real client's view: does the server run with ``aar-dock serve``'s limits?"""
     if in_process(request.scope, request.headers):
         return None  # in-process test clients: no server, no connections to guard
     if is_guarded(request.app):
-        return HealthComponent(name="connection_guard", status="ok")
-    return HealthComponent(name="connection_guard", status="degraded", reason=UNGUARDED)
+        return HealthComponent(name="server_limits", status="ok")
+    return HealthComponent(name="server_limits", status="degraded", reason=UNGUARDED)
 
 
 @router.get("/healthz", response_model=Health)
