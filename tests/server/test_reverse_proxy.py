@@ -9,7 +9,12 @@ The attacks go through the proxy:
   (429) while the held ones stay open, ``/healthz`` answers from another address;
 * a WebSocket handshake flood from one address: refused by ``limit_req`` (429);
 * oversized bodies: 413 from the proxy on the declared length, per route;
-* a real upload and a telemetry WebSocket client through the proxy work.
+* a real upload and a telemetry WebSocket client through the proxy work; the push route goes
+  to the service's push listener (``AAR_PUSH_PORT``);
+* 40 telemetry clients announcing 40 MB messages: 1009 at the frame header, neither the
+  service's memory nor the proxy's grows;
+* slowloris from two addresses, many times the service's descriptor limit (lowered to 512):
+  the proxy holds and closes them, none reaches the service, ``/healthz`` answers.
 
 Skipped only where ``nginx`` is not installed (``bash .ci/run`` installs Debian's).
 """
