@@ -3,43 +3,21 @@
 from __future__ import annotations
 
 import argparse
+import asyncio
+import contextlib
 import ipaddress
 import sys
-from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from app.cli.drogue_options import add_drogue_options
 
 if TYPE_CHECKING:
+    import uvicorn
+
+    from app.server.server_limits import ServerLimits
     from app.server.settings import Settings
 
-MAX_HEADER_BYTES = 16 * 1024  # a request's headers (h11_max_incomplete_event_size)
 PROXY_CONFIG = "deploy/nginx/nginx.conf.template"
-WS_FRAME_OVERHEAD_BYTES = 4096  # above the push route's largest message, for the frame
-
-
-@dataclass(frozen=True)
-class ServerLimits:
-    """uvicorn's own limits, as ``aar-dock serve`` passes them (``uvicorn.Config``)."""
-
-    limit_concurrency: int  # connections or in-flight tasks; a request beyond them gets 503
-    timeout_keep_alive_s: int  # idle keep-alive (AAR_KEEP_ALIVE_S)
-    ws_max_size_bytes: int  # the largest WebSocket message of any route (push)
-    h11_max_incomplete_event_size_bytes: int  # a request's headers
-
-
-def server_limits(settings: Settings, max_connections: int) -> ServerLimits:
-    """``max_connections``: the connection guard's total cap (``AAR_MAX_CONNECTIONS``, at most
-    the descriptor limit minus ``AAR_FD_RESERVE``). uvicorn's ``limit_concurrency`` sits one
-    above it: the guard makes room at its cap by closing the oldest connection still waiting
-    for its headers (a 503 there would answer the operators, not the slowloris), and uvicorn
-    holds the same cap with 503s should the guard ever be switched off."""
-    return ServerLimits(
-        limit_concurrency=max_connections + 1,
-        timeout_keep_alive_s=max(1, round(settings.keep_alive_s)),
-        ws_max_size_bytes=settings.push_limit_bytes + WS_FRAME_OVERHEAD_BYTES,
-        h11_max_incomplete_event_size_bytes=MAX_HEADER_BYTES,
-    )
 
 
 def exposure_notice(host: str) -> str | None:
@@ -203,6 +181,12 @@ def run(args: argparse.Namespace) -> int:
     if not _port_free(settings.host, settings.port):
         print(f"aar-dock serve: port {settings.port} on {settings.host} is in use", file=sys.stderr)
         return 2
+    if settings.push_port and not _port_free(settings.host, settings.push_port):
+        print(
+            f"aar-dock serve: push port {settings.push_port} on {settings.host} is in use",
+            file=sys.stderr,
+        )
+        return 2
     fg = settings.foxglove_port
     if fg and not _port_free(settings.foxglove_host, fg):
         print(
@@ -221,13 +205,8 @@ def run(args: argparse.Namespace) -> int:
     import uvicorn
 
     from app.server import log_hygiene
-    from app.server.connection_guard import (
-        guarded_listener,
-        mark_guarded,
-        new_registry,
-        protocol_classes,
-    )
-    from app.server.main import PUSH_PATH, create_app
+    from app.server.main import create_app
+    from app.server.server_limits import mark_guarded, server_limits
     from app.sim.warmup import compile_kernels
 
     # the navigation core's compiled loops: compiled once per install and cached on disk;
@@ -240,35 +219,60 @@ def run(args: argparse.Namespace) -> int:
     app = create_app(settings)
     print(
         f"aar-dock: http://{settings.host}:{settings.port}/ (API docs /docs), "
-        f"viser on port {settings.viser_port if settings.viser_enabled else 'off'}",
+        f"viser on port {settings.viser_port if settings.viser_enabled else 'off'}"
+        + (f", push WebSocket on port {settings.push_port}" if settings.push_port else ""),
         flush=True,
     )
-    # connection caps, header timeout (slowloris), per-route WebSocket message sizes and
-    # rates, enforced in uvicorn's protocol layer (app.server.connection_guard)
-    registry = new_registry(settings, PUSH_PATH)
-    http_protocol, ws_protocol = protocol_classes(registry)
-    mark_guarded(app, registry)  # else the app warns, and /healthz says degraded
-    limits = server_limits(settings, registry.policy.max_connections)
-    config = uvicorn.Config(
+    push_port = settings.push_port
+    main_limits = server_limits(settings, push_listener=push_port is None)
+    mark_guarded(app, main_limits)  # else the app warns, and /healthz says degraded
+    server = uvicorn.Server(uvicorn_config(app, settings, settings.port, main_limits, "on"))
+    log_hygiene.install()  # after uvicorn configured its loggers
+    if push_port is None:
+        server.run()
+    else:  # the push route's large messages on a listener of its own (the proxy routes it)
+        push = uvicorn_config(app, settings, push_port, server_limits(settings), "off")
+        with contextlib.suppress(KeyboardInterrupt):  # uvicorn re-raises the Ctrl-C it handled
+            asyncio.run(serve_both(server, uvicorn.Server(push)))
+    # uvicorn exits with started=False when the lifespan failed (e.g. viser port taken)
+    return 0 if server.started else 1
+
+
+def uvicorn_config(
+    app: Any, settings: Settings, port: int, limits: ServerLimits, lifespan: str
+) -> uvicorn.Config:
+    """One listener of the app, with uvicorn's own limits (``server_limits``)."""
+    import uvicorn
+
+    return uvicorn.Config(
         app,
         host=settings.host,
-        port=settings.port,
+        port=port,
         workers=1,
         log_level=settings.log_level,
-        http=http_protocol,
-        ws=ws_protocol,
+        lifespan=lifespan,  # type: ignore[arg-type]
         limit_concurrency=limits.limit_concurrency,
-        # the largest message of any route (push); each connection gets its route's limit
-        ws_max_size=limits.ws_max_size_bytes,
+        backlog=limits.backlog,
+        ws=limits.ws_implementation,  # the one with backpressure (server_limits)
+        ws_max_queue=limits.ws_max_queue,
+        ws_max_size=limits.ws_max_size_bytes,  # refused at the frame header (1009)
         # no per-message compression: deflating every telemetry message once per client was
         # the web process's largest user of the GIL with 50 clients (benchmarks/bench_load.py)
         ws_per_message_deflate=False,
         timeout_keep_alive=limits.timeout_keep_alive_s,
         h11_max_incomplete_event_size=limits.h11_max_incomplete_event_size_bytes,
     )
-    log_hygiene.install()  # after uvicorn configured its loggers
-    server = uvicorn.Server(config)
-    # the listening socket stops accepting short of the descriptor limit (connection_guard)
-    server.run(sockets=[guarded_listener(config.bind_socket(), registry)])
-    # uvicorn exits with started=False when the lifespan failed (e.g. viser port taken)
-    return 0 if server.started else 1
+
+
+async def serve_both(main: uvicorn.Server, push: uvicorn.Server) -> None:
+    """The main listener (which runs the app's lifespan) and, once it has started, the push
+    listener, in one event loop; when either stops, the other does."""
+    main_task = asyncio.create_task(main.serve())
+    while not main.started and not main_task.done():
+        await asyncio.sleep(0.05)
+    if main_task.done():
+        return
+    push_task = asyncio.create_task(push.serve())
+    await asyncio.wait({main_task, push_task}, return_when=asyncio.FIRST_COMPLETED)
+    main.should_exit = push.should_exit = True
+    await asyncio.gather(main_task, push_task, return_exceptions=True)

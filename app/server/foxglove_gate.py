@@ -35,6 +35,7 @@ import asyncio
 import contextlib
 import json
 import logging
+import os
 import secrets
 import socket
 import ssl
@@ -47,8 +48,8 @@ from urllib.parse import parse_qs, urlsplit
 import h11
 
 from app.server import guard_events
-from app.server.connection_guard import FdBudget, fd_limit
 from app.server.security import host_matches, split_host, token_ok
+from app.server.server_limits import fd_limit
 from app.server.settings import Settings
 
 log = logging.getLogger(__name__)
@@ -56,6 +57,30 @@ MAX_HEAD_BYTES = 16 * 1024
 RELAY_CHUNK = 64 * 1024
 FDS_PER_CLIENT = 3  # the client's socket, ours to the SDK server, the SDK server's end
 _DEFAULT_PORT = {"http": 80, "https": 443}
+FD_SLACK = 16  # descriptors left free besides the ones open when the gate looked
+FD_RECOUNT_S = 1.0
+
+
+class FdBudget:
+    """Whether the process has descriptors to spare for one more accepted connection (its
+    open descriptors, recounted at most once a second, against its limit)."""
+
+    def __init__(self) -> None:
+        self.limit = fd_limit()
+        self._open = 0
+        self._counted_at = -float("inf")
+
+    def may_accept(self) -> bool:
+        if self.limit is None:
+            return True
+        if time.monotonic() - self._counted_at > FD_RECOUNT_S:
+            try:
+                self._open = len(os.listdir("/proc/self/fd")) - 1  # the listing's own one
+            except OSError:  # pragma: no cover - not Linux: trust the connection caps
+                self.limit = None
+                return True
+            self._counted_at = time.monotonic()
+        return self._open + FD_SLACK < self.limit
 
 
 @dataclass(frozen=True)

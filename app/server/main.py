@@ -140,7 +140,7 @@ def create_app(
         _mount_swagger(app, swagger_dir)
     app.state.aar = None
     app.state.settings = settings
-    app.state.connection_guard = None  # set by `aar-dock serve` (connection_guard.mark_guarded)
+    app.state.server_limits = None  # set by `aar-dock serve` (server_limits.mark_guarded)
     _install_error_handlers(app, settings)
     # WebSocket caps and per-route message sizes, inside the request guard (Host/Origin first)
     app.add_middleware(WebSocketGuard, settings=settings, push_path=PUSH_PATH)

@@ -141,7 +141,7 @@ def render_metrics(
     if guard_counters:
         events = Metric(
             "aar_guard_events",
-            "Connections and messages refused or closed by the connection guard, by reason",
+            "Connections and messages refused or closed by the service's guards, by reason",
             "counter",
         )
         for reason, n in sorted(guard_counters.items()):

@@ -30,8 +30,8 @@ from urllib.parse import urlsplit
 from starlette.datastructures import Headers
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from app.server.connection_guard import UNGUARDED, is_guarded
 from app.server.limits import ConcurrencyLimit
+from app.server.server_limits import UNGUARDED, is_guarded
 from app.server.settings import Settings
 
 log = logging.getLogger(__name__)

@@ -13,8 +13,8 @@ Hardening (see ``app/server/security.py``): ``AAR_TRUSTED_HOSTS`` and ``AAR_ALLO
 Stream supervision and connection limits (docs/service.md): stream supervision (``AAR_STREAM_FAILURE_STREAK``,
 ``AAR_STREAM_RESTART_BACKOFF_S``, ``AAR_STREAM_RESTART_BACKOFF_MAX_S``, ``AAR_STREAM_STALL_S``,
 ``AAR_PUSH_MAX_CLIENTS``) and connection limits (``AAR_MAX_CONNECTIONS``,
-``AAR_MAX_CONNECTIONS_PER_CLIENT``, ``AAR_FD_RESERVE``, ``AAR_HEADER_TIMEOUT_S``,
-``AAR_KEEP_ALIVE_S``, ``AAR_MAX_WEBSOCKETS``, ``AAR_MAX_WEBSOCKETS_PER_CLIENT``,
+``AAR_FD_RESERVE``, ``AAR_KEEP_ALIVE_S``, ``AAR_PUSH_PORT``, ``AAR_HEADER_TIMEOUT_S`` (the Foxglove
+gate's), ``AAR_MAX_WEBSOCKETS``, ``AAR_MAX_WEBSOCKETS_PER_CLIENT``,
 ``AAR_WS_MAX_MESSAGE_KB``, ``AAR_WS_MAX_MESSAGES_PER_S``, ``AAR_WS_MESSAGE_BURST``,
 ``AAR_PUSH_MAX_MESSAGES_PER_S``, ``AAR_WS_ABUSE_PENALTY_S``).
 
@@ -62,6 +62,14 @@ class Settings(BaseSettings):
 
     host: str = Field("127.0.0.1", description="FastAPI bind address")
     port: int = Field(8000, ge=0, le=65535, description="FastAPI port")
+    push_port: int | None = Field(
+        None,
+        ge=0,
+        le=65535,
+        description="a listener of its own for the push WebSocket (the proxy routes "
+        "/api/v1/stream/push there); set, the main port takes WebSocket messages of "
+        "AAR_WS_MAX_MESSAGE_KB only",
+    )
     viser_host: str | None = Field(None, description="viser bind address (default: host)")
     viser_port: int = Field(
         8080, ge=0, le=65535, description="viser port, pinned (0 = any free port)"
@@ -175,7 +183,7 @@ class Settings(BaseSettings):
         1, ge=1, le=64, description="pushers connected at once; one more is refused (1008)"
     )
 
-    # ---- connections (app/server/connection_guard.py) --------------------------------
+    # ---- connections (uvicorn's limits: app/server/server_limits.py; the ASGI guards) ---
     max_connections: int = Field(
         1024,
         ge=8,
@@ -183,14 +191,15 @@ class Settings(BaseSettings):
         description="open connections (HTTP and WebSocket); also capped at the file-descriptor "
         "limit minus AAR_FD_RESERVE",
     )
-    max_connections_per_client: int = Field(
-        128, ge=1, le=1_000_000, description="open connections from one client address"
-    )
     fd_reserve: int = Field(
         128, ge=16, le=100_000, description="file descriptors kept free for everything else"
     )
     header_timeout_s: float = Field(
-        10.0, gt=0.0, le=600.0, description="time to send a request's headers (slowloris) (s)"
+        10.0,
+        gt=0.0,
+        le=600.0,
+        description="time to send the handshake's head on the Foxglove "
+        "gate (s); on the HTTP port it is the proxy's client_header_timeout",
     )
     keep_alive_s: float = Field(5.0, gt=0.0, le=600.0, description="idle keep-alive timeout (s)")
     max_websockets: int = Field(

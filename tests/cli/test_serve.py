@@ -12,7 +12,8 @@ import httpx
 import pytest
 
 from app.cli.main import main
-from app.cli.serve import MAX_HEADER_BYTES, PROXY_CONFIG, exposure_notice, server_limits
+from app.cli.serve import PROXY_CONFIG, exposure_notice
+from app.server.server_limits import MAX_HEADER_BYTES, connection_cap, server_limits
 from app.server.settings import Settings
 from tests.support.live_server import free_port
 
@@ -46,17 +47,30 @@ def test_serve_on_0_0_0_0_says_so_at_start(capsys: pytest.CaptureFixture[str]) -
 
 
 def test_server_limits_from_the_settings() -> None:
-    settings = Settings(keep_alive_s=7.4, push_max_mb=3.0)
-    limits = server_limits(settings, max_connections=100)
-    assert limits.limit_concurrency == 101  # one above the connection guard's cap
+    settings = Settings(keep_alive_s=7.4, push_max_mb=3.0, max_connections=100)
+    limits = server_limits(settings)
+    assert limits.limit_concurrency == connection_cap(settings) == 100
+    assert limits.backlog == 100
     assert limits.timeout_keep_alive_s == 7
     assert limits.ws_max_size_bytes >= 3_000_000
     assert limits.h11_max_incomplete_event_size_bytes == MAX_HEADER_BYTES
+    # a listener without the push route takes only the small messages (AAR_WS_MAX_MESSAGE_KB)
+    small = server_limits(settings, push_listener=False).ws_max_size_bytes
+    assert settings.ws_message_limit_bytes < small < 10_000
+
+
+def test_the_connection_cap_leaves_descriptors_for_everything_else(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    import app.server.server_limits as limits_module
+
+    monkeypatch.setattr(limits_module, "fd_limit", lambda: 512)
+    assert connection_cap(Settings(max_connections=1024, fd_reserve=128)) == 512 - 128
+    assert connection_cap(Settings(max_connections=100, fd_reserve=128)) == 100
 
 
 def test_uvicorns_own_cap_answers_503_beyond_it() -> None:
-    """Without the connection guard (as if a uvicorn release switched it off), the limit
-    ``serve`` passes still holds: with ``limit_concurrency`` connections open, one more
+    """The total cap is uvicorn's own: with ``limit_concurrency`` connections open, one more
     request is a 503; with one fewer it is answered."""
     import uvicorn
     from fastapi import FastAPI
@@ -67,7 +81,7 @@ def test_uvicorns_own_cap_answers_503_beyond_it() -> None:
     def ping() -> dict[str, bool]:
         return {"ok": True}
 
-    limits = server_limits(Settings(), max_connections=8)
+    limits = server_limits(Settings(max_connections=8))
     port = free_port()
     config = uvicorn.Config(
         app, host="127.0.0.1", port=port, log_level="warning",
@@ -104,8 +118,6 @@ def test_serve_hands_uvicorn_these_limits(
     import uvicorn
 
     import app.sim.warmup
-    from app.server.connection_guard import ConnectionPolicy
-    from app.server.main import PUSH_PATH
 
     seen: list[uvicorn.Config] = []
 
@@ -125,9 +137,12 @@ def test_serve_hands_uvicorn_these_limits(
     assert len(seen) == 1
     config = seen[0]
     settings = Settings(max_connections=200)
-    cap = ConnectionPolicy.from_settings(settings, PUSH_PATH).max_connections
-    limits = server_limits(settings, cap)
-    assert config.limit_concurrency == limits.limit_concurrency == cap + 1
+    limits = server_limits(settings)
+    assert config.limit_concurrency == limits.limit_concurrency == connection_cap(settings)
+    assert config.backlog == limits.backlog
     assert config.timeout_keep_alive == limits.timeout_keep_alive_s
     assert config.ws_max_size == limits.ws_max_size_bytes
+    assert (
+        (config.ws, config.ws_max_queue) == ("websockets", limits.ws_max_queue) == ("websockets", 1)
+    )
     assert config.h11_max_incomplete_event_size == MAX_HEADER_BYTES

@@ -9,33 +9,46 @@ The attacks go through the proxy:
   (429) while the held ones stay open, ``/healthz`` answers from another address;
 * a WebSocket handshake flood from one address: refused by ``limit_req`` (429);
 * oversized bodies: 413 from the proxy on the declared length, per route;
-* a real upload and a telemetry WebSocket client through the proxy work.
+* a real upload and a telemetry WebSocket client through the proxy work; the push route goes
+  to the service's push listener (``AAR_PUSH_PORT``);
+* 40 telemetry clients announcing 40 MB messages: 1009 at the frame header, neither the
+  service's memory nor the proxy's grows;
+* slowloris from two addresses, many times the service's descriptor limit (lowered to 512):
+  the proxy holds and closes them, none reaches the service, ``/healthz`` answers.
 
 Skipped only where ``nginx`` is not installed (``bash .ci/run`` installs Debian's).
 """
 
 from __future__ import annotations
 
+import json
+import multiprocessing
 import os
 import pwd
 import re
+import resource
 import select
 import shutil
 import socket
 import string
 import subprocess
+import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager, suppress
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import httpx
 import pytest
 import yaml
+from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import connect as ws_client
 
-from tests.support.live_server import LatencyProbe, free_port, serve
+from tests.support.live_server import LatencyProbe, free_port, serve, ws_connect
 from tests.support.waiting import stop_process, wait_for_server
+from tests.support.ws_frames import frame_header, read_close
 
 ROOT = Path(__file__).resolve().parents[2]
 TEMPLATE = ROOT / "deploy" / "nginx" / "nginx.conf.template"
@@ -49,7 +62,10 @@ pytestmark = pytest.mark.skipif(
 
 @dataclass(frozen=True)
 class Stack:
+    app_pid: int  # the service's process
     app_port: int  # the service, loopback
+    push_port: int  # the service's push listener (AAR_PUSH_PORT), loopback
+    proxy_pid: int  # nginx's master process
     proxy_port: int  # the proxy's HTTP port, where the attacks go
     nginx_log: Path  # nginx's error log (stderr)
     app_log: Path  # the service's log (uvicorn's access lines)
@@ -86,10 +102,22 @@ def render(prefix: Path, values: dict[str, str]) -> Path:
     return conf
 
 
-@pytest.fixture(scope="module")
-def stack(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Stack]:
-    tmp = tmp_path_factory.mktemp("proxy")
-    with serve(tmp, behind_proxy_env()) as (_proc, app_port, app_log):
+def _port_open(port: int) -> bool:
+    with socket.create_connection(("127.0.0.1", port), timeout=1):
+        return True
+
+
+@contextmanager
+def run_stack(
+    tmp: Path, env_extra: dict[str, str] | None = None, nofile: int | None = None
+) -> Iterator[Stack]:
+    """nginx with the shipped template in front of ``aar-dock serve`` (the compose
+    environment, its push listener on a free port; ``nofile``: the service's descriptor
+    limit), all on loopback."""
+    push_port = free_port()
+    env = {**behind_proxy_env(), "AAR_PUSH_PORT": str(push_port), **(env_extra or {})}
+    with serve(tmp, env, nofile=nofile) as (app_proc, app_port, app_log):
+        wait_for_server(app_proc, lambda: _port_open(push_port), app_log, timeout_s=20)
         prefix = tmp / "nginx"
         prefix.mkdir()
         proxy_port = free_port()
@@ -101,6 +129,7 @@ def stack(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Stack]:
                 "AAR_PROXY_VISER_LISTEN": f"127.0.0.1:{free_port()}",
                 "AAR_PROXY_FOXGLOVE_LISTEN": f"127.0.0.1:{free_port()}",
                 "AAR_PROXY_UPSTREAM_HTTP": f"127.0.0.1:{app_port}",
+                "AAR_PROXY_UPSTREAM_PUSH": f"127.0.0.1:{push_port}",
                 "AAR_PROXY_UPSTREAM_VISER": f"127.0.0.1:{free_port()}",
                 "AAR_PROXY_UPSTREAM_FOXGLOVE": f"127.0.0.1:{free_port()}",
             },
@@ -124,9 +153,17 @@ def stack(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Stack]:
                     nginx_log,
                     timeout_s=20,
                 )
-                yield Stack(app_port, proxy_port, nginx_log, app_log)
+                yield Stack(
+                    app_proc.pid, app_port, push_port, proc.pid, proxy_port, nginx_log, app_log
+                )
             finally:
                 stop_process(proc)
+
+
+@pytest.fixture(scope="module")
+def stack(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Stack]:
+    with run_stack(tmp_path_factory.mktemp("proxy")) as running:
+        yield running
 
 
 def guard_events(port: int) -> dict[str, float]:
@@ -340,3 +377,199 @@ def test_the_service_sees_the_clients_address_and_checks_its_host(stack: Stack) 
     time.sleep(0.3)
     access = [ln for ln in stack.app_log.read_text().splitlines() if "/api/v1/healthz" in ln]
     assert any("127.0.0.6:" in ln for ln in access), access[-3:]
+
+
+# ---- the attacks of issue 23, through the proxy ------------------------------------------
+MB = 1_000_000
+
+
+def _rss_mb(pid: int) -> float:
+    """A process's resident memory (MB), plus its children's (nginx: the workers)."""
+    total = 0.0
+    children = Path(f"/proc/{pid}/task/{pid}/children").read_text().split()
+    for p in [pid, *map(int, children)]:
+        for line in Path(f"/proc/{p}/status").read_text().splitlines():
+            if line.startswith("VmRSS:"):
+                total += int(line.split()[1]) / 1e3
+    return total
+
+
+class PeakSampler:
+    """The peak of ``value()`` sampled every 20 ms from its own thread, while in the block."""
+
+    def __init__(self, value: Callable[[], float]) -> None:
+        self.value = value
+        self.first = self.peak = value()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+
+    def _run(self) -> None:
+        while not self._stop.wait(0.02):
+            with suppress(OSError, ValueError):
+                self.peak = max(self.peak, self.value())
+
+    def __enter__(self) -> PeakSampler:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        self._thread.join(timeout=5)
+
+
+def test_telemetry_clients_announcing_40_mb_messages_cost_no_memory(stack: Stack) -> None:
+    """40 tokenless telemetry clients through the proxy (from 40 addresses: the proxy's
+    handshake rate is per address), each announcing a 40 MB message: the service refuses each
+    at its frame header (1009: its HTTP port takes ``AAR_WS_MAX_MESSAGE_KB``; the push route's
+    ``AAR_PUSH_MAX_MB`` is on the push listener) and the proxy passes the close on; neither the
+    service's memory nor the proxy's grows by more than 100 MB."""
+    closes: list[tuple[int, str] | None] = []
+    sent_mb: list[float] = []
+    connected = threading.Barrier(41)
+
+    def attacker(i: int) -> None:
+        s = ws_connect(stack.proxy_port, "/api/v1/telemetry", source=f"127.0.1.{i + 1}")
+        connected.wait(timeout=60)  # all 40 connected before any announces its message
+        sent = 0
+        try:
+            s.sendall(frame_header(0x2, 40 * MB))
+            chunk = b"\0" * MB
+            s.settimeout(2.0)
+            while sent < 40 * MB:
+                s.sendall(chunk)
+                sent += MB
+        except OSError:
+            pass
+        sent_mb.append(sent / MB)
+        closes.append(read_close(s, 5.0))
+        s.close()
+
+    threads = [threading.Thread(target=attacker, args=(i,)) for i in range(40)]
+    with PeakSampler(lambda: _rss_mb(stack.app_pid)) as app_rss:
+        with PeakSampler(lambda: _rss_mb(stack.proxy_pid)) as proxy_rss:
+            for t in threads:
+                t.start()
+            connected.wait(timeout=60)
+            for t in threads:
+                t.join(timeout=120)
+            time.sleep(0.3)
+    growth = {"service": app_rss.peak - app_rss.first, "proxy": proxy_rss.peak - proxy_rss.first}
+    print(
+        f"RSS service {app_rss.first:.0f} → peak {app_rss.peak:.0f} MB, proxy "
+        f"{proxy_rss.first:.0f} → peak {proxy_rss.peak:.0f} MB; sent (MB) {sorted(sent_mb)}"
+    )
+    assert max(growth.values()) <= 100, growth
+    codes = [c[0] for c in closes if c is not None]
+    assert len(codes) == 40 and set(codes) == {1009}, closes
+    health = httpx.get(f"http://127.0.0.1:{stack.proxy_port}/api/v1/healthz", timeout=5)
+    assert health.json()["status"] == "ok"
+
+
+def test_the_push_route_goes_to_the_push_listener(stack: Stack) -> None:
+    """Through the proxy ``/api/v1/stream/push`` reaches the push listener, which takes
+    messages of ``AAR_PUSH_MAX_MB``: a 5 kB message is read there (the stream answers a protocol
+    error), where the telemetry route closes at once with 1009 (over ``AAR_WS_MAX_MESSAGE_KB``)."""
+    url = f"ws://127.0.0.1:{stack.proxy_port}/api/v1"
+    with ws_client(f"{url}/stream/push", open_timeout=10) as ws:
+        ws.send(b"\0" * 5000)
+        assert "error" in json.loads(ws.recv(timeout=10))
+    with ws_client(f"{url}/telemetry", open_timeout=10) as ws:
+        ws.send(b"\0" * 5000)
+        with pytest.raises(ConnectionClosed) as closed:
+            while True:
+                ws.recv(timeout=10)
+    assert closed.value.rcvd is not None and closed.value.rcvd.code == 1009
+
+
+def _slowloris(port: int, source: str, n: int, seconds: float, out: Any) -> None:
+    """Attacker process: ``n`` connections from ``source``, each sending a request's head one
+    line at a time (never the blank line that ends it), every 0.5 s, for ``seconds`` after the
+    last one opened. Puts (opened, still open at the end)."""
+    _soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    resource.setrlimit(resource.RLIMIT_NOFILE, (min(hard, n + 256), hard))
+    live: list[socket.socket] = []
+    opened = 0
+    for _ in range(n):
+        with suppress(OSError):
+            s = socket.create_connection(("127.0.0.1", port), timeout=2, source_address=(source, 0))
+            s.sendall(b"GET /api/v1/healthz HTTP/1.1\r\nHost: 127.0.0.1\r\n")
+            live.append(s)
+            opened += 1
+    t_end = time.monotonic() + seconds
+    while time.monotonic() < t_end:
+        live = _trickle(live)
+        time.sleep(0.5)
+    still_open = 0
+    for s in _trickle(live):  # the proxy closed it: EOF to read (or a refused send)
+        readable, _, _ = select.select([s], [], [], 0)
+        still_open += not readable
+        s.close()
+    out.put((opened, still_open))
+
+
+def _trickle(live: list[socket.socket]) -> list[socket.socket]:
+    """One more header line on each connection; the ones the peer closed are dropped."""
+    kept = []
+    for s in live:
+        try:
+            s.send(b"X-a: b\r\n")
+            kept.append(s)
+        except OSError:
+            s.close()
+    return kept
+
+
+def _open_fds(pid: int) -> float:
+    return float(len(os.listdir(f"/proc/{pid}/fd")))
+
+
+@pytest.mark.slow
+def test_slowloris_at_a_lowered_fd_limit(tmp_path: Path) -> None:
+    """Slowloris from two addresses, many times the service's descriptor limit (512), through
+    the proxy: the proxy holds them (one descriptor each, its ``worker_rlimit_nofile``) and
+    closes every one at its ``client_header_timeout``; none reaches the service, whose open
+    descriptors stay far under its limit; ``/healthz`` through the proxy from a third address
+    answers within 1 s throughout; neither log grows by more than 1 MB.
+    ``AAR_TEST_SLOWLORIS_N`` connections per attacker (default 2000; the issue's figure: 10 000)."""
+    n = int(os.environ.get("AAR_TEST_SLOWLORIS_N", "2000"))
+    nofile = 512
+    header_timeout_s = seconds(config_value("client_header_timeout"))
+    ctx = multiprocessing.get_context("spawn")
+    out = ctx.Queue()
+    with run_stack(tmp_path, {"AAR_LOG_LEVEL": "info"}, nofile=nofile) as st:
+        logs = (st.app_log, st.nginx_log)
+        size0 = [log.stat().st_size for log in logs]
+        with LatencyProbe(st.proxy_port, period_s=0.1) as probe:
+            with PeakSampler(lambda: _open_fds(st.app_pid)) as fds:
+                attackers = [
+                    ctx.Process(
+                        target=_slowloris,
+                        args=(st.proxy_port, src, n, header_timeout_s + 3, out),
+                    )
+                    for src in ("127.0.0.2", "127.0.0.3")
+                ]
+                for a in attackers:
+                    a.start()
+                results = [out.get(timeout=300) for _ in attackers]
+                for a in attackers:
+                    a.join(timeout=30)
+        growth = [log.stat().st_size - s0 for log, s0 in zip(logs, size0, strict=True)]
+        reached = [
+            ln
+            for ln in st.app_log.read_text(errors="replace").splitlines()
+            if "127.0.0.2:" in ln or "127.0.0.3:" in ln
+        ]
+    print(
+        f"slowloris 2 x {n} through the proxy (service's fd limit {nofile}): (opened, still "
+        f"open) {results}; healthz p99 {probe.p99() * 1e3:.0f} ms, max "
+        f"{max(probe.latencies) * 1e3:.0f} ms over {len(probe.latencies)} probes; the "
+        f"service's descriptors {fds.first:.0f} → peak {fds.peak:.0f}; logs +"
+        f"{growth[0] / 1e3:.1f} kB (service), +{growth[1] / 1e3:.1f} kB (proxy)"
+    )
+    assert not probe.failures, probe.failures
+    assert max(probe.latencies) < 1.0
+    assert sum(r[0] for r in results) >= 2 * nofile  # many times the service's limit
+    assert [r[1] for r in results] == [0, 0]  # the proxy closed every one at its deadline
+    assert not reached, reached[:3]  # none reached the service
+    assert fds.peak < nofile / 4
+    assert max(growth) <= MB

@@ -10,7 +10,6 @@ from pydantic import BaseModel, Field
 
 from app.model.tick import TickRecord
 from app.server import guard_events
-from app.server.connection_guard import UNGUARDED, is_guarded
 from app.server.dependencies import StateDep
 from app.server.metrics import render_metrics
 from app.server.schemas import (
@@ -22,6 +21,7 @@ from app.server.schemas import (
     ServiceConfig,
 )
 from app.server.security import in_process
+from app.server.server_limits import UNGUARDED, is_guarded
 
 router = APIRouter(tags=["state"])
 
@@ -53,12 +53,12 @@ def get_history(
 
 
 def _guard_component(request: Request) -> HealthComponent | None:
-    """A real client's view: does the server run ``aar-dock serve``'s connection guards?"""
+    """A real client's view: does the server run with ``aar-dock serve``'s limits?"""
     if in_process(request.scope, request.headers):
         return None  # in-process test clients: no server, no connections to guard
     if is_guarded(request.app):
-        return HealthComponent(name="connection_guard", status="ok")
-    return HealthComponent(name="connection_guard", status="degraded", reason=UNGUARDED)
+        return HealthComponent(name="server_limits", status="ok")
+    return HealthComponent(name="server_limits", status="degraded", reason=UNGUARDED)
 
 
 @router.get("/healthz", response_model=Health)
