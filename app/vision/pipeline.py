@@ -183,6 +183,7 @@ class NavigationPipeline:
         self.trace = PipelineTrace()
         self.fundamental = calibration.fundamental  # F of the calibration (x_rᵀ F x_l = 0)
         fbar = 0.5 * (calibration.left.fx + calibration.right.fx)
+        self._f_mean_px = fbar
         self._f_times_b = fbar * calibration.baseline_mm
         self._track: TrackMemory | None = None
         w, h = calibration.image_size
@@ -267,6 +268,7 @@ class NavigationPipeline:
             inlier_tol_mm=cfg.ring_inlier_tol_mm,
             angle_tol_deg=cfg.angle_tol_deg,
             depth_sigma_per_mm=cfg.disparity_sigma_px / self._f_times_b,
+            lateral_sigma_per_mm=cfg.disparity_sigma_px / self._f_mean_px,
             min_leds=cfg.min_leds,
             log10_nfa_max=cfg.log10_nfa_max,
             fov_tan=(self._fov_tan),

@@ -43,6 +43,14 @@ def log10_nfa(
     at a chord length (a shell 4πc²·2δ), the 3rd on the 1-DOF family of slot positions left by
     the first two (a torus 2πR·πρ²), and every further point in its fixed slot cell (a ball
     of radius ρ).
+
+    With the points' lateral noise known (``params.lateral_sigma_per_mm``) the cells follow
+    the noise, which stereo makes far larger along the line of sight (σ_Z/σ_lat = z/B): the
+    precision within the ring's plane ρ_in is the same observed residuals (the radius error
+    too) with the floor 3σ_in (:meth:`RingParams.in_plane_sigma`), across it ρ stays as above.
+    A chord lies in the plane (the shell's thickness from ρ_in); the 3rd point's family runs
+    across the plane (rotation about the chord), so its section is an ellipse ρ_in × ρ (at
+    most); a further slot cell is a disc of radius ρ_in, ρ thick.
     """
     R, N = params.radius_mm, params.led_count
     m = len(points)
@@ -52,17 +60,24 @@ def log10_nfa(
     floor = max(0.3, 3.0 * float(params.sigma_z(z)))
     dist = distance_to_circle(points, circle) if distance_mm is None else distance_mm
     resid = np.asarray(resid_deg).tolist()
-    rho = max(
-        floor,
+    observed = max(
         max(np.asarray(dist).tolist(), default=0.0),
         R * math.radians(max(max(resid), -min(resid))),
     )
-    delta = 2.0 * rho + max(floor, abs(circle.radius - R))
+    rho = max(floor, observed)
+    radius_error = abs(circle.radius - R)
+    rho_in = rho
+    sight = np.asarray(circle.center, dtype=np.float64)
+    sin_tilt = float(np.linalg.norm(np.cross(circle.normal, sight / np.linalg.norm(sight))))
+    sigma_in = params.in_plane_sigma(z, sin_tilt)
+    if sigma_in is not None:
+        rho_in = min(rho, max(0.3, 3.0 * sigma_in, observed, radius_error))
+    delta = 2.0 * rho_in + max(min(floor, rho_in), radius_error)
     chord = 2.0 * R * math.sin(math.pi * (N // 2) / N)
     v = max(volume_mm3, 1.0)
     p2 = min(1.0, 4.0 * math.pi * chord**2 * 2.0 * delta / v)
-    p3 = min(1.0, 2.0 * math.pi * R * math.pi * rho**2 / v)
-    p4 = min(1.0, 4.0 / 3.0 * math.pi * rho**3 / v)
+    p3 = min(1.0, 2.0 * math.pi * R * math.pi * rho_in * rho / v)
+    p4 = min(1.0, 4.0 / 3.0 * math.pi * rho_in * rho_in * rho / v)
     labellings = math.lgamma(N + 1) - math.lgamma(N - m + 1)
     return (
         _log10_comb(n, m)
