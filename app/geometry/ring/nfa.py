@@ -45,12 +45,13 @@ def log10_nfa(
     of radius ρ).
 
     With the points' lateral noise known (``params.lateral_sigma_per_mm``) the cells follow
-    the noise, which stereo makes far larger along the line of sight (σ_Z/σ_lat = z/B): the
-    precision within the ring's plane ρ_in is the same observed residuals (the radius error
-    too) with the floor 3σ_in (:meth:`RingParams.in_plane_sigma`), across it ρ stays as above.
-    A chord lies in the plane (the shell's thickness from ρ_in); the 3rd point's family runs
-    across the plane (rotation about the chord), so its section is an ellipse ρ_in × ρ (at
-    most); a further slot cell is a disc of radius ρ_in, ρ thick.
+    the noise, which stereo makes far larger along the line of sight (σ_Z/σ_lat = z/B): within
+    the ring's plane the precision is the same observed residuals (the radius error too) with
+    the floor 3σ along each of the plane's axes (:meth:`RingParams.in_plane_sigmas`: ρ_a along
+    the line of sight's projection, ρ_b across it), across the plane ρ stays as above. A chord
+    lies in the plane (the shell's thickness from ρ_a, the larger); the 3rd point's family runs
+    across the plane (a rotation about the chord), so its section is the ellipse ρ_a × ρ_b in
+    the plane; a further slot cell is the ellipsoid ρ_a × ρ_b × ρ.
     """
     R, N = params.radius_mm, params.led_count
     m = len(points)
@@ -66,18 +67,20 @@ def log10_nfa(
     )
     rho = max(floor, observed)
     radius_error = abs(circle.radius - R)
-    rho_in = rho
+    rho_a = rho_b = rho
     sight = np.asarray(circle.center, dtype=np.float64)
     sin_tilt = float(np.linalg.norm(np.cross(circle.normal, sight / np.linalg.norm(sight))))
-    sigma_in = params.in_plane_sigma(z, sin_tilt)
-    if sigma_in is not None:
-        rho_in = min(rho, max(0.3, 3.0 * sigma_in, observed, radius_error))
-    delta = 2.0 * rho_in + max(min(floor, rho_in), radius_error)
+    sigmas = params.in_plane_sigmas(z, sin_tilt)
+    if sigmas is not None:
+        observed = max(0.3, observed, radius_error)
+        rho_a = min(rho, max(observed, 3.0 * sigmas[0]))
+        rho_b = min(rho_a, max(observed, 3.0 * sigmas[1]))
+    delta = 2.0 * rho_a + max(min(floor, rho_a), radius_error)
     chord = 2.0 * R * math.sin(math.pi * (N // 2) / N)
     v = max(volume_mm3, 1.0)
     p2 = min(1.0, 4.0 * math.pi * chord**2 * 2.0 * delta / v)
-    p3 = min(1.0, 2.0 * math.pi * R * math.pi * rho_in * rho / v)
-    p4 = min(1.0, 4.0 / 3.0 * math.pi * rho_in * rho_in * rho / v)
+    p3 = min(1.0, 2.0 * math.pi * R * math.pi * rho_a * rho_b / v)
+    p4 = min(1.0, 4.0 / 3.0 * math.pi * rho_a * rho_b * rho / v)
     labellings = math.lgamma(N + 1) - math.lgamma(N - m + 1)
     return (
         _log10_comb(n, m)

@@ -51,15 +51,17 @@ class RingParams:
             return self.depth_sigma_per_mm * (z_mm * z_mm)
         return np.asarray(self.depth_sigma_per_mm * np.square(z_mm), dtype=np.float64)
 
-    def in_plane_sigma(self, z_mm: float, sin_tilt: float) -> float | None:
-        """The points' noise σ (mm) within the plane of a ring at range ``z_mm`` whose normal
-        is ``asin(sin_tilt)`` off the line of sight: the lateral noise and the share of the
-        depth noise the tilt turns into the plane; None when the lateral noise is not set."""
+    def in_plane_sigmas(self, z_mm: float, sin_tilt: float) -> tuple[float, float] | None:
+        """The points' noise σ (mm) along the two axes of the plane of a ring at range
+        ``z_mm`` whose normal is ``asin(sin_tilt)`` off the line of sight: along the line of
+        sight's projection on the plane (the lateral noise and the share of the depth noise
+        the tilt turns into the plane), and across it (the lateral noise alone); None when the
+        lateral noise is not set."""
         if self.lateral_sigma_per_mm is None:
             return None
         lateral = self.lateral_sigma_per_mm * z_mm
         tilted = self.sigma_z(z_mm) * sin_tilt
-        return math.sqrt(lateral * lateral + tilted * tilted)
+        return math.sqrt(lateral * lateral + tilted * tilted), lateral
 
     def inlier_tol(self, z_mm: Any) -> Any:
         if isinstance(z_mm, float):
