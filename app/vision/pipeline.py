@@ -46,7 +46,7 @@ from app.vision.features import (
     detect_blobs,
 )
 from app.vision.ihwt import describe
-from app.vision.local_centroid import LocalCentroidConfig
+from app.vision.local_centroid import LocalCentroidConfig, measure_blobs, prefer_sharper
 from app.vision.matching import (
     MatchArrays,
     descriptor_distances,
@@ -62,6 +62,7 @@ from app.vision.preprocess import (
     ThresholdMode,
     choose_threshold,
     detection_image,
+    to_gray,
     validate_image,
 )
 from app.vision.preprocess_kernels import frame_levels, frame_summary
@@ -224,6 +225,11 @@ class NavigationPipeline:
         blobs, rejected = detect_blobs(
             gray, threshold, bg, cfg.gate, cfg.median_ksize, bands, cfg.centroid
         )
+        if image.ndim == 3 and cfg.colour_detect == "green" and cfg.centroid.enabled:
+            if cfg.centroid.gray_too and blobs:
+                # each blob measured on eq. 9's gray too; the sharper measurement is kept
+                table = measure_blobs(to_gray(image), blobs, cfg.centroid)
+                blobs = prefer_sharper(blobs, table)
         if image.ndim == 3 and cfg.appearance.enabled:
             sat = cfg.appearance.saturated_dn
             blobs = [replace(b, color_bgr=blob_color_bgr(image, b, threshold, sat)) for b in blobs]
