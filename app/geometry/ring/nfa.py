@@ -68,9 +68,9 @@ def log10_nfa(
     rho = max(floor, observed)
     radius_error = abs(circle.radius - R)
     rho_a = rho_b = rho
-    sight = np.asarray(circle.center, dtype=np.float64)
-    sin_tilt = float(np.linalg.norm(np.cross(circle.normal, sight / np.linalg.norm(sight))))
-    sigmas = params.in_plane_sigmas(z, sin_tilt)
+    sigmas = None
+    if params.lateral_sigma_per_mm is not None:
+        sigmas = params.in_plane_sigmas(z, _sin_tilt(circle))
     if sigmas is not None:
         observed = max(0.3, observed, radius_error)
         rho_a = min(rho, max(observed, 3.0 * sigmas[0]))
@@ -89,6 +89,15 @@ def log10_nfa(
         + math.log10(p3)
         + (m - 3) * math.log10(p4)
     )
+
+
+def _sin_tilt(circle: Circle3D) -> float:
+    """The sine of the angle between the ring's normal and the line of sight to its centre
+    (scalar arithmetic: this runs for every hypothesis and every tracked frame)."""
+    cx, cy, cz = circle.center.tolist()
+    nx, ny, nz = circle.normal.tolist()
+    wx, wy, wz = ny * cz - nz * cy, nz * cx - nx * cz, nx * cy - ny * cx
+    return math.sqrt((wx * wx + wy * wy + wz * wz) / (cx * cx + cy * cy + cz * cz))
 
 
 def background_volume_mm3(p: FloatArray, params: RingParams) -> float:
