@@ -38,6 +38,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from app.vision.local_centroid_kernels import (
+    ATTEMPTS,
     OUT_BACKGROUND,
     OUT_COLUMNS,
     OUT_MODEL_SIGMA_U,
@@ -113,6 +114,22 @@ def measure_blobs(
         return np.zeros((0, OUT_COLUMNS))
     boxes = np.array([b.bbox for b in blobs], dtype=np.int64).reshape(-1, 4)
     return np.asarray(local_centroids(gray, boxes, cfg.params()))
+
+
+def read_rects(blobs: list[Blob], width: int, height: int) -> list[tuple[int, int, int, int]]:
+    """Per blob (x0, y0, x1, y1), exclusive: the pixels :func:`local_centroids` may read for
+    it (its box grown by its widest window, ``ATTEMPTS``' largest pad multiple, and the
+    background ring), within the image. An image filled only there measures the blobs as
+    the whole image does."""
+    grow = int(ATTEMPTS[:, 1].max())
+    out = []
+    for b in blobs:
+        bx, by, bw, bh = b.bbox
+        m = grow * window_pad_px(bw, bh) + 2
+        out.append(
+            (max(0, bx - m), max(0, by - m), min(width, bx + bw + m), min(height, by + bh + m))
+        )
+    return out
 
 
 def local_blob(

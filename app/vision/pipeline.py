@@ -46,7 +46,12 @@ from app.vision.features import (
     detect_blobs,
 )
 from app.vision.ihwt import describe
-from app.vision.local_centroid import LocalCentroidConfig, measure_blobs, prefer_sharper
+from app.vision.local_centroid import (
+    LocalCentroidConfig,
+    measure_blobs,
+    prefer_sharper,
+    read_rects,
+)
 from app.vision.matching import (
     MatchArrays,
     descriptor_distances,
@@ -228,7 +233,11 @@ class NavigationPipeline:
         if image.ndim == 3 and cfg.colour_detect == "green" and cfg.centroid.enabled:
             if cfg.centroid.gray_too and blobs:
                 # each blob measured on eq. 9's gray too; the sharper measurement is kept
-                table = measure_blobs(to_gray(image), blobs, cfg.centroid)
+                # (eq. 9 only where the local centroids read: the rest is never looked at)
+                lit = np.empty(image.shape[:2], np.uint8)
+                for x0, y0, x1, y1 in read_rects(blobs, image.shape[1], image.shape[0]):
+                    lit[y0:y1, x0:x1] = to_gray(image[y0:y1, x0:x1])
+                table = measure_blobs(lit, blobs, cfg.centroid)
                 blobs = prefer_sharper(blobs, table)
         if image.ndim == 3 and cfg.appearance.enabled:
             sat = cfg.appearance.saturated_dn
