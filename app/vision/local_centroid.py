@@ -31,12 +31,14 @@ no contrast keeps its eq. 11 centroid and gets σ = NaN: the caller treats it as
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
 
 from app.vision.local_centroid_kernels import (
+    ATTEMPTS,
     OUT_BACKGROUND,
     OUT_COLUMNS,
     OUT_MODEL_SIGMA_U,
@@ -45,6 +47,10 @@ from app.vision.local_centroid_kernels import (
     OUT_SIGMA_V,
     OUT_U,
     OUT_V,
+    OUT_X0,
+    OUT_X1,
+    OUT_Y0,
+    OUT_Y1,
     local_centroids,
 )
 from app.vision.types import Blob
@@ -70,6 +76,10 @@ class LocalCentroidConfig:
     # the sensor model's (which the blob keeps apart: rival ring hypotheses are ranked by it
     # first, app.geometry.ring.find_ring); False: the sensor model only
     image_noise: bool = True
+    # colour input: each blob found on the green excess is measured on eq. 9's gray as well
+    # (full resolution where JPEG and MJPG keep the chroma at half), and the measurement with
+    # the smaller σ is kept (prefer_sharper); False: the green excess only
+    gray_too: bool = True
 
     def params(self) -> NDArray[np.float64]:
         return np.array(
@@ -104,6 +114,22 @@ def measure_blobs(
         return np.zeros((0, OUT_COLUMNS))
     boxes = np.array([b.bbox for b in blobs], dtype=np.int64).reshape(-1, 4)
     return np.asarray(local_centroids(gray, boxes, cfg.params()))
+
+
+def read_rects(blobs: list[Blob], width: int, height: int) -> list[tuple[int, int, int, int]]:
+    """Per blob (x0, y0, x1, y1), exclusive: the pixels :func:`local_centroids` may read for
+    it (its box grown by its widest window, ``ATTEMPTS``' largest pad multiple, and the
+    background ring), within the image. An image filled only there measures the blobs as
+    the whole image does."""
+    grow = int(ATTEMPTS[:, 1].max())
+    out = []
+    for b in blobs:
+        bx, by, bw, bh = b.bbox
+        m = grow * window_pad_px(bw, bh) + 2
+        out.append(
+            (max(0, bx - m), max(0, by - m), min(width, bx + bw + m), min(height, by + bh + m))
+        )
+    return out
 
 
 def local_blob(
@@ -176,3 +202,55 @@ def refine_blobs(
     if not cfg.enabled or not blobs:
         return blobs
     return with_local_centroids(blobs, measure_blobs(gray, blobs, cfg))
+
+
+def _sigma2(s: tuple[float, float] | None) -> float:
+    """½(σ_u² + σ_v²) of a blob's centroid σ (px²); NaN when not measured."""
+    return math.nan if s is None else 0.5 * (s[0] * s[0] + s[1] * s[1])
+
+
+def prefer_sharper(
+    blobs: list[Blob],
+    table: NDArray[np.float64],
+    inside: tuple[int, int, int, int] | list[tuple[int, int, int, int]] | None = None,
+) -> list[Blob]:
+    """Each blob, or its measurement in ``table`` (:func:`measure_blobs` of the same blobs on
+    another image of the same frame: eq. 9's gray beside the green excess) where that one's σ
+    is the smaller; the blob's own local background is kept (the appearance test compares it
+    with its own peak). ``inside``: per blob (x0, y0, x1, y1), the pixels the new measurement
+    may read (a tracker window); one read outside keeps the blob as it is.
+
+    Both are unbiased estimates of the same LED centre from the same photons, so the smaller
+    σ is the better one: on colour JPEG the green excess G − max(B, R) is built from chroma
+    at half resolution and its blobs are lopsided (σ 2–4× gray's); in sun the gray LED can sit
+    in the sky's level and its σ is the larger."""
+    out = []
+    for k, (b, row) in enumerate(zip(blobs, table.tolist(), strict=True)):
+        alt = row[OUT_U]
+        if alt != alt:  # NaN: not measured
+            out.append(b)
+            continue
+        if inside is not None:
+            x0, y0, x1, y1 = inside[k] if isinstance(inside, list) else inside
+            if row[OUT_X0] < x0 or row[OUT_Y0] < y0 or row[OUT_X1] > x1 or row[OUT_Y1] > y1:
+                out.append(b)
+                continue
+        new = local_blob(b.centroid_px, b.area_px, b.bbox, b.peak, b.mass, b.color_bgr, row)
+        own = _sigma2(b.centroid_sigma_px)
+        if own == own and not _sigma2(new.centroid_sigma_px) < own:
+            out.append(b)
+            continue
+        out.append(
+            Blob(
+                new.centroid_px,
+                b.area_px,
+                b.bbox,
+                b.peak,
+                b.mass,
+                b.color_bgr,
+                new.centroid_sigma_px,
+                b.local_bg,
+                new.model_sigma_px,
+            )
+        )
+    return out

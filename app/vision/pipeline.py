@@ -47,7 +47,12 @@ from app.vision.features import (
     detect_blobs,
 )
 from app.vision.ihwt import describe
-from app.vision.local_centroid import LocalCentroidConfig
+from app.vision.local_centroid import (
+    LocalCentroidConfig,
+    measure_blobs,
+    prefer_sharper,
+    read_rects,
+)
 from app.vision.matching import (
     MatchArrays,
     descriptor_distances,
@@ -63,6 +68,7 @@ from app.vision.preprocess import (
     ThresholdMode,
     choose_threshold,
     detection_image,
+    to_gray,
     validate_image,
 )
 from app.vision.preprocess_kernels import frame_levels, frame_summary
@@ -183,6 +189,7 @@ class NavigationPipeline:
         self.trace = PipelineTrace()
         self.fundamental = calibration.fundamental  # F of the calibration (x_rᵀ F x_l = 0)
         fbar = 0.5 * (calibration.left.fx + calibration.right.fx)
+        self._f_mean_px = fbar
         self._f_times_b = fbar * calibration.baseline_mm
         self._track: TrackMemory | None = None
         w, h = calibration.image_size
@@ -223,6 +230,15 @@ class NavigationPipeline:
         blobs, rejected = detect_blobs(
             gray, threshold, bg, cfg.gate, cfg.median_ksize, bands, cfg.centroid
         )
+        if image.ndim == 3 and cfg.colour_detect == "green" and cfg.centroid.enabled:
+            if cfg.centroid.gray_too and blobs:
+                # each blob measured on eq. 9's gray too; the sharper measurement is kept
+                # (eq. 9 only where the local centroids read: the rest is never looked at)
+                lit = np.empty(image.shape[:2], np.uint8)
+                for x0, y0, x1, y1 in read_rects(blobs, image.shape[1], image.shape[0]):
+                    lit[y0:y1, x0:x1] = to_gray(image[y0:y1, x0:x1])
+                table = measure_blobs(lit, blobs, cfg.centroid)
+                blobs = prefer_sharper(blobs, table)
         if image.ndim == 3 and cfg.appearance.enabled:
             sat = cfg.appearance.saturated_dn
             blobs = [replace(b, color_bgr=blob_color_bgr(image, b, threshold, sat)) for b in blobs]
@@ -267,6 +283,7 @@ class NavigationPipeline:
             inlier_tol_mm=cfg.ring_inlier_tol_mm,
             angle_tol_deg=cfg.angle_tol_deg,
             depth_sigma_per_mm=cfg.disparity_sigma_px / self._f_times_b,
+            lateral_sigma_per_mm=cfg.disparity_sigma_px / self._f_mean_px,
             min_leds=cfg.min_leds,
             log10_nfa_max=cfg.log10_nfa_max,
             fov_tan=(self._fov_tan),

@@ -82,7 +82,7 @@ from app.vision.error_bound import (
 from app.vision.features import gate_array
 from app.vision.ihwt import SAMPLES_PER_SUBSQUARE, describe
 from app.vision.ihwt import window_side_px as ihwt_window_side_px
-from app.vision.local_centroid import local_blob, window_pad_px
+from app.vision.local_centroid import local_blob, measure_blobs, prefer_sharper, window_pad_px
 from app.vision.local_centroid_kernels import OUT_U, OUT_V, OUT_X0, OUT_X1, OUT_Y0, OUT_Y1
 from app.vision.matching import epipolar_distances
 from app.vision.pipeline import (
@@ -95,6 +95,7 @@ from app.vision.preprocess import (
     ImageError,
     choose_threshold,
     detection_image,
+    to_gray,
 )
 from app.vision.types import Blob
 
@@ -532,7 +533,33 @@ class StereoTracker:
             got[0 if k < len(win_l) else 1][win.led_id] = blob
         if outside is not None:
             raise _Fallback(outside)
+        if mosaic.ndim == 3 and cfg.colour_detect == "green" and cfg.centroid.enabled:
+            if cfg.centroid.gray_too:
+                got = self._sharper_on_gray(mosaic, (win_l, win_r), got)
         return win_l, win_r, gray, got[0], got[1], (thr_l, thr_r)
+
+    def _sharper_on_gray(
+        self,
+        mosaic: np.ndarray,
+        windows: tuple[list[_Window], list[_Window]],
+        got: list[dict[int, Blob]],
+    ) -> list[dict[int, Blob]]:
+        """The windows' blobs (mosaic px) with each one's measurement on eq. 9's gray where
+        that is the sharper (:func:`~app.vision.local_centroid.prefer_sharper`, as the full
+        frame's pipeline does), read inside its own window only."""
+        gray = to_gray(mosaic)
+        out: list[dict[int, Blob]] = []
+        for wins, blobs in zip(windows, got, strict=True):
+            ids = list(blobs)
+            if not ids:
+                out.append(blobs)
+                continue
+            rect = {w.led_id: (w.mx, w.row, w.mx + w.side, w.row + w.side) for w in wins}
+            listed = [blobs[i] for i in ids]
+            table = measure_blobs(gray, listed, self.config.centroid)
+            sharper = prefer_sharper(listed, table, [rect[i] for i in ids])
+            out.append(dict(zip(ids, sharper, strict=True)))
+        return out
 
     def _track_frame(
         self,

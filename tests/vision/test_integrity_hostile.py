@@ -71,8 +71,10 @@ def test_glints_without_leds_never_lock_even_after_a_lock(calib):
 
 
 def test_three_leds_among_glints_need_the_track(calib):
-    """3 LEDs among 30 glints: refused at acquisition (an accidental 3-point fit is not
-    negligible), locked correctly when a recent 5-LED lock agrees."""
+    """3 LEDs among 30 glints: at acquisition never a wrong lock — refused as not distinctive
+    or locked on the LEDs (the NFA's cells follow the stereo noise, so an accidental 3-point
+    fit is judged by the lateral precision in the ring's plane) — and always locked correctly
+    when a recent 5-LED lock agrees."""
     locked = 0
     for seed in range(8):
         c, n = random_pose(np.random.default_rng(seed), 1500.0, 20.0)
@@ -80,7 +82,8 @@ def test_three_leds_among_glints_need_the_track(calib):
             calib, c + [4.0, -3.0, 8.0], n, RenderSettings(glints=30, occluded=(2, 4)), seed=seed
         )
         cold = NavigationPipeline(calib).process(hard.left, hard.right)
-        assert not cold.lock and "not distinctive" in cold.reason
+        assert cold.lock or "not distinctive" in cold.reason
+        assert not is_wrong_lock(cold, hard)
         pipe = NavigationPipeline(calib)
         clean = render_pair(calib, c, n, RenderSettings(glints=30), seed=seed + 50)
         assert pipe.process(clean.left, clean.right).lock

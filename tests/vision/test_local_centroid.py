@@ -7,7 +7,12 @@ import dataclasses
 
 import numpy as np
 
-from app.vision.local_centroid import LocalCentroidConfig, measure_blobs, with_local_centroids
+from app.vision.local_centroid import (
+    LocalCentroidConfig,
+    measure_blobs,
+    read_rects,
+    with_local_centroids,
+)
 from app.vision.types import Blob
 
 
@@ -76,3 +81,33 @@ def test_ring_median_from_counts_equals_numpy_median():
             assert not counts.any()
     # a window covering the whole image: no ring pixel, NaN
     assert np.isnan(ring_median_counts(images[0], 0, 0, 50, 40, counts))
+
+
+def test_the_read_rectangles_hold_every_pixel_the_centroids_read() -> None:
+    """:func:`read_rects` holds every pixel the local centroids read (their widest window):
+    an image equal to the real one there and garbage elsewhere measures the blobs exactly as
+    the real one does (the colour pipeline converts only these rectangles to eq. 9's gray)."""
+    rng = np.random.default_rng(4)
+    img = rng.normal(60.0, 3.0, (300, 400))
+    yy, xx = np.mgrid[0:300, 0:400]
+    blobs = []
+    for cx, cy, amp, r in [
+        (30.2, 40.7, 150.0, 2.0),
+        (200.6, 150.3, 90.0, 4.0),
+        (388.4, 290.1, 120.0, 3.0),
+    ]:
+        img += amp * np.exp(-((xx - cx) ** 2 + (yy - cy) ** 2) / (2 * r * r))
+        x0, y0 = int(cx - 2 * r), int(cy - 2 * r)
+        blobs.append(Blob((cx, cy), 9, (x0, y0, int(4 * r) + 1, int(4 * r) + 1), amp, 1.0))
+    # a brighter glint beside the middle LED, inside its window
+    img += 200.0 * np.exp(-((xx - 209.0) ** 2 + (yy - 150.0) ** 2) / 8.0)
+    gray = np.clip(np.rint(img), 0, 255).astype(np.uint8)
+    cfg = LocalCentroidConfig()
+    whole = measure_blobs(gray, blobs, cfg)
+    assert np.isfinite(whole[:, 0]).all()  # all measured, the one by the corner too
+    for fill in (0, 255):
+        lit = np.full_like(gray, fill)
+        for x0, y0, x1, y1 in read_rects(blobs, 400, 300):
+            lit[y0:y1, x0:x1] = gray[y0:y1, x0:x1]
+        np.testing.assert_array_equal(measure_blobs(lit, blobs, cfg), whole)
+        assert np.count_nonzero(lit != fill) < 0.2 * gray.size

@@ -33,6 +33,9 @@ class RingParams:
     angle_tol_deg: float = 2.0  # floor of the slot residual (deg); ≥ 2.5σ_Z/R
     max_angle_tol_deg: float = 12.0
     depth_sigma_per_mm: float = 0.0  # σ_Z / z² (1/mm); 0 → the floors only
+    # σ_lat / z (dimensionless: σ_d / f), the triangulated points' lateral noise; None → the
+    # NFA's precision cells are isotropic at the depth noise (app.geometry.ring.nfa)
+    lateral_sigma_per_mm: float | None = None
     min_leds: int = 3
     max_view_angle_deg: float = 85.0  # ring normal vs line of sight (edge-on limit)
     log10_nfa_max: float = -2.0  # lock only if NFA ≤ 10^this
@@ -47,6 +50,18 @@ class RingParams:
         if isinstance(z_mm, float):
             return self.depth_sigma_per_mm * (z_mm * z_mm)
         return np.asarray(self.depth_sigma_per_mm * np.square(z_mm), dtype=np.float64)
+
+    def in_plane_sigmas(self, z_mm: float, sin_tilt: float) -> tuple[float, float] | None:
+        """The points' noise σ (mm) along the two axes of the plane of a ring at range
+        ``z_mm`` whose normal is ``asin(sin_tilt)`` off the line of sight: along the line of
+        sight's projection on the plane (the lateral noise and the share of the depth noise
+        the tilt turns into the plane), and across it (the lateral noise alone); None when the
+        lateral noise is not set."""
+        if self.lateral_sigma_per_mm is None:
+            return None
+        lateral = self.lateral_sigma_per_mm * z_mm
+        tilted = self.sigma_z(z_mm) * sin_tilt
+        return math.sqrt(lateral * lateral + tilted * tilted), lateral
 
     def inlier_tol(self, z_mm: Any) -> Any:
         if isinstance(z_mm, float):

@@ -83,7 +83,7 @@ def _rivals(
         h
         for h in hyps[1:]
         if not set(h.members.tolist()) <= best_set
-        and h.log10_nfa <= params.log10_nfa_max
+        and h.log10_nfa <= _nfa_limit(h, params, prior)
         and (
             len(h.members) == m
             or (len(h.members) == m - 1 and h.log10_nfa <= best.log10_nfa + params.ambiguity_log10)
