@@ -501,7 +501,8 @@ class DockingSimulation:
             if not self.filter.ever_initialised:
                 reason = None  # never acquired: hold the gap (guidance) instead of aborting
             if reason is not None:
-                self.break_away()
+                detail = f"predicted miss {miss_pred:.2f} m" if reason == "predicted_miss" else ""
+                self.break_away(detail or reason.replace("_", " "))
         # never acquired (e.g. a calibration error too large for the ring fit at 13 m): close
         # on the drogue's a-priori rest position to the search gap, where the ring is larger
         # and its depth error ∝ Z² smaller, then hold there until it is acquired
