@@ -3,8 +3,9 @@
 The plant ``x_{k+1} = A_d x_k + B_d u_k`` (zero-order hold at the tick) is augmented with the
 integral of the tracking error ``ζ_{k+1} = ζ_k + Δt (C x_k − y*_k)``; the gain
 ``K = [K_p  K_i]`` comes from the discrete algebraic Riccati equation (python-control's
-``dlqr`` on the augmented system), the discrete counterpart of eq. 20's ``K = −R⁻¹ Bᵀ P*``,
-for which :func:`continuous_lqr` (python-control's ``lqr``) is also provided. Control law: ``u = −K_p (x̂ − x*) − K_i ζ``.
+``dlqr`` with its ``integral_action`` on the lag- and rate-augmented plant: no cross weight is
+needed), the discrete counterpart of eq. 20's ``K = −R⁻¹ Bᵀ P*``, for which
+:func:`continuous_lqr` (python-control's ``lqr``) is also provided. Control law: ``u = −K_p (x̂ − x*) − K_i ζ``.
 
 Rate-weighted form (``r_rate``, the A-4): the plant is further augmented with the previous
 command ``u_{k−1}`` and the design's input is the increment ``Δu_k`` (:func:`augment_rate`), so
@@ -32,10 +33,18 @@ def continuous_lqr(a: FloatArray, b: FloatArray, q: FloatArray, r: FloatArray) -
     return np.asarray(k, float)
 
 
-def discrete_lqr(ad: FloatArray, bd: FloatArray, q: FloatArray, r: FloatArray) -> FloatArray:
+def discrete_lqr(
+    ad: FloatArray,
+    bd: FloatArray,
+    q: FloatArray,
+    r: FloatArray,
+    integral_action: FloatArray | None = None,
+) -> FloatArray:
     """``K = (R + Bᵀ P B)⁻¹ Bᵀ P A`` with P the stabilising DARE solution (u = −K x;
-    python-control's ``dlqr``)."""
-    k, _, _ = control.dlqr(ad, bd, q, r)
+    python-control's ``dlqr``). ``integral_action`` (p×n): the plant is first augmented with
+    ``ζ_{k+1} = ζ_k + integral_action x_k`` (python-control's augmentation, the same as
+    :func:`augment_integral` with ``integral_action = Δt C``); ``q`` then weighs ``[x, ζ]``."""
+    k, _, _ = control.dlqr(ad, bd, q, r, integral_action=integral_action)
     return np.asarray(k, float)
 
 
@@ -147,9 +156,8 @@ class IntegralLqr:
         if has_lag(design_lag_s):
             a_l, b_l = augment_lag(ad, bd, lag_alpha(dt, design_lag_s))
             c_l = np.hstack([c, np.zeros((c.shape[0], m))])
-            a_aug, b_aug = augment_integral(a_l, b_l, c_l, dt)
             q = np.diag(np.concatenate([q_state, np.full(m, q_lag), q_int]))
-            k = discrete_lqr(a_aug, b_aug, q, np.diag(r))
+            k = discrete_lqr(a_l, b_l, q, np.diag(r), integral_action=dt * c_l)
             return cls(
                 kp=k[:, :n],
                 ki=k[:, n + m :],
@@ -158,9 +166,8 @@ class IntegralLqr:
                 ke=k[:, n : n + m],
                 design_lag_s=design_lag_s,
             )
-        a_aug, b_aug = augment_integral(ad, bd, c, dt)
         q = np.diag(np.concatenate([q_state, q_int]))
-        k = discrete_lqr(a_aug, b_aug, q, np.diag(r))
+        k = discrete_lqr(ad, bd, q, np.diag(r), integral_action=dt * c)
         return cls(kp=k[:, :n], ki=k[:, n:], c=c, dt=dt)
 
     @classmethod
@@ -181,9 +188,8 @@ class IntegralLqr:
         a_l, b_l = augment_lag(ad, bd, lag_alpha(dt, design_lag_s))
         a_r, b_r = augment_rate(a_l, b_l)
         c_r = np.hstack([c, np.zeros((c.shape[0], 2 * m))])
-        a_aug, b_aug = augment_integral(a_r, b_r, c_r, dt)
         q = np.diag(np.concatenate([q_state, np.zeros(m), np.asarray(r, float), q_int]))
-        k = discrete_lqr(a_aug, b_aug, q, np.diag(np.asarray(r_rate, float)))
+        k = discrete_lqr(a_r, b_r, q, np.diag(np.asarray(r_rate, float)), integral_action=dt * c_r)
         return cls(
             kp=k[:, :n],
             ki=k[:, n + 2 * m :],

@@ -6,7 +6,7 @@ import control
 import numpy as np
 from scipy.linalg import solve_continuous_are, solve_discrete_are
 
-from app.control.design import AEROSONDE_WEIGHTS, design_controller
+from app.control.design import A4_WEIGHTS, AEROSONDE_WEIGHTS, design_controller
 from app.control.lqr import IntegralLqr, augment_integral, continuous_lqr, discrete_lqr
 from app.control.observer import StateObserver, continuous_observer_gain
 from app.sim.receiver import FlightCondition, LinearReceiver
@@ -58,6 +58,61 @@ def test_discrete_lqr_is_the_dare_gain():
     r = np.diag(AEROSONDE_WEIGHTS.r)
     k_ours = discrete_lqr(a_aug, b_aug, q, r)
     assert np.allclose(k_ours, _dare_gain(a_aug, b_aug, q, r), rtol=1e-5, atol=1e-8)
+
+
+def _lag_rate_integral_plant(ad, bd, c, alpha, rate):
+    """The design's augmented plant written out block by block (not with app.control.lqr's
+    ``augment_*``): state ``[x, e_{k−1}, (u_{k−1},) ζ]``, input ``u_k`` (or ``Δu_k`` with
+    ``rate``), the servo lag ``e_k = e_{k−1} + α (u_k − e_{k−1})``, ``ζ_{k+1} = ζ_k + Δt C x``."""
+    n, m = bd.shape
+    p = c.shape[0]
+    a_ = np.diag(alpha)
+    blocks_a = [[ad, bd @ (np.eye(m) - a_)], [np.zeros((m, n)), np.eye(m) - a_]]
+    blocks_b = [[bd @ a_], [a_]]
+    if rate:  # u_k = u_{k−1} + Δu_k: u_{k−1} feeds the lag like the input does
+        blocks_a = [[*row, rb[0]] for row, rb in zip(blocks_a, blocks_b, strict=True)]
+        blocks_a.append([np.zeros((m, n)), np.zeros((m, m)), np.eye(m)])
+        blocks_b.append([np.eye(m)])
+    a = np.block(blocks_a)
+    b = np.block(blocks_b)
+    k = a.shape[0]
+    a_full = np.block([[a, np.zeros((k, p))], [DT * c, np.zeros((p, k - n)), np.eye(p)]])
+    b_full = np.vstack([b, np.zeros((p, m))])
+    return a_full, b_full
+
+
+def _relative_error(k, k_ref):
+    return float(np.linalg.norm(k - k_ref) / np.linalg.norm(k_ref))
+
+
+def test_lag_aware_and_rate_weighted_designs_are_the_dare_gain_of_their_augmented_plant():
+    """IntegralLqr.design (python-control's dlqr with integral action) gives, to 1e-6 relative,
+    the DARE gain of the augmented plant written out here, solved with scipy: the lag-aware
+    form (the Aerosonde's) and the rate-weighted form (the A-4's weights, per-input lags)."""
+    m = _models()
+    n, n_in = m.bd.shape
+    w = AEROSONDE_WEIGHTS
+    lags = (0.1, 0.03, 0.03, 0.03)  # s: an engine's spool-up, three servos
+    alpha = 1.0 - np.exp(-DT / np.asarray(lags))
+    q_state, q_int, r = (np.asarray(v, float) for v in (w.q_state, w.q_int, w.r))
+    r_rate = np.asarray(A4_WEIGHTS.r_rate, float)
+
+    plain = IntegralLqr.design(m.ad, m.bd, m.c_tip, DT, q_state, q_int, r, design_lag_s=lags)
+    a, b = _lag_rate_integral_plant(m.ad, m.bd, m.c_tip, alpha, rate=False)
+    q = np.diag(np.concatenate([q_state, np.zeros(n_in), q_int]))
+    k_ref = _dare_gain(a, b, q, np.diag(r))
+    k = np.hstack([plain.kp, plain.ke, plain.ki])
+    assert _relative_error(k, k_ref) < 1e-6
+
+    rated = IntegralLqr.design(
+        m.ad, m.bd, m.c_tip, DT, q_state, q_int, r, design_lag_s=lags, r_rate=r_rate
+    )
+    a, b = _lag_rate_integral_plant(m.ad, m.bd, m.c_tip, alpha, rate=True)
+    q = np.diag(np.concatenate([q_state, np.zeros(n_in), r, q_int]))
+    k_ref = _dare_gain(a, b, q, np.diag(r_rate))
+    k = np.hstack([rated.kp, rated.ke, rated.ku, rated.ki])
+    assert k.shape == (n_in, n + 2 * n_in + 3)
+    assert _relative_error(k, k_ref) < 1e-6
 
 
 def test_continuous_eq20_gain_places_poles_in_left_half_plane():
