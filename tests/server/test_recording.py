@@ -246,7 +246,9 @@ def test_recording_on_a_full_disk_fails_cleanly_and_the_next_one_starts(
 ) -> None:
     """ENOSPC while recording frames: stopped as failed with the reason, telemetry kept and
     downloadable, JSON answers (never a plain-text 500), the next start 507 until space is back."""
-    rec = Recorder(small_disk / "rec", max_s=120, max_mb=100, max_frames_mb=100, min_free_mb=1)
+    # no free-space floor while it fills: with one, the watchdog may stop it (complete, "under
+    # the floor") before a write meets ENOSPC — a race under load; the floor is set after
+    rec = Recorder(small_disk / "rec", max_s=120, max_mb=100, max_frames_mb=100, min_free_mb=0)
     with _recorder_client(rec) as c:
         r = c.post("/api/v1/recording/start?frames=true")
         assert r.status_code == 200, r.text
@@ -267,6 +269,7 @@ def test_recording_on_a_full_disk_fails_cleanly_and_the_next_one_starts(
         assert len(lines) == info["ticks"] > 0 and all(json.loads(x)["seq"] >= 0 for x in lines)
         # the disk is still full: the next frame recording answers a JSON 507 with the reason
         assert _free_mb(small_disk) < 1
+        rec.min_free_mb = 1
         r = c.post("/api/v1/recording/start?frames=true")
         assert r.status_code == 507, r.text
         assert "under the floor of 1 MB" in r.json()["detail"]
