@@ -25,6 +25,7 @@ PHASES = (
     "backoff",
     "breakaway",  # the run-time assurance's recovery law flies (app.control.recovery)
     "rejoin",  # back from the break-away's standoff to the pre-contact position
+    "stabilise",  # the first approach's stabilisation at the pre-contact position
 )
 
 
@@ -117,6 +118,14 @@ class ReferenceGenerator:
         self.gap_rate = 0.0
         self.committed = False
 
+    def start_stabilise(self, gap_m: float) -> None:
+        """The first approach as field practice flies it: close to the pre-contact position
+        (``rejoin_gap_m`` behind the drogue), stabilise there ``rejoin_dwell_s``, then
+        approach — the rejoin's motion (:meth:`_rejoin_step`) from ``gap_m`` behind, on the
+        drogue's line."""
+        self.start_rejoin(gap_m, 0.0, 0.0)
+        self.phase = "stabilise"
+
     def _rejoin_step(self, dt: float) -> tuple[float, float, float]:
         """One tick of the rejoin; returns the rates (m/s) of the gap, of the height below
         and of the offset to the side. Each closes at up to its speed (fore-aft: the far
@@ -188,7 +197,7 @@ class ReferenceGenerator:
             return ref, vel
         gap_rate = 0.0
         below = side = below_rate = side_rate = 0.0
-        if self.phase == "rejoin":
+        if self.phase in ("rejoin", "stabilise"):
             gap_rate, below_rate, side_rate = self._rejoin_step(dt)
             below, side = self.rejoin_below_m, self.rejoin_side_m
         elif self.phase == "backoff":

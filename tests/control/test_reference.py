@@ -41,3 +41,28 @@ def test_the_rejoin_brings_the_reference_back_smoothly_at_bounded_speeds() -> No
     # 25 m fore-aft: the ramps at 0.3 m/s² and ≈ 2 m/s between them, ≈ 20 s (the slowing as
     # distance / 2 s took 24.6 s, the last half metre at a creep)
     assert t < 21.0 + cfg.rejoin_dwell_s
+
+
+def test_the_first_approach_stabilises_at_the_pre_contact_position_then_closes() -> None:
+    """``start_stabilise``: from the start gap the reference closes to the pre-contact gap on
+    the drogue's line without overshooting it, holds there ``rejoin_dwell_s`` (the phase is
+    "stabilise", not "rejoin": no break-away happened), then the approach closes."""
+    cfg = GuidanceConfig(closure_speed_mps=1.6)
+    g = ReferenceGenerator(cfg, start_gap_m=10.0)
+    drogue = np.array([-14.0, 0.5, 4.0])
+    g.start_stabilise(10.0)
+    assert g.phase == "stabilise"
+    t, at_pre_contact = 0.0, None
+    while g.phase == "stabilise" and t < 60.0:
+        ref, vel = g.update(DT, drogue, np.zeros(3), lock=True)
+        t += DT
+        assert ref[1:] == pytest.approx(drogue[1:], abs=1e-9)  # on the drogue's line
+        assert g.gap_cmd >= cfg.rejoin_gap_m - 1e-9
+        if at_pre_contact is None and g.gap_cmd <= cfg.rejoin_gap_m + 1e-9:
+            at_pre_contact = t
+    assert g.phase == "approach" and at_pre_contact is not None
+    assert t - at_pre_contact == pytest.approx(cfg.rejoin_dwell_s, abs=2 * DT)
+    gap0 = g.gap_cmd
+    for _ in range(50):
+        g.update(DT, drogue, np.zeros(3), lock=True)
+    assert g.gap_cmd < gap0 - 0.5  # closing after the dwell

@@ -48,6 +48,10 @@ class PlantGuidance(NamedTuple):
     # the closure speed's rate of change (m/s²; None: a step): the A-4's engine spools at a
     # limited rate (≈ 0.35 throttle/s, measured on its FDM: app.sim.jsbsim_plant)
     closure_accel_mps2: float | None
+    # the first approach as after a break-away: close to the pre-contact position, stabilise
+    # there (GuidanceConfig.rejoin_dwell_s) while the swing's mean is identified, then close
+    # (field practice: stabilise 3–4.5 m behind the drogue, ../shared/notes/gnc.md)
+    stabilise_first: bool
 
 
 PLANT_GUIDANCE = {
@@ -60,6 +64,7 @@ PLANT_GUIDANCE = {
         abort_margin=1.5,
         swing_lead=0.0,
         closure_accel_mps2=None,
+        stabilise_first=False,
     ),
     "jsbsim": PlantGuidance(
         smoothing_s=8.0,
@@ -70,6 +75,7 @@ PLANT_GUIDANCE = {
         abort_margin=3.0,
         swing_lead=1.0,
         closure_accel_mps2=0.4,
+        stabilise_first=True,
     ),
 }
 
@@ -173,6 +179,8 @@ class DockingConfig:
     # (app.control.drogue_swing; needs reference_smoothing_s > 0) instead of a straight-line
     # extrapolation of the relative velocity, which a swinging drogue makes large
     swing_model_abort: bool | None = None  # None: the plant's (PLANT_GUIDANCE)
+    # the first approach stabilises at the pre-contact position first (PlantGuidance)
+    stabilise_first: bool | None = None  # None: the plant's (PLANT_GUIDANCE)
     # aim where the bow wave will have pushed the drogue at the arrival (app.control.bow_wave,
     # the model's nominal force; needs reference_smoothing_s > 0): None — the plant's
     bow_feedforward: bool | None = None

@@ -142,6 +142,9 @@ class DockingSimulation:
         self.closure_ff = closure_ff
         self.swing_lead = lead if config.swing_lead is None else float(config.swing_lead)
         self.abort_margin = margin if config.abort_margin is None else float(config.abort_margin)
+        self.stabilise_first = (
+            pg.stabilise_first if config.stabilise_first is None else config.stabilise_first
+        )
         self._closure_ff = closure_feedforward(self.models.model)
         self._calibration = calibration
         self._camera: StereoCameraSensor | None = None
@@ -232,6 +235,8 @@ class DockingSimulation:
             ),
             cfg.start_gap_m,
         )
+        if self.stabilise_first and cfg.start_gap_m > self.guidance.cfg.rejoin_gap_m:
+            self.guidance.start_stabilise(cfg.start_gap_m)
         if self._imperfect:
             self._settle_on_plant_trim()
         # the gusts the drogue met, newest last: the receiver meets them gap / V later
