@@ -177,8 +177,10 @@ def profile_push_path(encoded: dict[str, list[tuple[bytes, bytes]]], seq: Sequen
     from app.model.tick import StreamInfo
     from app.service import records
     from app.service.clock import MonotonicClock
-    from app.service.mavlink_output import MavlinkOutput, default_mount
+    from app.service.mavlink_output import MavlinkOutput
     from app.service.telemetry_bus import TelemetryBus
+    from app.sim.rig_mount import default_mount
+    from app.streams.landing_target import RigMount
     from app.streams.protocol import decode_message
     from app.streams.sources import PushSource, decode_image_bytes
 
@@ -191,7 +193,7 @@ def profile_push_path(encoded: dict[str, list[tuple[bytes, bytes]]], seq: Sequen
         bus = TelemetryBus(MonotonicClock(), 64)
         out = MavlinkOutput(
             f"udpout:127.0.0.1:{_free_port(socket.SOCK_DGRAM)}",
-            default_mount("jsbsim"),
+            RigMount.on_airframe(default_mount("jsbsim")),
             bus.sources,
         )
         bus.subscribe(out.on_tick)
