@@ -175,10 +175,12 @@ def sim_round(listener: Listener, base: str, seconds: float) -> list[float]:
 def profile_push_path(encoded: dict[str, list[tuple[bytes, bytes]]], seq: Sequence) -> None:
     """Median ms per pair of each service-side stage of a pushed pair (module docstring)."""
     from app.model.tick import StreamInfo
-    from app.server import records
-    from app.server.clock import MonotonicClock
-    from app.server.mavlink_output import MavlinkOutput, default_mount
-    from app.server.telemetry_bus import TelemetryBus
+    from app.service import records
+    from app.service.clock import MonotonicClock
+    from app.service.mavlink_output import MavlinkOutput
+    from app.service.telemetry_bus import TelemetryBus
+    from app.sim.rig_mount import default_mount
+    from app.streams.landing_target import RigMount
     from app.streams.protocol import decode_message
     from app.streams.sources import PushSource, decode_image_bytes
 
@@ -191,7 +193,7 @@ def profile_push_path(encoded: dict[str, list[tuple[bytes, bytes]]], seq: Sequen
         bus = TelemetryBus(MonotonicClock(), 64)
         out = MavlinkOutput(
             f"udpout:127.0.0.1:{_free_port(socket.SOCK_DGRAM)}",
-            default_mount("jsbsim"),
+            RigMount.on_airframe(default_mount("jsbsim")),
             bus.sources,
         )
         bus.subscribe(out.on_tick)

@@ -31,13 +31,13 @@ import numpy as np
 
 from app.cli.main import main as cli_main
 from app.model.frames import StereoFrame
-from app.server.mcap_recording import RecordingMcap, default_mount
 from app.server.schemas import SimConfig
-from app.server.settings import Settings
-from app.server.sim_source import docking_config
+from app.service.recording.mcap import RecordingMcap, default_mount
+from app.service.settings import Settings
+from app.service.sim_source import docking_config
 from app.sim.docking import DockingSimulation
 from app.streams.frame_encoding import FrameEncoding
-from app.streams.recording import FrameRecordingWriter
+from app.streams.frame_log import FrameRecordingWriter
 
 OPTIONS = (
     FrameEncoding(),

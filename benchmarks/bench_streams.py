@@ -112,7 +112,7 @@ def service_latency(left: Path, right: Path, tmp: Path) -> None:
     from fastapi.testclient import TestClient
 
     from app.server.main import create_app
-    from app.server.settings import Settings
+    from app.service.settings import Settings
 
     settings = Settings(
         viser_enabled=False,

@@ -30,7 +30,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from app.model.pose import PoseResult  # noqa: E402
 from app.server.main import create_app  # noqa: E402
-from app.server.settings import Settings  # noqa: E402
+from app.service.settings import Settings  # noqa: E402
 
 
 class TrivialSource:
@@ -79,7 +79,7 @@ def serve(mode: str, port: int, hz: float) -> None:
     """Child process: the service with the given stream on ``port`` (uvicorn, one worker)."""
     import uvicorn
 
-    from app.server.sim_source import default_source_factory
+    from app.service.sim_source import default_source_factory
 
     def no_vision(config, calibration):
         return default_source_factory(config.model_copy(update={"vision": False}), calibration)

@@ -29,10 +29,10 @@ def register(subparsers: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from app.geometry.calibration import CalibrationError, StereoCalibration
-    from app.server.mcap_recording import telemetry_schema
+    from app.service.recording.mcap import telemetry_schema
     from app.sim.rig_mount import default_mount
+    from app.streams.frame_log import recording_calibration
     from app.streams.mcap_log import export_recording
-    from app.streams.recording import recording_calibration
 
     given = Path(args.recording)
     stem = given.with_suffix("") if given.suffix in (".jsonl", ".json", ".mcap") else given

@@ -12,7 +12,7 @@ from typing import NoReturn
 # OpenCV reads its decoders' pixel limit (OPENCV_IO_MAX_IMAGE_PIXELS) once, when cv2 is first
 # imported; the image guard sets it, so it runs before any sub-command module loads cv2
 # (`aar-dock serve` then decodes under that limit as the service does in-process)
-import app.server.image_guard  # noqa: F401, E402  (isort: keep before the sub-commands)
+import app.service.image_guard  # noqa: F401, E402  (isort: keep before the sub-commands)
 
 # Each module defines ``register(subparsers)`` which adds its parser and sets ``func``.
 SUBCOMMANDS = (

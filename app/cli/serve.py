@@ -15,7 +15,7 @@ if TYPE_CHECKING:
     import uvicorn
 
     from app.server.server_limits import ServerLimits
-    from app.server.settings import Settings
+    from app.service.settings import Settings
 
 PROXY_CONFIG = "deploy/nginx/nginx.conf.template"
 
@@ -110,7 +110,7 @@ def _port_free(host: str, port: int) -> bool:
 
 def settings_from_args(args: argparse.Namespace) -> Any:
     """Environment (``AAR_*``) first, then the flags that were given override it."""
-    from app.server.settings import Settings
+    from app.service.settings import Settings
 
     overrides: dict[str, Any] = {}
     for flag, key in (

@@ -83,8 +83,8 @@ def register(subparsers: Any) -> None:
 def _calibration(args: argparse.Namespace) -> Any:
     from app.geometry.calibration import StereoCalibration
     from app.resources import load_default_calibration
+    from app.streams.frame_log import is_frame_recording, recording_calibration
     from app.streams.mcap_source import is_mcap, mcap_calibration
-    from app.streams.recording import is_frame_recording, recording_calibration
 
     if args.calib:
         return StereoCalibration.load(args.calib)

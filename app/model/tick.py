@@ -85,7 +85,7 @@ class TickRecord(BaseModel):
     source_epoch: int | None = Field(
         None,
         description="the epoch of the source that made this tick (one per start of a source: "
-        "a switch, a restart; app.server.source_epoch); None for uploads",
+        "a switch, a restart; app.service.source_epoch); None for uploads",
     )
     phase: str | None = None
     # run-time assurance (simplex): why the recovery law flies this tick, "break-away: …" or

@@ -14,7 +14,7 @@ from __future__ import annotations
 from pathlib import Path
 
 # sets OPENCV_IO_MAX_IMAGE_PIXELS; first, before anything imports cv2
-from app.server import image_guard  # noqa: F401  # isort: skip
+from app.service import image_guard  # noqa: F401  # isort: skip
 
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
@@ -23,7 +23,6 @@ from fastapi.responses import FileResponse, HTMLResponse, JSONResponse
 from fastapi.staticfiles import StaticFiles
 
 from app.server import security
-from app.server.clock import Clock
 from app.server.errors import validation_exception_handler
 from app.server.lifespan import make_lifespan
 from app.server.routers import (
@@ -37,9 +36,10 @@ from app.server.routers import (
     stream,
     telemetry,
 )
-from app.server.settings import Settings
-from app.server.sim_source import SourceFactory, SourceUnavailable
 from app.server.ws_guard import WebSocketGuard
+from app.service.clock import Clock
+from app.service.settings import Settings
+from app.service.sim_source import SourceFactory, SourceUnavailable
 
 API_PREFIX = "/api/v1"
 PUSH_PATH = f"{API_PREFIX}/stream/push"

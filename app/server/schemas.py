@@ -1,5 +1,5 @@
-"""Pydantic records of the service: sim config updates, health, the page's configuration,
-recordings (the tick record itself: :mod:`app.model.tick`)."""
+"""Pydantic records of the service: sim config updates, health, the page's configuration
+(the tick record itself: :mod:`app.model.tick`; a recording's: :mod:`app.service.recording.meta`)."""
 
 from __future__ import annotations
 
@@ -137,19 +137,6 @@ class ServiceConfig(BaseModel):
     token_required: bool
     max_upload_mb: float
     image_size: tuple[int, int]
-
-
-class RecordingInfo(BaseModel):
-    id: str
-    started_wall: float
-    stopped_wall: float | None = None
-    ticks: int = 0
-    active: bool = False
-    telemetry_file: str
-    scene_file: str | None = None
-    telemetry_bytes: int = 0
-    scene_bytes: int = 0
-    stop_reason: str | None = None
 
 
 class Message(BaseModel):

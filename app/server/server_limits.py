@@ -19,12 +19,13 @@ request from a real client, and ``/healthz`` says ``degraded`` (component
 
 from __future__ import annotations
 
-import resource
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Literal
 
+from app.service.limits import fd_limit
+
 if TYPE_CHECKING:
-    from app.server.settings import Settings
+    from app.service.settings import Settings
 
 MAX_HEADER_BYTES = 16 * 1024  # a request's head (h11_max_incomplete_event_size)
 WS_FRAME_OVERHEAD_BYTES = 4096  # above a route's largest message, for the frame
@@ -43,15 +44,6 @@ WS_FRAME_OVERHEAD_BYTES = 4096  # above a route's largest message, for the frame
 WsImplementation = Literal["websockets", "websockets-sansio", "wsproto"]
 WS_IMPLEMENTATION: WsImplementation = "websockets"
 WS_MAX_QUEUE = 1  # messages read ahead of the app, per connection (uvicorn's default: 32)
-
-
-def fd_limit() -> int | None:
-    """The soft ``RLIMIT_NOFILE`` of this process (None: unlimited or unknown)."""
-    try:
-        soft, _hard = resource.getrlimit(resource.RLIMIT_NOFILE)
-    except (OSError, ValueError):  # pragma: no cover - not on Linux/macOS
-        return None
-    return None if soft == resource.RLIM_INFINITY else int(soft)
 
 
 def connection_cap(settings: Settings) -> int:

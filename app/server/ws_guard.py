@@ -24,9 +24,9 @@ from dataclasses import dataclass
 
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from app.server import guard_events
 from app.server.security import deny_websocket
-from app.server.settings import Settings
+from app.service import guard_events
+from app.service.settings import Settings
 
 
 @dataclass(frozen=True)

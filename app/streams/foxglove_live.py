@@ -4,7 +4,7 @@ WebSocket server (``foxglove-sdk``'s ``start_server``), for Foxglove's *Open con
 Same topics, schemas, frames and log times as the MCAP log; the images are JPEG (the
 adapter hands over a pair at a reduced rate), encoded by the logger's thread. The SDK's server
 checks no Origin or token: the service puts it on loopback, TLS only (``tls_cert``,
-``tls_key``), behind its own gate (``app/server/foxglove_gate.py``).
+``tls_key``), behind its own gate (``app/service/foxglove_gate.py``).
 """
 
 from __future__ import annotations

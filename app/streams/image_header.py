@@ -2,7 +2,7 @@
 
 An image is refused on its *header* when it is too large, so a 400 KB PNG that declares
 20000 × 20000 px is answered in microseconds instead of allocating gigabytes inside the
-decoder (uploads and pushed pairs: :mod:`app.server.image_guard`; the images of an MCAP log:
+decoder (uploads and pushed pairs: :mod:`app.service.image_guard`; the images of an MCAP log:
 :mod:`app.streams.mcap_source`). Only PNG, JPEG, BMP and classic TIFF are read; anything else
 is refused without reaching OpenCV's other decoders.
 
@@ -11,10 +11,10 @@ The size read here must be the size the decoder allocates: each reader follows i
 libtiff: the first directory) and refuses what a decoder could read otherwise — a header field
 written twice or contradicting another (:class:`AmbiguousHeaderError`: a TIFF tag twice or out
 of order, a second IHDR, a TIFF strip or tile larger than the image) and animated PNG (its
-frames are decoded into more buffers). ``tests/server/test_image_guard.py`` fuzzes the readers
+frames are decoded into more buffers). ``tests/service/test_image_guard.py`` fuzzes the readers
 against OpenCV: an accepted header never under-states the decoded size.
 
-This module never imports ``cv2`` (:mod:`app.server.image_guard` must run before it).
+This module never imports ``cv2`` (:mod:`app.service.image_guard` must run before it).
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """MAVLink 2 output of the navigation result (``pymavlink``): ``HEARTBEAT`` at 1 Hz, one
 ``LANDING_TARGET`` per navigation result (the mapping: :mod:`app.streams.landing_target`) and,
 when asked, a ``STATUSTEXT`` (:meth:`MavlinkLink.send_status`: the run-time assurance's
-hand-overs, :mod:`app.server.mavlink_output`).
+hand-overs, :mod:`app.service.mavlink_output`).
 
 The service (``aar-dock serve --mavlink udpout:HOST:PORT``) and ``aar-dock track --mavlink …``
 open one :class:`MavlinkLink` and hand it each result. The link is an onboard component of its

@@ -88,7 +88,7 @@ def mcap_calibration(
     (:class:`SourceError` quoting the same message as ``PUT /calibration``) unless it passes
     :func:`app.calibration.plausibility.validated`."""
     from app.calibration.plausibility import DEFAULT_MAX_PIXELS, validated
-    from app.streams.recording import exact_calibration
+    from app.streams.frame_log import exact_calibration
 
     try:
         meta = read_metadata(path, limits or ReadLimits())
@@ -235,7 +235,7 @@ class PendingPairs:
 
 class McapRecordingSource(RecordedPairs):
     """The pairs of an MCAP log in order (``read_next``/``restart``/``close``, as
-    :class:`~app.streams.recording.FrameRecordingSource`). ``read_next`` raises
+    :class:`~app.streams.frame_log.FrameRecordingSource`). ``read_next`` raises
     :class:`SourceCorrupt` for corruption met after the first pair, again on each later
     call (the error is final)."""
 

@@ -2,7 +2,7 @@
 
 :class:`StreamProcessor` is shared by ``aar-dock track`` and the service's stream loop, so a
 recorded sequence gives the same results offline as live; the service turns a
-:class:`StreamTick` into its telemetry record with ``app.server.records.from_stream``.
+:class:`StreamTick` into its telemetry record with ``app.service.records.from_stream``.
 """
 
 from __future__ import annotations

@@ -22,17 +22,17 @@ from typing import Any, Literal
 import numpy as np
 
 from app.model.frames import StereoFrame
-from app.streams.frames import EndOfStream, SourceError, SourceKind, SourceStats
-from app.streams.mcap_source import McapRecordingSource, is_mcap, mcap_drogue
-from app.streams.pairing import TimestampPairer
-from app.streams.protocol import PushMessage
-from app.streams.readers import CaptureReader, open_reader
-from app.streams.recording import (
+from app.streams.frame_log import (
     FrameRecordingSource,
     is_frame_recording,
     recording_calibration,
     recording_drogue,
 )
+from app.streams.frames import EndOfStream, SourceError, SourceKind, SourceStats
+from app.streams.mcap_source import McapRecordingSource, is_mcap, mcap_drogue
+from app.streams.pairing import TimestampPairer
+from app.streams.protocol import PushMessage
+from app.streams.readers import CaptureReader, open_reader
 from app.types import UInt8Array
 from app.vision.drogue import DrogueProfile
 from app.vision.io import decode_image

@@ -127,7 +127,7 @@ class AccessPolicy:
 
     @classmethod
     def from_settings(cls, settings: Any, *, viser_port: int) -> AccessPolicy:
-        """Token and allowed origins from :class:`app.server.settings.Settings` (or None).
+        """Token and allowed origins from :class:`app.service.settings.Settings` (or None).
 
         The same settings as the REST guard: ``token``, ``host``/``viser_host``,
         ``public_viser_url`` and, where the settings have them, ``trusted_hosts`` and

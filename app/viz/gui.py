@@ -152,7 +152,7 @@ def _uuid(handle: Any) -> str | None:
 class DockingGui:
     """Builds the panel once; :meth:`update` feeds charts/status; callbacks drive ``actions``.
 
-    ``actions`` is the service state (:class:`app.server.dependencies.AppState`): its ``loop``
+    ``actions`` is the service state (:class:`app.service.state.AppState`): its ``loop``
     (start/stop/reset), ``apply_sim_config`` and ``settings.token``. ``policy`` says who may
     drive it (default: the token from ``actions.settings``, no Origin check).
     """

@@ -2,8 +2,10 @@
 
 - no import cycle between modules of ``app`` (module-level imports; an import inside a function
   or under ``if TYPE_CHECKING:`` runs later or never and is not an edge);
-- the layers: the numeric core imports nothing from the adapters or from web/GUI libraries,
-  ``app.geometry`` imports nothing above it, no pools/progress bars/plots in geometry;
+- the layers: the numeric core imports nothing from the runtime, the adapters or web/GUI
+  libraries, ``app.geometry`` imports nothing above it, no pools/progress bars/plots in geometry;
+- the runtime (``app.service``) imports no web framework and nothing of the web adapter, and
+  what imports a web framework totals at most :data:`WEB_LINES_MAX` lines;
 - no ``from app.x import _private`` across modules (ruff's SLF001 covers ``obj._private``).
 """
 
@@ -17,9 +19,21 @@ import pytest
 
 APP = Path(__file__).resolve().parents[2] / "app"
 
-CORE = ("app.vision", "app.geometry", "app.control", "app.sim", "app.streams", "app.calibration")
+CORE = (
+    "app.vision",
+    "app.geometry",
+    "app.control",
+    "app.sim",
+    "app.streams",
+    "app.calibration",
+    "app.model",
+)
+RUNTIME = "app.service"
 ADAPTERS = ("app.server", "app.viz", "app.cli")
-WEB_GUI = ("fastapi", "starlette", "uvicorn", "viser", "websockets", "httpx", "playwright")
+WEB_FRAMEWORKS = ("fastapi", "starlette", "uvicorn")
+WEB_GUI = (*WEB_FRAMEWORKS, "viser", "websockets", "httpx", "playwright")
+#: the most lines the modules of ``app`` that import a web framework may total (issue 34)
+WEB_LINES_MAX = 2500
 
 
 def module_name(path: Path) -> str:
@@ -170,9 +184,48 @@ def test_the_core_imports_no_adapter_and_no_web_or_gui_library(package: str) -> 
         for m, tree in MODULES.items()
         if _starts(m, (package,))
         for imported, _, line in all_imports(m, tree)
-        if _starts(imported, ADAPTERS + WEB_GUI)
+        if _starts(imported, (RUNTIME, *ADAPTERS, *WEB_GUI))
     ]
     assert not bad, bad
+
+
+def test_the_runtime_imports_no_web_framework_and_nothing_of_the_web_adapter() -> None:
+    """``app.service`` (the producers, the tick loop, the bus, recordings, outputs) runs
+    without FastAPI, Starlette or uvicorn: no import of them or of ``app.server`` anywhere in
+    its modules (in a function or under ``if TYPE_CHECKING:`` too)."""
+    assert RUNTIME in MODULES, f"{RUNTIME} is not a package"
+    bad = [
+        f"{m}:{line} imports {imported}"
+        for m, tree in MODULES.items()
+        if _starts(m, (RUNTIME,))
+        for imported, _, line in all_imports(m, tree)
+        if _starts(imported, ("app.server", *WEB_FRAMEWORKS))
+    ]
+    assert not bad, bad
+
+
+def web_modules() -> dict[str, int]:
+    """The modules of ``app`` that import FastAPI, Starlette or uvicorn anywhere (a function or
+    ``if TYPE_CHECKING:`` included) → their length in lines."""
+    out = {}
+    for path in sorted(APP.rglob("*.py")):
+        if "__pycache__" in path.parts:
+            continue
+        m = module_name(path)
+        if any(_starts(i, WEB_FRAMEWORKS) for i, _, _ in all_imports(m, MODULES[m])):
+            out[m] = len(path.read_text().splitlines())
+    return out
+
+
+def test_the_web_adapter_is_small() -> None:
+    """Everything in ``app`` that imports a web framework totals at most 2,500 lines: the web
+    adapter stays thin, the runtime below it does the work."""
+    web = web_modules()
+    assert "app.server.main" in web  # the measure sees the app
+    assert "app.cli.serve" in web  # and the command that serves it
+    assert not [m for m in web if _starts(m, (RUNTIME,))]
+    total = sum(web.values())
+    assert total <= WEB_LINES_MAX, (total, sorted(web.items(), key=lambda kv: -kv[1]))
 
 
 def test_geometry_is_the_floor() -> None:

@@ -14,7 +14,7 @@ import pytest
 from app.cli.main import main
 from app.cli.serve import PROXY_CONFIG, exposure_notice
 from app.server.server_limits import MAX_HEADER_BYTES, connection_cap, server_limits
-from app.server.settings import Settings
+from app.service.settings import Settings
 from tests.support.live_server import free_port
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -166,7 +166,7 @@ def test_dockerfile_agrees_with_the_package() -> None:
     import tomllib
 
     from app.server.main import create_app
-    from app.server.settings import Settings
+    from app.service.settings import Settings
 
     text = (REPO_ROOT / "Dockerfile").read_text()
     lines = [ln.strip() for ln in text.splitlines()]
@@ -194,7 +194,7 @@ def test_page_assets_and_defaults_come_from_the_package(tmp_path, monkeypatch) -
 
     from app import resources as paths
     from app.server.main import create_app
-    from app.server.settings import Settings
+    from app.service.settings import Settings
 
     monkeypatch.setenv("XDG_DATA_HOME", str(tmp_path / "xdg"))
     monkeypatch.chdir(tmp_path)

@@ -15,11 +15,11 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
-from app.server.clock import FakeClock
 from app.server.main import create_app
-from app.server.schemas import SimConfig
-from app.server.settings import Settings
-from app.server.tick_loop import TickLoop
+from app.service.clock import FakeClock
+from app.service.settings import Settings
+from app.service.tick_loop import TickLoop
+from app.sim.sim_config import SimConfig
 from tests.support.fake_sim import FakeSim
 from tests.support.service_settings import service_settings
 
@@ -280,7 +280,7 @@ def test_websocket_streams_ticks(client: TestClient) -> None:
 def test_websocket_queue_drops_oldest() -> None:
     import asyncio
 
-    from app.server.telemetry import ClientQueue
+    from app.service.telemetry import ClientQueue
 
     async def run() -> list[str]:
         q = ClientQueue(3)

@@ -33,9 +33,9 @@ from hypothesis.errors import Unsatisfiable  # noqa: E402
 from schemathesis.checks import not_a_server_error  # noqa: E402
 from schemathesis.generation import GenerationMode  # noqa: E402
 
-from app.server.image_guard import ImageHeaderError, peek_header  # noqa: E402
 from app.server.main import create_app  # noqa: E402
-from app.server.settings import Settings  # noqa: E402
+from app.service.image_guard import ImageHeaderError, peek_header  # noqa: E402
+from app.service.settings import Settings  # noqa: E402
 from tests.support.fake_sim import FakeSim  # noqa: E402  (the tests' fake step source)
 
 TOKEN = "fuzz-token"

@@ -23,8 +23,8 @@ from fastapi.testclient import TestClient
 from app.cli.main import main as cli_main
 from app.resources import load_default_calibration
 from app.server.main import create_app
-from app.server.sim_worker.wire import calibration_to_wire
-from app.server.upload_pool import process_upload
+from app.service.sim_worker.wire import calibration_to_wire
+from app.service.upload_pool import process_upload
 from app.sim.led_ring import LedRing
 from app.sim.stereo_render import RenderSettings, render_pair
 from app.streams.protocol import encode_message

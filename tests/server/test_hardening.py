@@ -40,9 +40,9 @@ from starlette.testclient import WebSocketDenialResponse
 from starlette.websockets import WebSocketDisconnect
 
 from app.calibration import plausibility as calibration_checks
-from app.server.image_guard import ImageHeaderError, peek_header
 from app.server.main import create_app
-from app.server.settings import Settings
+from app.service.image_guard import ImageHeaderError, peek_header
+from app.service.settings import Settings
 from tests.support.fake_sim import FakeSim  # the tests' fake step source
 from tests.support.service_settings import service_settings
 
@@ -419,7 +419,7 @@ def test_image_guard_size_format_and_off_loop_decoding(
     )
     assert r.status_code == 400 and "PNG, JPEG, BMP or TIFF" in r.json()["detail"]
     # with AAR_UPLOADS_IN_PROCESS, decoding happens in a worker thread (no event loop running
-    # there); by default in a worker process (tests/server/test_processes.py)
+    # there); by default in a worker process (tests/service/test_processes.py)
     threads: list[bool] = []
     original = stereo.decode_or_400
 
@@ -448,7 +448,7 @@ def test_opencv_pixel_limit_is_set_before_cv2_loads() -> None:
     code = (
         "import sys, numpy as np\n"
         "import app.server.main\n"
-        "from app.server import image_guard\n"
+        "from app.service import image_guard\n"
         "import cv2, os\n"
         "assert image_guard.OPENCV_LIMIT_ACTIVE, 'cv2 loaded first'\n"
         "print(os.environ['OPENCV_IO_MAX_IMAGE_PIXELS'])\n"

@@ -309,7 +309,7 @@ def test_oversized_bodies_are_413_at_the_proxy(stack: Stack) -> None:
     """One byte over the service's own limit of each route (its defaults): 413 from the proxy
     on the declared length, before a body byte is sent; the limit itself passes on (the body
     is then awaited: the proxy's own 413 is on the length alone)."""
-    from app.server.settings import Settings
+    from app.service.settings import Settings
 
     defaults = Settings()
     cases = [

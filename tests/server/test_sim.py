@@ -10,7 +10,7 @@ import numpy as np
 from fastapi.testclient import TestClient
 
 from app.server.main import create_app
-from app.server.settings import Settings
+from app.service.settings import Settings
 
 
 def test_real_stream_over_websocket_and_state(tmp_path: Path) -> None:

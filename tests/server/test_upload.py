@@ -10,7 +10,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 from app.server.main import create_app
-from app.server.settings import Settings
+from app.service.settings import Settings
 
 REPO = Path(__file__).resolve().parents[2]
 PAIRS = sorted(p for p in (REPO / "sample_data").glob("pair_*") if p.is_dir())

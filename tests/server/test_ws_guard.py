@@ -18,7 +18,7 @@ from starlette.testclient import WebSocketDenialResponse
 from starlette.websockets import WebSocketDisconnect
 
 from app.server.main import create_app
-from app.server.settings import Settings
+from app.service.settings import Settings
 from tests.support.live_server import LatencyProbe, serve, ws_connect
 from tests.support.service_settings import IN_PROCESS, service_settings
 from tests.support.ws_frames import frame_header, read_close

@@ -12,10 +12,10 @@ import pytest
 
 from app.model.frames import StereoFrame
 from app.model.pose import DrogueResult, PoseResult
+from app.streams.frame_log import FrameRecordingSource, FrameRecordingWriter, read_index
 from app.streams.frames import EndOfStream, SourceError
 from app.streams.guidance import StreamGuidance, StreamGuidanceConfig
 from app.streams.protocol import ProtocolError, decode_message, encode_message
-from app.streams.recording import FrameRecordingSource, FrameRecordingWriter, read_index
 from app.streams.sources import (
     CameraSource,
     PushSource,

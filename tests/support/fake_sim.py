@@ -1,4 +1,4 @@
-"""A simulated tick for the tests' stand-in step sources (``app.server.records.SimState``).
+"""A simulated tick for the tests' stand-in step sources (``app.service.records.SimState``).
 
 Every field the record reads, ``None`` / ``False`` unless given: a fake source that only
 cares about its time (or its pose) sets just those.
@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from app.model.pose import PoseResult
-from app.server.schemas import SimConfig
+from app.sim.sim_config import SimConfig
 
 
 @dataclass

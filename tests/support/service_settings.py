@@ -6,7 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from app.server.settings import Settings
+from app.service.settings import Settings
 
 #: the simulation and the uploads in the test's own process, nothing started by itself
 IN_PROCESS: dict[str, Any] = dict(sim_autostart=False, sim_in_process=True, uploads_in_process=True)

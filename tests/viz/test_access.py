@@ -30,8 +30,8 @@ from websockets.sync.client import connect
 from websockets.typing import Origin, Subprotocol
 
 from app.server.main import create_app
-from app.server.schemas import SimConfig
-from app.server.settings import Settings
+from app.service.settings import Settings
+from app.sim.sim_config import SimConfig
 from app.viz.access import AccessPolicy, OriginPolicy
 from app.viz.gui import DockingGui
 from tests.support.fake_sim import FakeSimState

@@ -35,7 +35,7 @@ from app.calibration.report_plot import report_png_bytes
 from app.calibration.stereo_calibration import calibrate_checkerboard
 from app.geometry.calibration import CalibrationError
 from app.server.dependencies import request_settings, require_token
-from app.server.image_guard import (
+from app.service.image_guard import (
     AmbiguousHeaderError,
     ImageHeader,
     ImageHeaderError,

@@ -20,9 +20,9 @@ from fastapi.responses import FileResponse
 
 from app.model.frames import RawFrame
 from app.server.dependencies import StateDep, require_token
-from app.server.recording import RecordingError, RecordingMeta
-from app.server.recording.budget import RecordingProgress
 from app.server.schemas import Message
+from app.service.recording import RecordingError, RecordingMeta
+from app.service.recording.budget import RecordingProgress
 from app.streams.frame_encoding import FrameCodec, FrameEncoding
 from app.streams.processor import StreamTick
 

@@ -8,15 +8,16 @@ from fastapi import APIRouter, Body, Depends, HTTPException
 from fastapi.exceptions import RequestValidationError
 from pydantic import ValidationError
 
-from app.server.dependencies import AppState, StateDep, require_token
+from app.server.dependencies import StateDep, require_token
 from app.server.schemas import PlantInfo, SimConfig, SimConfigUpdate, SimStatus
+from app.service.state import AppState
 
 router = APIRouter(prefix="/sim", tags=["simulation"])
 
 
 def plant_info(config: SimConfig) -> PlantInfo | None:
     """The configured plant's airframe and trim (its design is built once and cached)."""
-    from app.server.sim_source import docking_config
+    from app.service.sim_source import docking_config
     from app.sim.docking import describe_plant
 
     try:

@@ -9,9 +9,7 @@ from fastapi.responses import PlainTextResponse
 from pydantic import BaseModel, Field
 
 from app.model.tick import TickRecord
-from app.server import guard_events
 from app.server.dependencies import StateDep
-from app.server.metrics import render_metrics
 from app.server.schemas import (
     DrogueInfo,
     FoxgloveHealth,
@@ -22,6 +20,8 @@ from app.server.schemas import (
 )
 from app.server.security import in_process
 from app.server.server_limits import UNGUARDED, is_guarded
+from app.service import guard_events
+from app.service.metrics import render_metrics
 
 router = APIRouter(tags=["state"])
 

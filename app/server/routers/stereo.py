@@ -1,9 +1,9 @@
 """``POST /stereo``: run the navigation pipeline on an uploaded stereo pair.
 
-Before anything is decoded, both images' headers are read (``app.server.image_guard``): not a
+Before anything is decoded, both images' headers are read (``app.service.image_guard``): not a
 PNG/JPEG/BMP/TIFF → 400, more than ``AAR_MAX_IMAGE_PIXELS`` → 413, sizes that differ or do not
 match the calibration → 422. Decoding and the pipeline then run in a worker process
-(``app.server.upload_pool``: off the web server's GIL), or, with ``AAR_UPLOADS_IN_PROCESS``, in
+(``app.service.upload_pool``: off the web server's GIL), or, with ``AAR_UPLOADS_IN_PROCESS``, in
 worker threads; never on the event loop. Token, request size and concurrency are checked
 earlier, on the headers (``app.server.security``).
 
@@ -24,14 +24,15 @@ from fastapi import APIRouter, Depends, File, Form, HTTPException, UploadFile, s
 
 from app.geometry.calibration import StereoCalibration
 from app.model.pose import PoseResult
-from app.server import records
-from app.server.dependencies import AppState, StateDep, require_token
-from app.server.image_guard import ImageHeader, screen
-from app.server.lazy_images import ImagePair, LazyImagePair
-from app.server.records import RawFrame
+from app.server.dependencies import StateDep, require_token
 from app.server.schemas import Message
-from app.server.sim_worker.wire import calibration_to_wire
-from app.server.upload_pool import (
+from app.service import records
+from app.service.image_guard import ImageHeader, ImageRefused, check
+from app.service.lazy_images import ImagePair, LazyImagePair
+from app.service.records import RawFrame
+from app.service.sim_worker.wire import calibration_to_wire
+from app.service.state import AppState
+from app.service.upload_pool import (
     UploadError,
     UploadWorkerCrashed,
     check_pair_sizes,
@@ -90,6 +91,14 @@ async def _read_limited(upload: UploadFile, limit: int, name: str) -> bytes:
             )
         chunks.append(chunk)
     return b"".join(chunks)
+
+
+def screen(data: bytes, name: str, *, max_pixels: int) -> ImageHeader:
+    """:func:`check` for a route: ``HTTPException`` with the status and the reason."""
+    try:
+        return check(data, name, max_pixels=max_pixels)
+    except ImageRefused as exc:
+        raise HTTPException(exc.status, exc.detail) from None
 
 
 def decode_or_400(data: bytes, name: str) -> np.ndarray:

@@ -25,10 +25,11 @@ from typing import Annotated
 from fastapi import APIRouter, Body, Depends, HTTPException, WebSocket, WebSocketDisconnect
 from pydantic import BaseModel, Field
 
-from app.server.dependencies import AppState, StateDep, require_token
-from app.server.image_guard import ImageRefused, check
+from app.server.dependencies import StateDep, require_token
 from app.server.schemas import STRICT
-from app.server.security import token_ok
+from app.service.host_rules import token_ok
+from app.service.image_guard import ImageRefused, check
+from app.service.state import AppState
 from app.streams.frames import SourceError
 from app.streams.protocol import HeaderSyntaxError, ProtocolError, decode_message
 from app.streams.sources import PushSource

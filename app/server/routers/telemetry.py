@@ -6,7 +6,7 @@ import asyncio
 
 from fastapi import APIRouter, WebSocket, WebSocketDisconnect
 
-from app.server.dependencies import AppState
+from app.service.state import AppState
 
 router = APIRouter(tags=["telemetry"])
 

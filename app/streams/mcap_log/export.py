@@ -30,7 +30,7 @@ def export_recording(
     renamed onto ``out``."""
     import os
 
-    from app.streams.recording import read_index, recording_drogue
+    from app.streams.frame_log import read_index, recording_drogue
 
     out = Path(out)
     tmp = out.with_name(f".{out.name}.tmp")

@@ -1,0 +1,211 @@
+"""The simulation worker process: its main loop and its fixed-rate schedule (child side).
+
+The worker builds :class:`app.sim.docking.DockingSimulation` instances on request and, once
+asked to ``run`` one, keeps its tick schedule itself: at each deadline it sends, unasked, the
+tick computed for it (the :class:`DockingTick` without its images, ≈ 3 kB pickled), its
+compute time, the deadline, the release time and the deadlines it missed (the same rule as
+the tick loop: a late tick skips the deadlines that passed). Between deadlines it computes up
+to ``lookahead`` ticks ahead (default 2), so a tick is normally ready before its deadline and
+an occasional slow one (a descheduled render) does not make the next late. The messages are
+listed in :mod:`app.service.sim_worker.wire`.
+
+Camera images go to the shared-memory ring (:mod:`app.service.sim_worker.image_ring`); a pair
+that does not fit a slot (a calibration with a larger image size), or any pair when there is
+no shared memory, travels in the pipe, at ``image_hz`` at most.
+
+The worker asks for a real-time CPU priority (``SCHED_RR``, the lowest level) where it may
+(root, CAP_SYS_NICE), else nice −10, else keeps the default, silently.
+
+This module imports nothing of ``app.service`` outside :mod:`app.service.sim_worker`.
+"""
+
+from __future__ import annotations
+
+import gc
+import os
+import signal
+import time
+from collections import deque
+from dataclasses import replace
+from multiprocessing.connection import Connection
+from typing import TYPE_CHECKING
+
+from app.service.sim_worker.image_ring import ImageRing
+from app.service.sim_worker.priority import raise_thread_priority
+from app.service.sim_worker.wire import Message, calibration_from_wire, error_reply
+from app.types import UInt8Array
+
+if TYPE_CHECKING:
+    from app.sim.docking import DockingSimulation
+
+LOOKAHEAD = 2  # ticks the worker computes ahead of their deadlines
+POLL_SLACK_S = 0.002  # the pipe is polled until this long before a deadline, then a sleep
+WORKER_NICE = -10  # nice value the worker asks for where real-time scheduling is refused
+
+
+class WorkerState:
+    """The worker's step counter, its ring and the rate of images sent inline."""
+
+    def __init__(self, ring: ImageRing | None, epoch: int, image_period_s: float) -> None:
+        self.ring = ring
+        self.epoch = epoch
+        self.image_period_s = image_period_s
+        self.k = 0
+        self.last_inline = -1e9
+
+    def step(self, sim: DockingSimulation) -> Message:
+        """Step ``sim`` once: ``("tick", light tick, done, sim_ms, slot, stamp, inline)`` or
+        an ``error`` reply."""
+        t0 = time.perf_counter()
+        try:
+            tick = sim.step()
+        except Exception as exc:
+            return error_reply(exc)
+        sim_ms = (time.perf_counter() - t0) * 1e3
+        self.k += 1
+        stamp = (self.epoch << 32) | self.k
+        slot = -1
+        inline: tuple[UInt8Array, UInt8Array] | None = None
+        left, right = tick.left_image, tick.right_image
+        if left is not None and right is not None:
+            ring = self.ring
+            if ring is not None and ring.write(self.k % ring.slots, stamp, left, right):
+                slot = self.k % ring.slots
+            else:
+                now = time.monotonic()
+                if now - self.last_inline >= self.image_period_s:
+                    self.last_inline = now
+                    inline = (left, right)
+        light = replace(tick, left_image=None, right_image=None)
+        return ("tick", light, bool(sim.done), sim_ms, slot, stamp, inline)
+
+
+def raise_priority() -> str:
+    """Ask for a CPU priority above the web server, the upload workers (nice +10) and a
+    browser on the same machine: the loop's deadline is the service's first duty.
+    ``SCHED_RR`` where permitted (root, CAP_SYS_NICE; the worker sleeps between ticks), else
+    nice −10, else the default, silently."""
+    return raise_thread_priority(WORKER_NICE, realtime=True)
+
+
+class Pace:
+    """The worker's fixed-rate schedule for one simulation (``sid``) and run request (``gen``).
+
+    Same rule as :class:`app.service.tick_loop.TickLoop`: deadlines ``period_s`` apart; a tick
+    released after the next deadline has passed skips the missed deadlines (counted)."""
+
+    def __init__(self, sid: int, gen: int, period_s: float, first_deadline: float) -> None:
+        self.sid = sid
+        self.gen = gen
+        self.period_s = period_s
+        self.next_t = first_deadline
+
+    def due(self, now: float) -> tuple[float, int]:
+        """The deadline served now and the deadlines missed before it (``now ≥ next_t``)."""
+        missed = int((now - self.next_t) / self.period_s + 1e-9)
+        deadline = self.next_t + missed * self.period_s
+        self.next_t = deadline + self.period_s
+        return deadline, missed
+
+
+def worker_main(
+    conn: Connection,
+    ring_name: str | None,
+    ring_slots: int,
+    ring_capacity: int,
+    epoch: int,
+    image_period_s: float,
+    lookahead: int,
+) -> None:
+    """Entry point of the worker: serve ``build`` / ``run`` / ``pause`` / ``ping`` / ``stop``.
+
+    ``run`` starts the worker's own fixed-rate schedule for a built simulation: at each
+    deadline it sends the next tick (``("tick", sid, gen, …, deadline, released, missed)``)
+    without being asked, and in between computes up to ``lookahead`` ticks ahead (their
+    images go to the ring when computed). Requests are read between ticks, never while a
+    deadline is due. A simulation that finished or raised ends its schedule (the parent asks
+    again); ``pause``, a new ``build`` or ``run`` replace it.
+    """
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
+    policy = raise_priority()
+    ring = None
+    if ring_name is not None:
+        try:
+            ring = ImageRing.attach(ring_name, ring_slots, ring_capacity)
+        except OSError:
+            ring = None
+    from app.sim.docking import DockingSimulation
+    from app.sim.warmup import compile_kernels
+
+    compile_kernels()  # the compiled loops loaded (disk cache) before the first deadline
+    gc.collect()
+    gc.freeze()  # the modules out of the cyclic collector's sight (its pauses stay short)
+    state = WorkerState(ring, epoch, image_period_s)
+    sim: DockingSimulation | None = None
+    sim_id = -1
+    ahead: deque[Message] = deque()  # computed, not yet released (this sim)
+    pace: Pace | None = None
+    conn.send(("ready", os.getpid(), policy))
+
+    def release(p: Pace, sim: DockingSimulation) -> bool:
+        """Send the tick for the deadline due now; ``False`` ends the schedule."""
+        deadline, missed = p.due(time.monotonic())
+        reply = ahead.popleft() if ahead else state.step(sim)  # late if not computed ahead
+        if reply[0] != "tick":
+            conn.send(("tickerror", p.sid, p.gen, *reply[1:]))
+            return False
+        conn.send(("tick", p.sid, p.gen, *reply[1:], deadline, time.monotonic(), missed))
+        return not reply[2]  # the simulation finished with this tick
+
+    while True:
+        try:
+            if pace is not None and sim is not None:
+                now = time.monotonic()
+                if now >= pace.next_t:
+                    if not release(pace, sim):
+                        pace = None
+                    continue
+                if conn.poll(0):
+                    pass  # a request first
+                elif (
+                    len(ahead) < lookahead
+                    and not sim.done
+                    and not (ahead and ahead[-1][0] != "tick")  # a raise ends the look-ahead
+                ):
+                    ahead.append(state.step(sim))
+                    continue
+                elif not conn.poll(max(0.0, pace.next_t - now - POLL_SLACK_S)):
+                    time.sleep(max(0.0, pace.next_t - time.monotonic()))  # ms-rounded poll
+                    continue  # the deadline
+            msg = conn.recv()
+        except (EOFError, OSError):
+            break  # the parent is gone
+        op = msg[0]
+        if op == "stop":
+            break
+        if op == "ping":
+            conn.send(("pong", os.getpid()))
+        elif op == "build":
+            _, new_id, dcfg, calib_wire = msg
+            try:
+                new = DockingSimulation(dcfg, calibration=calibration_from_wire(calib_wire))
+            except Exception as exc:
+                conn.send(error_reply(exc))  # the running simulation (and schedule) is kept
+                continue
+            sim, sim_id, pace = new, new_id, None
+            ahead.clear()
+            conn.send(("built", new_id, bool(sim.done)))
+        elif op == "run":
+            _, sid, gen, period_s, first_deadline = msg
+            if sim is None or sid != sim_id:
+                conn.send(("tickerror", sid, gen, "RuntimeError", "stale simulation source", ""))
+            elif not ahead and sim.done:
+                conn.send(("tickerror", sid, gen, "RuntimeError", "simulation finished", ""))
+            else:
+                pace = Pace(sid, gen, float(period_s), float(first_deadline))
+        elif op == "pause":
+            pace = None  # the ticks computed ahead are kept for the next run
+        else:
+            conn.send(("error", "RuntimeError", f"unknown request {op!r}", ""))
+    if ring is not None:
+        ring.close()

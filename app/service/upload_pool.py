@@ -1,0 +1,228 @@
+"""Uploaded pairs decoded and processed in worker processes (off the web server's GIL).
+
+``POST /stereo`` checks the token, the sizes and the image headers in the web server's
+process (``app.server.security``, ``app.service.image_guard``); only then are the encoded bytes,
+the calibration (a dict) and the matcher sent to a :class:`UploadPool` worker, which decodes
+the pair, checks the decoded sizes and runs a fresh :class:`NavigationPipeline`. The answer is
+a small dict: ``{"status": 200, "result": <PoseResult as a dict>}`` or ``{"status": 4xx,
+"detail": ...}`` with exactly the details the in-process route gives.
+
+The workers (``spawn``; ``max_workers = AAR_MAX_CONCURRENT_UPLOADS``, the same bound the
+request guard enforces, so nothing queues) run at a lower CPU priority (``nice``): the
+closed-loop simulation comes first. A worker that dies breaks a ``ProcessPoolExecutor``; the
+pool is then replaced and the request answered 503.
+
+This module imports neither FastAPI nor the server: the workers stay light.
+"""
+
+from __future__ import annotations
+
+# sets OPENCV_IO_MAX_IMAGE_PIXELS; first, before cv2 loads (in the workers too)
+from app.service import image_guard  # noqa: F401  # isort: skip
+
+import asyncio
+import json
+import logging
+import os
+import signal
+import threading
+import time
+import traceback
+from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
+from functools import lru_cache
+from typing import Any
+
+import numpy as np
+
+log = logging.getLogger(__name__)
+
+WORKER_NICE = 10  # uploads are best effort; the tick loop's worker keeps priority
+
+
+class UploadError(Exception):
+    """A 4xx answer of ``POST /stereo`` (status and detail), raised without FastAPI."""
+
+    def __init__(self, status: int, detail: str) -> None:
+        super().__init__(status, detail)
+        self.status = status
+        self.detail = detail
+
+
+class UploadWorkerCrashed(RuntimeError):
+    """The worker processing the upload died (the pool has been replaced)."""
+
+
+def decode_upload_image(data: bytes, name: str) -> np.ndarray:
+    """Bytes (PNG/JPEG/BMP/TIFF) → the pipeline's grey or BGR image (the package's one
+    decoder, :func:`app.vision.io.decode_image`: colour is kept where the camera has it);
+    ``UploadError(400)`` if not an image."""
+    from app.vision.io import decode_image
+    from app.vision.preprocess import ImageError
+
+    try:
+        return decode_image(data, name)
+    except ImageError as exc:
+        raise UploadError(400, str(exc)) from None
+
+
+def check_pair_sizes(
+    left: tuple[int, int], right: tuple[int, int], expected: tuple[int, int] | None
+) -> None:
+    """``(width, height)`` of both images: equal, and the calibration's (else ``UploadError(422)``)."""
+    (lw, lh), (rw, rh) = left, right
+    if (lw, lh) != (rw, rh):
+        raise UploadError(422, f"left and right sizes differ: {lw}x{lh} vs {rw}x{rh}")
+    if expected is not None and (lw, lh) != tuple(expected):
+        w, h = expected
+        raise UploadError(422, f"image size {lw}x{lh} does not match the calibration ({w}x{h})")
+
+
+# ---- in the worker ----------------------------------------------------------------------------
+def _exit_with_parent(parent_pid: int, period_s: float = 1.0) -> None:
+    """A pool worker waits on a queue whose write end it holds itself: it would outlive a
+    parent killed with -9. This thread ends it once it has been re-parented."""
+
+    def watch() -> None:
+        while True:
+            time.sleep(period_s)
+            if os.getppid() != parent_pid:
+                os._exit(0)
+
+    threading.Thread(target=watch, name="aar-parent-watch", daemon=True).start()
+
+
+def _init_worker(nice: int, parent_pid: int) -> None:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
+    _exit_with_parent(parent_pid)
+    if nice:
+        try:  # absolute: the web server's own priority (raised where permitted) is not added
+            os.setpriority(os.PRIO_PROCESS, 0, max(nice, os.getpriority(os.PRIO_PROCESS, 0)))
+        except OSError:  # pragma: no cover - not permitted here
+            pass
+    # the heavy imports now, not in the first request
+    import app.vision.pipeline  # noqa: F401
+
+
+@lru_cache(maxsize=4)
+def _calibration(key: str) -> Any:
+    from app.service.sim_worker.wire import calibration_from_wire
+
+    return calibration_from_wire(json.loads(key))
+
+
+def process_upload(
+    left: bytes,
+    right: bytes,
+    calibration: dict[str, Any],
+    matcher: str,
+    expected: tuple[int, int] | None,
+    drogue: dict[str, Any] | None = None,
+) -> dict[str, Any]:
+    """Decode + size check + pipeline (in a worker) for the configured drogue (its
+    ``DrogueProfile.to_dict()``; None: the paper's ring). Never raises for a bad upload."""
+    from app.vision.drogue import PAPER_DROGUE, DrogueProfile
+    from app.vision.pipeline import NavigationPipeline, PipelineConfig
+
+    try:
+        left_img = decode_upload_image(left, "left")
+        right_img = decode_upload_image(right, "right")
+        check_pair_sizes(
+            (left_img.shape[1], left_img.shape[0]),
+            (right_img.shape[1], right_img.shape[0]),
+            expected,
+        )
+    except UploadError as exc:
+        return {"status": exc.status, "detail": exc.detail}
+    calib = _calibration(json.dumps(calibration, sort_keys=True))
+    profile = PAPER_DROGUE if drogue is None else DrogueProfile.from_dict(drogue)
+    config = profile.pipeline_config(PipelineConfig(matcher=matcher))  # type: ignore[arg-type]
+    pipeline = NavigationPipeline(calib, config)
+    try:
+        result = pipeline.process(left_img, right_img)
+    except Exception as exc:  # the contract is a 4xx with a detail, never a 500
+        return {
+            "status": 422,
+            "detail": f"pipeline failed: {type(exc).__name__}: {exc}",
+            "traceback": traceback.format_exc(),
+        }
+    return {"status": 200, "result": result.model_dump(mode="python")}
+
+
+def _warm() -> int:
+    return os.getpid()
+
+
+# ---- in the web server ------------------------------------------------------------------------
+class UploadPool:
+    """A ``ProcessPoolExecutor`` (spawn) that is replaced when one of its workers dies."""
+
+    def __init__(self, max_workers: int, *, nice: int = WORKER_NICE) -> None:
+        self.max_workers = max_workers
+        self.nice = nice
+        self._lock = threading.Lock()
+        self._pool = self._new()
+        self.restarts = 0
+        self.submitted = 0
+
+    def _new(self) -> ProcessPoolExecutor:
+        import multiprocessing
+
+        return ProcessPoolExecutor(
+            max_workers=self.max_workers,
+            mp_context=multiprocessing.get_context("spawn"),
+            initializer=_init_worker,
+            initargs=(self.nice, os.getpid()),
+        )
+
+    def _replace(self, broken: ProcessPoolExecutor) -> ProcessPoolExecutor:
+        with self._lock:
+            if self._pool is broken:
+                log.error("an upload worker died: replacing the upload pool")
+                broken.shutdown(wait=False, cancel_futures=True)
+                self._pool = self._new()
+                self.restarts += 1
+            return self._pool
+
+    def warm(self) -> None:
+        """Start the workers now (not on the first upload); does not wait for them."""
+        with self._lock:
+            pool = self._pool
+        for _ in range(self.max_workers):
+            pool.submit(_warm)
+
+    async def run(self, fn: Callable[..., Any], *args: Any) -> Any:
+        """``fn(*args)`` in a worker; ``UploadWorkerCrashed`` if the worker dies."""
+        with self._lock:
+            pool = self._pool
+        try:
+            future = pool.submit(fn, *args)
+        except BrokenProcessPool:
+            pool = self._replace(pool)
+            future = pool.submit(fn, *args)
+        self.submitted += 1
+        try:
+            return await asyncio.wrap_future(future)
+        except BrokenProcessPool as exc:
+            self._replace(pool)
+            raise UploadWorkerCrashed(str(exc) or "worker died") from None
+
+    def pids(self) -> list[int]:
+        procs = getattr(self._pool, "_processes", None) or {}
+        return [int(p) for p in procs]
+
+    def shutdown(self, timeout_s: float = 1.0) -> None:
+        """Cancel what is queued, give the workers ``timeout_s`` to exit, then terminate them
+        (at shutdown no request is in flight: uvicorn has finished them)."""
+        with self._lock:
+            pool = self._pool
+        procs = list((getattr(pool, "_processes", None) or {}).values())
+        pool.shutdown(wait=False, cancel_futures=True)
+        deadline = time.monotonic() + timeout_s
+        for p in procs:
+            p.join(timeout=max(0.0, deadline - time.monotonic()))
+        for p in procs:
+            if p.is_alive():  # still importing, or a job that does not end
+                p.terminate()
+                p.join(timeout=2.0)
