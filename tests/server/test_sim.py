@@ -22,6 +22,7 @@ def test_real_stream_over_websocket_and_state(tmp_path: Path) -> None:
         assert recs[-1]["t_s"] > recs[0]["t_s"]
         for r in recs:
             assert r["source"] == "sim" and r["phase"] in (
+                "stabilise",
                 "approach",
                 "final",
                 "contact",

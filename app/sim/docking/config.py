@@ -79,6 +79,22 @@ PLANT_GUIDANCE = {
     ),
 }
 
+# the monitor's envelope per plant: the A-4's defaults (app.control.envelope); the Aerosonde
+# design model (an 11 kg UAV, short period ≈ 44 rad/s) trims at α −2.3° and its
+# small-perturbation α and load factor are rough, so its monitor keeps only wide bounds (a
+# small UAV's structural limits; it is not an aircraft anyone flies)
+PLANT_ENVELOPE = {
+    "jsbsim": EnvelopeBounds(),
+    "linear": EnvelopeBounds(
+        alpha_min_deg=-12.0,
+        alpha_max_deg=10.0,
+        load_factor_min_g=-5.0,
+        load_factor_max_g=7.0,
+        kcas_min=100.0,
+        kcas_max=400.0,
+    ),
+}
+
 
 @dataclass(frozen=True)
 class AirframeGeometry:
@@ -195,7 +211,7 @@ class DockingConfig:
     standoff_gap_m: float = 1.5
     commit_radius_m: float = 0.12
     # the run-time assurance's envelope (app.control.envelope.EnvelopeBounds; None: the
-    # plant's, app.sim.docking.simulation.PLANT_ENVELOPE — the A-4's defaults and sources)
+    # plant's, PLANT_ENVELOPE — the A-4's defaults and sources)
     envelope: EnvelopeBounds | None = None
     # the flown hose and drogue (HOSE_MODELS): "reduced" — the reduced-order swing on a static
     # hose shape, welded to the probe at contact (app.sim.hose_drogue); "multibody" — the

@@ -44,7 +44,6 @@ from app.control.bow_wave import BowWaveModel
 from app.control.design import closure_feedforward
 from app.control.drogue_filter import DrogueFilter
 from app.control.envelope import (
-    EnvelopeBounds,
     EnvelopeExtremes,
     EnvelopeMonitor,
     Separation,
@@ -58,7 +57,7 @@ from app.geometry.calibration import StereoCalibration
 from app.geometry.rotations import euler_to_matrix
 from app.resources import load_default_calibration
 from app.sim.camera_sensor import StereoCameraSensor
-from app.sim.docking.config import PLANT_GUIDANCE, DockingConfig
+from app.sim.docking.config import PLANT_ENVELOPE, PLANT_GUIDANCE, DockingConfig
 from app.sim.docking.flown_hose import (
     contact_report,
     flown_drogue,
@@ -92,21 +91,6 @@ from app.sim.receiver import Actuators
 from app.sim.turbulence import DrydenTurbulence
 from app.types import FloatArray, Rect
 
-# the monitor's envelope per plant: the A-4's defaults (app.control.envelope); the Aerosonde
-# design model (an 11 kg UAV, short period ≈ 44 rad/s) trims at α −2.3° and its
-# small-perturbation α and load factor are rough, so its monitor keeps only wide bounds (a
-# small UAV's structural limits; it is not an aircraft anyone flies)
-PLANT_ENVELOPE = {
-    "jsbsim": EnvelopeBounds(),
-    "linear": EnvelopeBounds(
-        alpha_min_deg=-12.0,
-        alpha_max_deg=10.0,
-        load_factor_min_g=-5.0,
-        load_factor_max_g=7.0,
-        kcas_min=100.0,
-        kcas_max=400.0,
-    ),
-}
 SEARCH_GAP_M = 5.0  # closest gap flown on the a-priori drogue position before acquisition
 GUST_HISTORY_TICKS = 64
 REARM_GAP_M = 1.5  # gap (m) the probe must open before another break-away counts as an abort
