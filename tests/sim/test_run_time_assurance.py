@@ -164,3 +164,13 @@ def test_the_probe_across_the_rim_while_breaking_away_is_a_rim_strike() -> None:
     out = sim.outcome()
     assert out.outcome == "rim_strike" and "while breaking away" in (out.reason or "")
     assert not out.captured
+
+
+@pytest.mark.parametrize("field", ["overspeed_gap_m", "high_gap_m", "high_pass_m"])
+@pytest.mark.parametrize("value", [-0.5, float("nan"), float("inf")])
+def test_the_break_away_gaps_refuse_a_negative_or_non_finite_distance(
+    field: str, value: float
+) -> None:
+    with pytest.raises(ValueError, match=field):
+        DockingConfig(**{field: value}).validate()
+    DockingConfig(**{field: 0.0}).validate()  # 0 m is a distance

@@ -164,6 +164,14 @@ class DockingConfig:
     # docs/control.md, ../shared/notes/gnc.md
     min_closure_mps: float = 1.0
     max_closure_mps: float = 2.6
+    # break away when closing faster than max_closure_mps inside this gap (m; 0: never): the
+    # receiver cannot shed the excess before the plane (app.control.abort)
+    overspeed_gap_m: float = 2.0
+    # break away when the probe is predicted to pass high_pass_m above the drogue's centre
+    # inside high_gap_m (m; 0: never): the hose rises forward from the drogue
+    # (app.control.abort)
+    high_gap_m: float = 1.5
+    high_pass_m: float = 0.5
     # mounting on the airframe (body frame, m from the CG); None: the plant's airframe's
     # (AIRFRAME_GEOMETRY)
     probe_tip_body_m: tuple[float, float, float] | None = None
@@ -269,6 +277,10 @@ class DockingConfig:
             v = getattr(self, name)
             if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
                 raise ValueError(f"{name} must be a positive number, got {v!r}")
+        for gap in ("overspeed_gap_m", "high_gap_m", "high_pass_m"):
+            v = getattr(self, gap)
+            if not (isinstance(v, int | float) and math.isfinite(v) and v >= 0):
+                raise ValueError(f"{gap} must be ≥ 0 m, got {v!r}")
         if self.camera_hz is not None and not (0 < self.camera_hz <= self.tick_hz):
             raise ValueError(f"camera_hz must be in (0, tick_hz], got {self.camera_hz!r}")
         if self.noise_sigma < 0 or self.clutter < 0:

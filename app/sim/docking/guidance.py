@@ -83,7 +83,7 @@ class SwingGuidance:
         sp[0], sv[0] = drogue[0], drogue_vel[0]
         return sp.copy(), sv.copy()
 
-    def swing_miss(
+    def swing_offset_at_arrival(
         self,
         drogue: FloatArray,
         drogue_vel: FloatArray,
@@ -92,11 +92,12 @@ class SwingGuidance:
         tip_vel: FloatArray,
         gap_m: float,
         bow_at: FloatArray | None = None,
-    ) -> float:
-        """Radial miss (m) predicted at the arrival (``gap_m`` over the closure speed): the
-        drogue's swing about its mean (:func:`~app.control.drogue_swing.predict_swing_offset`),
-        plus the bow wave's push forecast for then (``bow_at``, y z), against the probe tip
-        carried by its own velocity."""
+    ) -> FloatArray:
+        """The drogue's centre less the probe tip (y, z; m) predicted at the arrival (``gap_m``
+        over the closure speed): the drogue's swing about its mean
+        (:func:`~app.control.drogue_swing.predict_swing_offset`), plus the bow wave's push
+        forecast for then (``bow_at``, y z), against the probe tip carried by its own velocity.
+        Its norm is the predicted miss; its z (down) how far the tip passes above the centre."""
         cfg = self.config
         sw = self.swing_estimate
         horizon = max(gap_m, 0.0) / cfg.closure_speed_mps
@@ -106,7 +107,7 @@ class SwingGuidance:
         if bow_at is not None:
             swing = swing + bow_at
         tip_at = tip[1:] + tip_vel[1:] * horizon
-        return float(np.linalg.norm(mean[1:] + swing - tip_at))
+        return np.asarray(mean[1:] + swing - tip_at, float)
 
     def swing_lead(
         self, drogue: FloatArray, drogue_vel: FloatArray, mean: FloatArray, tip: FloatArray

@@ -39,16 +39,17 @@ from dataclasses import replace
 
 import numpy as np
 
-from app.control.abort import AlphaBetaTracker, predicted_miss_m, should_abort
+from app.control.abort import (
+    AlphaBetaTracker,
+    describe,
+    predicted_height_above_m,
+    predicted_miss_m,
+    should_abort,
+)
 from app.control.bow_wave import BowWaveModel
 from app.control.design import closure_feedforward
 from app.control.drogue_filter import DrogueFilter
-from app.control.envelope import (
-    EnvelopeExtremes,
-    EnvelopeMonitor,
-    Separation,
-    separation,
-)
+from app.control.envelope import EnvelopeExtremes, EnvelopeMonitor, Separation, separation
 from app.control.lqr import IntegralLqr
 from app.control.observer import StateObserver
 from app.control.recovery import RecoveryLaw
@@ -467,11 +468,13 @@ class DockingSimulation:
             rel = d_hat - tip_hat
             if self.swing_abort and self.swing.mean is not None:
                 # where the drogue's swing about its mean will be at the plane
-                miss_pred = self.swing.swing_miss(
+                at_plane = self.swing.swing_offset_at_arrival(
                     d_hat, d_vel, self.swing.mean, tip_hat, tip_vel_hat, float(rel[0]), bow_at
                 )
+                miss_pred, above = float(np.linalg.norm(at_plane)), float(at_plane[1])
             else:
                 miss_pred = predicted_miss_m(rel, d_vel - tip_vel_hat)
+                above = predicted_height_above_m(rel, d_vel - tip_vel_hat)
             reason = should_abort(
                 float(rel[0]),
                 miss_pred,
@@ -479,6 +482,12 @@ class DockingSimulation:
                 not lock,
                 final_gap_m=g.cfg.final_gap_m,
                 margin=self.abort_margin,
+                closure_mps=float((tip_vel_hat - d_vel)[0]),
+                max_closure_mps=cfg.max_closure_mps,
+                overspeed_gap_m=cfg.overspeed_gap_m,
+                above_at_plane_m=above,
+                high_gap_m=cfg.high_gap_m,
+                high_pass_m=cfg.high_pass_m,
             )
             if (
                 reason is None
@@ -490,8 +499,7 @@ class DockingSimulation:
             if not self.filter.ever_initialised:
                 reason = None  # never acquired: hold the gap (guidance) instead of aborting
             if reason is not None:
-                detail = f"predicted miss {miss_pred:.2f} m" if reason == "predicted_miss" else ""
-                self.break_away(detail or reason.replace("_", " "))
+                self.break_away(describe(reason, miss_pred, float((tip_vel_hat - d_vel)[0])))
         # never acquired (e.g. a calibration error too large for the ring fit at 13 m): close
         # on the drogue's a-priori rest position to the search gap, where the ring is larger
         # and its depth error ∝ Z² smaller, then hold there until it is acquired
