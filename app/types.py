@@ -14,5 +14,7 @@ IntArray = npt.NDArray[np.int64]
 UInt8Array = npt.NDArray[np.uint8]
 #: boolean arrays: masks, flags per element
 BoolArray = npt.NDArray[np.bool_]
+#: a JSON object as the service sends or reads it (its values: JSON values, nested)
+JsonObject = dict[str, object]
 #: an image rectangle (x0, y0, x1, y1) in pixels, half-open
 Rect = tuple[int, int, int, int]

@@ -10,18 +10,20 @@ first offending field (``"field": "closure_speed_mps"``), like the calibration r
 from __future__ import annotations
 
 import math
-from typing import Any
+from collections.abc import Sequence
 
 from fastapi import Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
+
+from app.types import JsonObject
 
 MAX_ECHO_CHARS = 200
 MAX_ECHO_ITEMS = 20
 _LOCATIONS = ("body", "query", "path", "header", "cookie", "form")
 
 
-def json_safe(value: Any, depth: int = 0) -> Any:
+def json_safe(value: object, depth: int = 0) -> object:
     """A copy of ``value`` that strict JSON can encode (non-finite floats → strings, bounded)."""
     if isinstance(value, float):
         if math.isnan(value):
@@ -51,7 +53,7 @@ def json_safe(value: Any, depth: int = 0) -> Any:
     return json_safe(str(value), depth + 1)
 
 
-def field_name(loc: Any) -> str:
+def field_name(loc: Sequence[object] | None) -> str:
     """``("body", "left", 0)`` → ``"left.0"``; ``("body",)`` → ``"<root>"``."""
     parts = [str(p) for p in (loc or ())]
     if parts and parts[0] in _LOCATIONS:
@@ -63,7 +65,7 @@ async def validation_exception_handler(request: Request, exc: Exception) -> JSON
     assert isinstance(exc, RequestValidationError)
     raw = list(exc.errors())
     errors = json_safe(raw)  # bytes, exceptions in ctx … → str; NaN → "NaN"
-    content: dict[str, Any] = {"detail": errors}
+    content: JsonObject = {"detail": errors}
     if raw:
         content["field"] = field_name(raw[0].get("loc"))
     return JSONResponse(status_code=422, content=content)

@@ -23,7 +23,7 @@ from __future__ import annotations
 import json
 import logging
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING
 
 from starlette.datastructures import Headers
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
@@ -38,6 +38,9 @@ from app.service.host_rules import (
 )
 from app.service.limits import ConcurrencyLimit
 from app.service.settings import Settings
+
+if TYPE_CHECKING:
+    from starlette.applications import Starlette
 
 log = logging.getLogger(__name__)
 
@@ -267,7 +270,7 @@ class RequestGuard:
             raise
 
 
-def install(app: Any, settings: Settings, api_prefix: str) -> dict[str, ConcurrencyLimit]:
+def install(app: Starlette, settings: Settings, api_prefix: str) -> dict[str, ConcurrencyLimit]:
     """Add the :class:`RequestGuard` to a FastAPI/Starlette ``app`` with the service's routes;
     returns the concurrency limits (also kept as ``app.state.limits``)."""
     slots = {

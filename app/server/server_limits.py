@@ -20,7 +20,7 @@ request from a real client, and ``/healthz`` says ``degraded`` (component
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Literal
+from typing import TYPE_CHECKING, Literal, Protocol
 
 from app.service.limits import fd_limit
 
@@ -94,12 +94,23 @@ UNGUARDED = (
 )
 
 
-def mark_guarded(app: Any, limits: ServerLimits) -> None:
+class _GuardState(Protocol):
+    server_limits: ServerLimits | None
+
+
+class GuardedApp(Protocol):
+    """An application with a ``state`` namespace (Starlette's and FastAPI's ``app.state``)."""
+
+    @property
+    def state(self) -> _GuardState: ...
+
+
+def mark_guarded(app: GuardedApp, limits: ServerLimits) -> None:
     """Record on the app (``app.state.server_limits``) the limits its server runs with."""
     app.state.server_limits = limits
 
 
-def is_guarded(app: Any) -> bool:
+def is_guarded(app: object) -> bool:
     """True if :func:`mark_guarded` was called on ``app`` (``aar-dock serve`` does)."""
     state = getattr(app, "state", None)
     return getattr(state, "server_limits", None) is not None

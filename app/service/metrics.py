@@ -47,6 +47,11 @@ class _Snapshot(Collector):
         yield from self.metrics
 
 
+def _count(value: object) -> float:
+    """A counter of the stream's status (``0`` where it has none)."""
+    return float(value) if isinstance(value, int | float) else 0.0
+
+
 def _stream_metrics(snap: _Snapshot, streams: StreamService) -> None:
     health = streams.health()
     if health is None:
@@ -72,18 +77,18 @@ def _stream_metrics(snap: _Snapshot, streams: StreamService) -> None:
         "aar_stream_restarts_total",
         "counter",
         "Times the frame source was reopened after a failure",
-        st["restarts"],
+        _count(st["restarts"]),
         src,
     )
     snap.add(
         "aar_stream_consecutive_failures",
         "gauge",
         "Failed pairs since the last good one",
-        st["consecutive_failures"],
+        _count(st["consecutive_failures"]),
         src,
     )
     for key, help_ in PUSH_COUNTERS:
-        snap.add(f"aar_push_{key}_total", "counter", help_, st.get(key) or 0, src)
+        snap.add(f"aar_push_{key}_total", "counter", help_, _count(st.get(key)), src)
 
 
 def render_metrics(

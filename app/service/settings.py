@@ -28,7 +28,7 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any
+from typing import TYPE_CHECKING, Annotated
 
 from pydantic import Field, field_validator
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
@@ -380,7 +380,7 @@ class Settings(BaseSettings):
         mode="before",
     )
     @classmethod
-    def _split_list(cls, v: Any) -> Any:
+    def _split_list(cls, v: object) -> object:
         if isinstance(v, str):
             text = v.strip()
             if text.startswith("["):

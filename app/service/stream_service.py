@@ -31,7 +31,7 @@ import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Literal
+from typing import TYPE_CHECKING, Literal
 
 from app.model.tick import StreamInfo
 from app.service import records
@@ -51,6 +51,7 @@ from app.streams.sources import (
     open_source,
     parse_source,
 )
+from app.types import JsonObject
 from app.vision.drogue import DrogueProfile
 
 if TYPE_CHECKING:
@@ -160,7 +161,7 @@ class StreamService:
         realtime: bool | None = None,
         loop: bool | None = None,
         restricted: bool = False,
-    ) -> dict[str, Any]:
+    ) -> JsonObject:
         """Make ``spec_text`` the active source; :class:`SourceError` (nothing changed) if it
         cannot be opened."""
         spec = parse_source(spec_text)
@@ -503,7 +504,8 @@ class StreamService:
             source.begin_session()
 
     # ---- status -----------------------------------------------------------------------
-    def status(self) -> dict[str, Any]:
+    def status(self) -> JsonObject:
+        """The active source and its counters (``GET /stream``'s body)."""
         source = self.source
         stats = source.stats.as_dict() if source is not None else {}
         health = self.health()

@@ -2,10 +2,10 @@
 
 ``POST /stereo`` checks the token, the sizes and the image headers in the web server's
 process (``app.server.security``, ``app.service.image_guard``); only then are the encoded bytes,
-the calibration (a dict) and the matcher sent to a :class:`UploadPool` worker, which decodes
-the pair, checks the decoded sizes and runs a fresh :class:`NavigationPipeline`. The answer is
-a small dict: ``{"status": 200, "result": <PoseResult as a dict>}`` or ``{"status": 4xx,
-"detail": ...}`` with exactly the details the in-process route gives.
+the calibration (:class:`~app.service.sim_worker.wire.WireCalibration`) and the matcher sent to
+a :class:`UploadPool` worker, which decodes the pair, checks the decoded sizes and runs a fresh
+:class:`NavigationPipeline`. The answer is an :class:`UploadOutcome`: status 200 and the
+:class:`PoseResult`, or a 4xx and exactly the detail the in-process route gives.
 
 The workers (``spawn``; ``max_workers = AAR_MAX_CONCURRENT_UPLOADS``, the same bound the
 request guard enforces, so nothing queues) run at a lower CPU priority (``nice``): the
@@ -31,13 +31,23 @@ import traceback
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
+from dataclasses import dataclass
 from functools import lru_cache
-from typing import Any
+from typing import TYPE_CHECKING, ParamSpec, TypeVar
 
 import numpy as np
 
+from app.types import JsonObject
+
+if TYPE_CHECKING:
+    from app.geometry.calibration import StereoCalibration
+    from app.model.pose import PoseResult
+    from app.service.sim_worker.wire import WireCalibration
+
 log = logging.getLogger(__name__)
 
+Params = ParamSpec("Params")  # the arguments of a function run in a worker
+Result = TypeVar("Result")  # what it returns
 WORKER_NICE = 10  # uploads are best effort; the tick loop's worker keeps priority
 
 
@@ -48,6 +58,17 @@ class UploadError(Exception):
         super().__init__(status, detail)
         self.status = status
         self.detail = detail
+
+
+@dataclass(frozen=True, slots=True)
+class UploadOutcome:
+    """An upload worker's answer: ``status`` 200 and the ``result``, or a 4xx ``status`` and
+    its ``detail`` (``traceback``: the pipeline's, when it raised; else ``""``)."""
+
+    status: int
+    result: PoseResult | None = None
+    detail: str = ""
+    traceback: str = ""
 
 
 class UploadWorkerCrashed(RuntimeError):
@@ -106,7 +127,8 @@ def _init_worker(nice: int, parent_pid: int) -> None:
 
 
 @lru_cache(maxsize=4)
-def _calibration(key: str) -> Any:
+def _calibration(key: str) -> StereoCalibration:
+    """The calibration of ``key`` (its wire form as JSON text), built once per worker."""
     from app.service.sim_worker.wire import calibration_from_wire
 
     return calibration_from_wire(json.loads(key))
@@ -115,11 +137,11 @@ def _calibration(key: str) -> Any:
 def process_upload(
     left: bytes,
     right: bytes,
-    calibration: dict[str, Any],
+    calibration: WireCalibration,
     matcher: str,
     expected: tuple[int, int] | None,
-    drogue: dict[str, Any] | None = None,
-) -> dict[str, Any]:
+    drogue: JsonObject | None = None,
+) -> UploadOutcome:
     """Decode + size check + pipeline (in a worker) for the configured drogue (its
     ``DrogueProfile.to_dict()``; None: the paper's ring). Never raises for a bad upload."""
     from app.vision.drogue import PAPER_DROGUE, DrogueProfile
@@ -134,7 +156,7 @@ def process_upload(
             expected,
         )
     except UploadError as exc:
-        return {"status": exc.status, "detail": exc.detail}
+        return UploadOutcome(exc.status, detail=exc.detail)
     calib = _calibration(json.dumps(calibration, sort_keys=True))
     profile = PAPER_DROGUE if drogue is None else DrogueProfile.from_dict(drogue)
     config = profile.pipeline_config(PipelineConfig(matcher=matcher))  # type: ignore[arg-type]
@@ -142,12 +164,12 @@ def process_upload(
     try:
         result = pipeline.process(left_img, right_img)
     except Exception as exc:  # the contract is a 4xx with a detail, never a 500
-        return {
-            "status": 422,
-            "detail": f"pipeline failed: {type(exc).__name__}: {exc}",
-            "traceback": traceback.format_exc(),
-        }
-    return {"status": 200, "result": result.model_dump(mode="python")}
+        return UploadOutcome(
+            422,
+            detail=f"pipeline failed: {type(exc).__name__}: {exc}",
+            traceback=traceback.format_exc(),
+        )
+    return UploadOutcome(200, result=result)
 
 
 def _warm() -> int:
@@ -192,15 +214,18 @@ class UploadPool:
         for _ in range(self.max_workers):
             pool.submit(_warm)
 
-    async def run(self, fn: Callable[..., Any], *args: Any) -> Any:
-        """``fn(*args)`` in a worker; ``UploadWorkerCrashed`` if the worker dies."""
+    async def run(
+        self, fn: Callable[Params, Result], *args: Params.args, **kwargs: Params.kwargs
+    ) -> Result:
+        """``fn(*args, **kwargs)`` in a worker (``fn`` and its arguments pickled); raises
+        ``UploadWorkerCrashed`` if the worker dies."""
         with self._lock:
             pool = self._pool
         try:
-            future = pool.submit(fn, *args)
+            future = pool.submit(fn, *args, **kwargs)
         except BrokenProcessPool:
             pool = self._replace(pool)
-            future = pool.submit(fn, *args)
+            future = pool.submit(fn, *args, **kwargs)
         self.submitted += 1
         try:
             return await asyncio.wrap_future(future)

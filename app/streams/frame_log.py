@@ -26,7 +26,7 @@ import os
 import queue
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -239,7 +239,7 @@ def read_index(directory: str | Path) -> list[dict[str, Any]]:
     return out
 
 
-def exact_calibration(data: dict[str, Any]) -> StereoCalibration:
+def exact_calibration(data: Mapping[str, Any]) -> StereoCalibration:
     """A :class:`StereoCalibration` from its ``to_dict()`` bit for bit (no re-validation:
     ``StereoCalibration.from_dict`` re-orthonormalises R and may move it by an ulp, and a
     replay must use the very numbers the live pipeline used)."""

@@ -111,8 +111,8 @@ def test_process_upload_push_and_track_give_one_answer(
             calib.image_size,
             drogue.to_dict(),
         )
-        assert out["status"] == 200, out
-        _assert_same(f"{name} upload worker", answers[name], out["result"])
+        assert out.status == 200 and out.result is not None, out
+        _assert_same(f"{name} upload worker", answers[name], out.result.model_dump(mode="python"))
     # the service (AAR_DROGUE): POST /stereo, then each pair pushed to a fresh push stream
     settings = service_settings(tmp_path, **IN_PROCESS, drogue=profile, history_s=600.0)
     with TestClient(create_app(settings)) as c:

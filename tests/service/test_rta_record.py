@@ -14,7 +14,8 @@ from app.model.tick import RunOutcome, TickRecord
 from app.service import records
 from app.service.clock import FakeClock
 from app.service.sim_worker.proxy import ProcessTick
-from app.service.sim_worker.worker import WorkerState
+from app.service.sim_worker.wire import TickMessage
+from app.service.sim_worker.worker import ComputedTick, WorkerState
 from app.service.telemetry import STREAM_EXCLUDE
 from app.service.tick_loop import TickLoop
 from app.sim.docking.outcomes import OUTCOMES
@@ -92,7 +93,7 @@ def _docking_tick(rta_reason: str | None, run_outcome: str | None) -> DockingTic
 
 
 def test_the_worker_pipe_carries_the_hand_overs_and_the_outcome() -> None:
-    """What the worker sends for a step (its ``("tick", …)`` message: the tick without its
+    """What the worker sends for a step (its :class:`TickMessage`: the tick without its
     images) through a real pipe, read back as the parent does (:class:`ProcessTick`)."""
 
     class Sim:
@@ -109,26 +110,16 @@ def test_the_worker_pipe_carries_the_hand_overs_and_the_outcome() -> None:
     try:
         for reason, outcome in [(ENVELOPE, None), (None, "departure")]:
             sim: Any = Sim(_docking_tick(reason, outcome))
-            reply = state.step(sim)
-            assert reply[0] == "tick"
-            child.send(("tick", 7, 1, *reply[1:], 10.0, 10.001, 0))  # as worker_main sends
+            computed = state.step(sim)
+            assert isinstance(computed, ComputedTick), computed
+            child.send(computed.released(7, 1, 10.0, 10.001, 0))  # as worker_main sends
             msg = parent.recv()
-            tick, done, sim_ms, slot, stamp, inline, deadline, released, missed = msg[3:]
-            assert tick.left_image is None  # the images travel apart
-            raw = ProcessTick(
-                tick,
-                None,
-                slot,
-                stamp,
-                inline,
-                sim_ms,
-                deadline_s=deadline,
-                released_s=released,
-                received_s=10.002,
-                missed_deadlines=missed,
-            )
+            assert isinstance(msg, TickMessage)
+            assert (msg.sid, msg.gen, msg.deadline_s, msg.released_s) == (7, 1, 10.0, 10.001)
+            assert msg.tick.left_image is None  # the images travel apart
+            raw = ProcessTick.of(msg, None, received_s=10.002)
             assert (raw.state.rta_reason, raw.state.run_outcome) == (reason, outcome)
-            assert done == (outcome is not None)
+            assert msg.done == (outcome is not None)
             t = records.from_sim(raw.state, step_ms=1.0, raw=raw)
             got.append(records.to_record(t, seq=len(got), clock_s=0.0, run=3))
     finally:

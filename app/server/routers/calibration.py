@@ -7,7 +7,7 @@ one is dropped (nothing keeps a reference to it).
 
 from __future__ import annotations
 
-from typing import Annotated, Any
+from typing import Annotated
 
 from fastapi import APIRouter, Body, Depends, HTTPException, status
 from fastapi.responses import JSONResponse
@@ -15,12 +15,13 @@ from fastapi.responses import JSONResponse
 from app.calibration.plausibility import validated
 from app.geometry.calibration import CalibrationError
 from app.server.dependencies import StateDep, require_token
+from app.types import JsonObject
 
 router = APIRouter(prefix="/calibration", tags=["calibration"])
 
 
 @router.get("")
-def get_calibration(state: StateDep) -> dict[str, Any]:
+def get_calibration(state: StateDep) -> JsonObject:
     """The active calibration in the project's JSON format (mm, ``X_right = R·X_left + T``)."""
     return state.calibrations.current.to_dict()
 
@@ -34,7 +35,7 @@ def get_calibration(state: StateDep) -> dict[str, Any]:
         }
     },
 )
-def put_calibration(data: Annotated[dict[str, Any], Body()], state: StateDep) -> Any:
+def put_calibration(data: Annotated[JsonObject, Body()], state: StateDep) -> object:
     """Replace the calibration (the previous one is kept for ``POST /calibration/rollback``).
 
     Refused (422, ``field`` named) unless plausible: fx, fy in [50, 1e5] px, principal point
@@ -59,7 +60,7 @@ def put_calibration(data: Annotated[dict[str, Any], Body()], state: StateDep) ->
 
 
 @router.post("/rollback", dependencies=[Depends(require_token)])
-def rollback_calibration(state: StateDep) -> dict[str, Any]:
+def rollback_calibration(state: StateDep) -> JsonObject:
     """Swap back to the previous calibration (409 if there is none)."""
     calib = state.calibrations.rollback()
     if calib is None:

@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import asyncio
 import base64
-from typing import Annotated, Any, Literal
+from typing import Annotated, Literal
 
 import numpy as np
 from fastapi import APIRouter, Depends, File, Form, HTTPException, Request, UploadFile
@@ -41,6 +41,7 @@ from app.service.image_guard import (
     ImageHeaderError,
     peek_header,
 )
+from app.types import JsonObject
 from app.vision.io import decode_image
 from app.vision.preprocess import ImageError
 
@@ -128,7 +129,7 @@ def _calibrate(
     include_png: bool,
     estimate_skew: bool,
     drop_outliers: bool,
-) -> dict[str, Any]:
+) -> JsonObject:
     lefts = [_decode(b, lab) for b, lab in zip(left_bytes, left_labels, strict=True)]
     rights = [_decode(b, lab) for b, lab in zip(right_bytes, right_labels, strict=True)]
     result = calibrate_checkerboard(
@@ -141,7 +142,7 @@ def _calibrate(
         estimate_skew=estimate_skew,
         drop_outliers=drop_outliers,
     )
-    payload: dict[str, Any] = {
+    payload: JsonObject = {
         "calibration": result.calibration.to_dict(),
         "report": result.report.to_dict(),
     }
@@ -187,7 +188,7 @@ async def calibrate_from_checkerboard(
     drop_outliers: Annotated[
         bool, Form(description="drop reprojection-outlier views (robust z-score rule)")
     ] = True,
-) -> dict[str, Any]:
+) -> JsonObject:
     """Calibrate the stereo rig from checkerboard pairs (Zhang's method, OpenCV)."""
     if len(left) != len(right):
         raise HTTPException(

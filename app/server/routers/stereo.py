@@ -171,11 +171,11 @@ async def _in_worker_process(
             "the upload worker crashed; retry",
             headers={"Retry-After": str(state.settings.retry_after_s)},
         ) from None
-    if out["status"] != 200:
-        if "traceback" in out:
-            log.error("pipeline failed on an upload (worker process):\n%s", out["traceback"])
-        raise HTTPException(out["status"], out["detail"])
-    result = PoseResult.model_validate(out["result"])
+    if out.status != 200 or out.result is None:
+        if out.traceback:
+            log.error("pipeline failed on an upload (worker process):\n%s", out.traceback)
+        raise HTTPException(out.status, out.detail)
+    result = out.result
     raw: RawFrame | None = None
     if state.uploads.images_due(1.0 / state.settings.image_hz):
         raw = LazyUploadFrames(left_bytes, right_bytes)

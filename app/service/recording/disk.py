@@ -8,7 +8,9 @@ import json
 import os
 import shutil
 from pathlib import Path
-from typing import IO, Any
+from typing import IO
+
+from app.types import JsonObject
 
 try:  # POSIX advisory locks: which recordings are live in some process
     import fcntl
@@ -82,5 +84,5 @@ def wall_time(line: bytes | None) -> float | None:
     return float(value) if isinstance(value, int | float) else None
 
 
-def read_jsonl(path: Path) -> list[dict[str, Any]]:
+def read_jsonl(path: Path) -> list[JsonObject]:
     return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]

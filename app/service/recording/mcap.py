@@ -9,7 +9,6 @@ the lossy codec) for the images.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
 
 from app.geometry.calibration import StereoCalibration
 from app.model.frames import RawFrame
@@ -23,12 +22,13 @@ from app.streams.mcap_log import (
     McapTick,
     frame_info,
 )
+from app.types import JsonObject
 from app.vision.drogue import DrogueProfile
 
 
-def telemetry_schema() -> dict[str, Any]:
+def telemetry_schema() -> JsonObject:
     """The JSON schema of a tick record (``/telemetry``), titled ``aar_dock.TickRecord``."""
-    schema: dict[str, Any] = TickRecord.model_json_schema()
+    schema: JsonObject = TickRecord.model_json_schema()
     schema["title"] = "aar_dock.TickRecord"
     return schema
 
@@ -74,10 +74,12 @@ class RecordingMcap:
     def on_record(self, record: TickRecord, line: bytes, raw: RawFrame | None = None) -> None:
         self.writer.write_tick(mcap_tick(record, line, raw))
 
-    def on_pair(self, entry: dict[str, Any], left: bytes, right: bytes) -> None:
-        """The frame writer's hook: the pair's encoded bytes, at its record's log time."""
+    def on_pair(self, entry: JsonObject, left: bytes, right: bytes) -> None:
+        """The frame writer's hook (``entry``: the pair's index line): the pair's encoded
+        bytes, at its record's log time (``record_seq``; none: the pair's own)."""
         pair = EncodedPair(left, right, self.image_format, frame_info(entry))
-        self.writer.write_pair(pair, entry.get("record_seq"))
+        seq = entry.get("record_seq")
+        self.writer.write_pair(pair, seq if isinstance(seq, int) else None)
 
     @property
     def bytes_on_disk(self) -> int:

@@ -16,7 +16,7 @@ import uuid
 import weakref
 from collections.abc import Callable
 from pathlib import Path
-from typing import IO, TYPE_CHECKING, Any, Literal, Protocol
+from typing import IO, TYPE_CHECKING, Literal, Protocol
 
 from app.model.frames import RawFrame
 from app.model.tick import TickRecord
@@ -39,6 +39,7 @@ from app.service.recording.meta import (
 )
 from app.service.recording.recovery import recover_recordings
 from app.streams.frame_encoding import FrameEncoding
+from app.types import JsonObject
 
 if TYPE_CHECKING:
     from app.geometry.calibration import StereoCalibration
@@ -467,7 +468,7 @@ class Recorder:
         if wake is not None:
             wake.set()
         errors: list[str] = [] if failure is None else [failure]
-        update: dict[str, Any] = {"active": False, "stopped_wall": time.time()}
+        update: JsonObject = {"active": False, "stopped_wall": time.time()}
         try:
             if fh is not None:
                 try:

@@ -21,14 +21,27 @@ import time
 from collections import deque
 from multiprocessing.connection import Connection
 from multiprocessing.process import BaseProcess
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, TypeVar
 
 from app.service.lazy_images import ImagePair, LazyImagePair
 from app.service.sim_source import SourceRestarted, SourceUnavailable, docking_config
 from app.service.sim_worker.image_ring import RING_SLOTS, ImageRing
 from app.service.sim_worker.wire import (
     STREAM,
-    Message,
+    Build,
+    Built,
+    ErrorReply,
+    Pause,
+    Ping,
+    Pong,
+    Ready,
+    Reply,
+    Request,
+    Run,
+    Stop,
+    TickError,
+    TickMessage,
+    WireCalibration,
     calibration_to_wire,
     raise_remote,
 )
@@ -38,13 +51,14 @@ from app.types import FloatArray, UInt8Array
 
 if TYPE_CHECKING:
     from app.geometry.calibration import StereoCalibration
-    from app.sim.docking import DockingConfig, DockingTick
+    from app.sim.docking import DockingTick
     from app.types import Rect
 
 log = logging.getLogger(__name__)
 
 
 SPAWN = multiprocessing.get_context("spawn")
+Answer = TypeVar("Answer", Ready, Built, Pong)  # the replies that answer a request
 DEFAULT_IMAGE_SIZE = (1280, 1024)  # (w, h) when no calibration says otherwise
 
 
@@ -100,6 +114,22 @@ class ProcessTick(LazyImagePair):
         self.missed_deadlines = missed_deadlines
         self.extra_timings_ms = {"sim": sim_ms}
 
+    @classmethod
+    def of(cls, msg: TickMessage, ring: ImageRing | None, *, received_s: float) -> ProcessTick:
+        """The tick ``msg`` released, received at ``received_s`` (its images in ``ring``)."""
+        return cls(
+            msg.tick,
+            ring,
+            msg.slot,
+            msg.stamp,
+            msg.inline,
+            msg.sim_ms,
+            deadline_s=msg.deadline_s,
+            released_s=msg.released_s,
+            received_s=received_s,
+            missed_deadlines=msg.missed_deadlines,
+        )
+
     # what the subscribers read besides the images (the 3-D scene, the camera view, MCAP)
     @property
     def image_windows_px(self) -> tuple[list[Rect], list[Rect]] | None:
@@ -152,12 +182,12 @@ class SimWorker:
         self._ring: ImageRing | None = None
         self._epoch = 0
         self._next_id = 0
-        self._current: tuple[int, DockingConfig, dict[str, Any] | None] | None = None
+        self._current: Build | None = None  # the running simulation's build request
         self._restarted_sid: int | None = None
         self._closed = False
         self._gen = 0  # run requests sent (a tick of an older one is stale)
         self._pacing: int | None = None  # the sid the worker's schedule runs for
-        self._inbox: deque[Message] = deque(maxlen=INBOX_MAX)
+        self._inbox: deque[Reply] = deque(maxlen=INBOX_MAX)
         self.pid: int | None = None
         self.policy: str | None = None  # the worker's CPU priority: "rr", "nice", "default"
         self.spawns = 0
@@ -169,12 +199,12 @@ class SimWorker:
         proc = self._proc
         return proc is not None and proc.is_alive()
 
-    def _ensure_ring(self, calibration_wire: dict[str, Any] | None) -> None:
+    def _ensure_ring(self, calibration: WireCalibration | None) -> None:
         if self._ring is not None or not self.shared_images:
             return
         w, h = DEFAULT_IMAGE_SIZE
-        if calibration_wire is not None:
-            w, h = calibration_wire["image_size"]
+        if calibration is not None:
+            w, h = calibration["image_size"]
         try:
             self._ring = ImageRing.create(self.ring_slots, int(w) * int(h))
         except OSError as exc:  # no /dev/shm: images go through the pipe at image_hz
@@ -207,12 +237,15 @@ class SimWorker:
         self._proc, self._conn = proc, parent
         self.spawns += 1
         try:
-            reply = self._wait_for(("ready",), self.start_timeout_s)
+            reply = self._wait_for(Ready, self.start_timeout_s)
         except _Lost as exc:
             self._kill()
             raise SimWorkerError(f"simulation worker did not start: {exc}") from None
-        self.pid = int(reply[1])
-        self.policy = str(reply[2])
+        if isinstance(reply, ErrorReply):  # the worker answers nothing before it is ready
+            self._kill()
+            raise SimWorkerError(f"simulation worker did not start: {reply.kind}: {reply.message}")
+        self.pid = reply.pid
+        self.policy = reply.policy
         log.info("simulation worker started (pid %d, scheduling %s)", self.pid, self.policy)
 
     def _kill(self) -> None:
@@ -228,7 +261,7 @@ class SimWorker:
                 proc.kill()
             proc.join(timeout=5.0)
 
-    def _wait(self, timeout_s: float) -> Message:
+    def _wait(self, timeout_s: float) -> Reply:
         """The next message from the worker (the inbox first)."""
         if self._inbox:
             return self._inbox.popleft()
@@ -242,7 +275,7 @@ class SimWorker:
                 raise _Lost(f"no answer within {timeout_s:g} s")
             try:
                 if conn.poll(min(remaining, 0.25)):
-                    reply: Message = conn.recv()
+                    reply: Reply = conn.recv()
                     return reply
                 if not proc.is_alive() and not conn.poll(0):
                     raise _Lost(f"worker exited with code {proc.exitcode}")
@@ -252,22 +285,22 @@ class SimWorker:
                     f"{type(exc).__name__} on the pipe, exit code {proc.exitcode}"
                 ) from None
 
-    def _wait_for(self, kinds: tuple[str, ...], timeout_s: float) -> Message:
-        """The reply to a request (a message of ``kinds`` or an ``error``); ticks the worker
+    def _wait_for(self, kind: type[Answer], timeout_s: float) -> Answer | ErrorReply:
+        """The reply to a request (a ``kind`` or an :class:`ErrorReply`); ticks the worker
         sends meanwhile are kept in the inbox for :meth:`step`."""
         deadline = time.monotonic() + timeout_s
-        held: list[Message] = []
+        held: list[Reply] = []
         try:
             while True:
                 msg = self._wait(max(1e-3, deadline - time.monotonic()))
-                if msg[0] in kinds or msg[0] == "error":
+                if isinstance(msg, (kind, ErrorReply)):
                     return msg
-                if msg[0] in STREAM:
+                if isinstance(msg, STREAM):
                     held.append(msg)
         finally:
             self._inbox.extendleft(reversed(held))
 
-    def _send(self, msg: Message) -> None:
+    def _send(self, msg: Request) -> None:
         conn = self._conn
         if conn is None:
             raise _Lost("no worker")
@@ -276,22 +309,22 @@ class SimWorker:
         except (OSError, ValueError) as exc:
             raise _Lost(f"send failed ({type(exc).__name__})") from None
 
-    def _build_in_worker(self, sid: int, dcfg: DockingConfig, wire: dict[str, Any] | None) -> bool:
-        self._send(("build", sid, dcfg, wire))
-        reply = self._wait_for(("built",), self.build_timeout_s)
-        if reply[0] == "error":
+    def _build_in_worker(self, request: Build) -> bool:
+        """Build ``request`` in the worker: whether the simulation is already done."""
+        self._send(request)
+        reply = self._wait_for(Built, self.build_timeout_s)
+        if isinstance(reply, ErrorReply):
             raise_remote(reply)
         self._pacing = None  # a new simulation: the worker's schedule ended
-        return bool(reply[2])
+        return reply.done
 
     def _replace(self) -> None:
         """Start a new worker and rebuild the current simulation in it (from its start)."""
         self._kill()
         self._spawn()
         if self._current is not None:
-            sid, dcfg, wire = self._current
             try:
-                self._build_in_worker(sid, dcfg, wire)
+                self._build_in_worker(self._current)
             except _Lost as exc:
                 self.restarts += 1
                 self._kill()
@@ -303,7 +336,7 @@ class SimWorker:
         does (``ValueError`` for a refused config), the running simulation kept if it does."""
         dcfg = docking_config(config)
         dcfg.validate()  # the in-process factory's ValueError, raised here
-        wire = calibration_to_wire(calibration)
+        wire = None if calibration is None else calibration_to_wire(calibration)
         with self._lock:
             if self._closed:
                 raise SimWorkerError("the simulation worker is shut down")
@@ -313,18 +346,18 @@ class SimWorker:
                     self.restarts += 1
                 self._replace()  # the running simulation too, should this build be refused
                 if self._current is not None:
-                    self._restarted_sid = self._current[0]
+                    self._restarted_sid = self._current.sid
             self._next_id += 1
-            sid = self._next_id
+            request = Build(sid=self._next_id, config=dcfg, calibration=wire)
             try:
-                done = self._build_in_worker(sid, dcfg, wire)
+                done = self._build_in_worker(request)
             except _Lost as exc:
                 # the running simulation is lost with the worker: its next step respawns
                 self.restarts += 1
                 self._kill()
                 raise SimWorkerError(f"simulation worker lost while building: {exc}") from None
-            self._current = (sid, dcfg, wire)
-            return ProcessSimSource(self, sid, done, 1.0 / float(dcfg.tick_hz))
+            self._current = request
+            return ProcessSimSource(self, request.sid, done, 1.0 / float(dcfg.tick_hz))
 
     def _lost(self, exc: _Lost) -> WorkerRestarted:
         """The worker was lost during a step: replace it (under ``self._lock``)."""
@@ -333,21 +366,21 @@ class SimWorker:
         self._replace()
         return WorkerRestarted(f"simulation worker lost ({exc}); restarted: a new run")
 
-    def _take(self, sid: int, gen: int) -> Message | None:
+    def _take(self, sid: int, gen: int) -> TickMessage | TickError | None:
         """The next stream message of run ``gen`` of ``sid`` if one has arrived (stale ones
         are dropped); ``None`` if none yet. Under ``self._lock``."""
         while self._inbox:
             msg = self._inbox.popleft()
-            if msg[0] in STREAM and msg[1] == sid and msg[2] == gen:
+            if isinstance(msg, STREAM) and msg.sid == sid and msg.gen == gen:
                 return msg
         conn, proc = self._conn, self._proc
         if conn is None or proc is None:
             raise _Lost("no worker")
         try:
             while conn.poll(0):
-                msg = conn.recv()
-                if msg[0] in STREAM and msg[1] == sid and msg[2] == gen:
-                    return msg
+                got: Reply = conn.recv()
+                if isinstance(got, STREAM) and got.sid == sid and got.gen == gen:
+                    return got
         except (EOFError, OSError) as exc:
             proc.join(timeout=0.2)  # for its exit code
             raise _Lost(f"{type(exc).__name__} on the pipe, exit code {proc.exitcode}") from None
@@ -374,7 +407,7 @@ class SimWorker:
             if self._pacing != sid:
                 self._gen += 1
                 try:
-                    self._send(("run", sid, self._gen, period_s, time.monotonic()))
+                    self._send(Run(sid, self._gen, period_s, first_deadline_s=time.monotonic()))
                 except _Lost as exc:
                     raise self._lost(exc) from None
                 self._pacing = sid
@@ -405,27 +438,14 @@ class SimWorker:
                 pass  # closed meanwhile: seen under the lock
         received = time.monotonic()
         with self._lock:
-            if msg[0] == "tickerror":
+            if isinstance(msg, TickError):
                 if self._pacing == sid and self._gen == gen:
                     self._pacing = None  # the worker's schedule ended with the error
-                raise_remote(("error", *msg[3:]))
-            tick, done, sim_ms, slot, stamp, inline, deadline, released, missed = msg[3:]
-            if done and self._pacing == sid and self._gen == gen:
+                raise_remote(msg.error)
+            if msg.done and self._pacing == sid and self._gen == gen:
                 self._pacing = None  # the worker's schedule ended with the simulation
-            ring = self._ring if slot >= 0 else None
-        pt = ProcessTick(
-            tick,
-            ring,
-            slot,
-            stamp,
-            inline,
-            sim_ms,
-            deadline_s=deadline,
-            released_s=released,
-            received_s=received,
-            missed_deadlines=int(missed),
-        )
-        return pt, bool(done)
+            ring = self._ring if msg.slot >= 0 else None
+        return ProcessTick.of(msg, ring, received_s=received), msg.done
 
     def pause(self, sid: int) -> None:
         """Stop the worker's schedule for ``sid`` (the simulation is kept; ticks computed
@@ -435,7 +455,7 @@ class SimWorker:
                 return
             self._pacing = None
             try:
-                self._send(("pause",))
+                self._send(Pause())
             except _Lost:
                 pass  # noticed (and replaced) at the next step
 
@@ -443,11 +463,13 @@ class SimWorker:
         """The worker's pid (a round trip through the pipe)."""
         with self._lock:
             try:
-                self._send(("ping",))
-                reply = self._wait_for(("pong",), timeout_s)
+                self._send(Ping())
+                reply = self._wait_for(Pong, timeout_s)
             except _Lost as exc:
                 raise SimWorkerError(str(exc)) from None
-            return int(reply[1])
+            if isinstance(reply, ErrorReply):
+                raise_remote(reply)
+            return reply.pid
 
     def close(self, timeout_s: float = 5.0) -> None:
         """Stop the worker (politely, then by force) and free the shared memory."""
@@ -464,7 +486,7 @@ class SimWorker:
             proc, conn = self._proc, self._conn
             if proc is not None and conn is not None and proc.is_alive():
                 try:
-                    conn.send(("stop",))
+                    conn.send(Stop())
                 except (OSError, ValueError):
                     pass
                 proc.join(timeout=timeout_s)

@@ -26,21 +26,71 @@ import os
 import signal
 import time
 from collections import deque
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from multiprocessing.connection import Connection
 from typing import TYPE_CHECKING
 
 from app.service.sim_worker.image_ring import ImageRing
 from app.service.sim_worker.priority import raise_thread_priority
-from app.service.sim_worker.wire import Message, calibration_from_wire, error_reply
+from app.service.sim_worker.wire import (
+    Build,
+    Built,
+    ErrorReply,
+    Pause,
+    Ping,
+    Pong,
+    Ready,
+    Request,
+    Run,
+    Stop,
+    TickError,
+    TickMessage,
+    calibration_from_wire,
+    error_reply,
+)
 from app.types import UInt8Array
 
 if TYPE_CHECKING:
-    from app.sim.docking import DockingSimulation
+    from app.sim.docking import DockingSimulation, DockingTick
 
 LOOKAHEAD = 2  # ticks the worker computes ahead of their deadlines
 POLL_SLACK_S = 0.002  # the pipe is polled until this long before a deadline, then a sleep
 WORKER_NICE = -10  # nice value the worker asks for where real-time scheduling is refused
+
+
+@dataclass(frozen=True, slots=True)
+class ComputedTick:
+    """A tick computed (ahead of its deadline or at it), not yet released.
+
+    ``tick``: the :class:`DockingTick` without its images; ``done``: the simulation finished
+    with it; ``sim_ms``: the compute time (ms); the images in ring ``slot`` under ``stamp``
+    (``slot`` −1: not in the ring), or ``inline``, or neither (rate-limited)."""
+
+    tick: DockingTick
+    done: bool
+    sim_ms: float
+    slot: int
+    stamp: int
+    inline: tuple[UInt8Array, UInt8Array] | None
+
+    def released(
+        self, sid: int, gen: int, deadline_s: float, released_s: float, missed: int
+    ) -> TickMessage:
+        """The :class:`TickMessage` that releases it at ``deadline_s`` (sent ``released_s``,
+        after ``missed`` skipped deadlines; monotonic clock, s)."""
+        return TickMessage(
+            sid=sid,
+            gen=gen,
+            tick=self.tick,
+            done=self.done,
+            sim_ms=self.sim_ms,
+            slot=self.slot,
+            stamp=self.stamp,
+            inline=self.inline,
+            deadline_s=deadline_s,
+            released_s=released_s,
+            missed_deadlines=missed,
+        )
 
 
 class WorkerState:
@@ -53,9 +103,9 @@ class WorkerState:
         self.k = 0
         self.last_inline = -1e9
 
-    def step(self, sim: DockingSimulation) -> Message:
-        """Step ``sim`` once: ``("tick", light tick, done, sim_ms, slot, stamp, inline)`` or
-        an ``error`` reply."""
+    def step(self, sim: DockingSimulation) -> ComputedTick | ErrorReply:
+        """Step ``sim`` once: the :class:`ComputedTick` (its images in the ring or inline), or
+        the error it raised."""
         t0 = time.perf_counter()
         try:
             tick = sim.step()
@@ -77,7 +127,7 @@ class WorkerState:
                     self.last_inline = now
                     inline = (left, right)
         light = replace(tick, left_image=None, right_image=None)
-        return ("tick", light, bool(sim.done), sim_ms, slot, stamp, inline)
+        return ComputedTick(light, bool(sim.done), sim_ms, slot, stamp, inline)
 
 
 def raise_priority() -> str:
@@ -108,6 +158,11 @@ class Pace:
         return deadline, missed
 
 
+def _refused(reason: str) -> ErrorReply:
+    """A :class:`Run` the worker cannot serve (the parent raises it as a ``RuntimeError``)."""
+    return ErrorReply("RuntimeError", reason, "")
+
+
 def worker_main(
     conn: Connection,
     ring_name: str | None,
@@ -117,14 +172,15 @@ def worker_main(
     image_period_s: float,
     lookahead: int,
 ) -> None:
-    """Entry point of the worker: serve ``build`` / ``run`` / ``pause`` / ``ping`` / ``stop``.
+    """Entry point of the worker: serve :class:`Build`, :class:`Run`, :class:`Pause`,
+    :class:`Ping` and :class:`Stop`.
 
-    ``run`` starts the worker's own fixed-rate schedule for a built simulation: at each
-    deadline it sends the next tick (``("tick", sid, gen, …, deadline, released, missed)``)
-    without being asked, and in between computes up to ``lookahead`` ticks ahead (their
-    images go to the ring when computed). Requests are read between ticks, never while a
-    deadline is due. A simulation that finished or raised ends its schedule (the parent asks
-    again); ``pause``, a new ``build`` or ``run`` replace it.
+    :class:`Run` starts the worker's own fixed-rate schedule for a built simulation: at each
+    deadline it sends the next tick (a :class:`TickMessage`) without being asked, and in
+    between computes up to ``lookahead`` ticks ahead (their images go to the ring when
+    computed). Requests are read between ticks, never while a deadline is due. A simulation
+    that finished or raised ends its schedule (the parent asks again); :class:`Pause`, a new
+    :class:`Build` or :class:`Run` replace it.
     """
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
     policy = raise_priority()
@@ -143,19 +199,19 @@ def worker_main(
     state = WorkerState(ring, epoch, image_period_s)
     sim: DockingSimulation | None = None
     sim_id = -1
-    ahead: deque[Message] = deque()  # computed, not yet released (this sim)
+    ahead: deque[ComputedTick | ErrorReply] = deque()  # computed, not released (this sim)
     pace: Pace | None = None
-    conn.send(("ready", os.getpid(), policy))
+    conn.send(Ready(pid=os.getpid(), policy=policy))
 
     def release(p: Pace, sim: DockingSimulation) -> bool:
         """Send the tick for the deadline due now; ``False`` ends the schedule."""
         deadline, missed = p.due(time.monotonic())
-        reply = ahead.popleft() if ahead else state.step(sim)  # late if not computed ahead
-        if reply[0] != "tick":
-            conn.send(("tickerror", p.sid, p.gen, *reply[1:]))
+        computed = ahead.popleft() if ahead else state.step(sim)  # late if not computed ahead
+        if isinstance(computed, ErrorReply):
+            conn.send(TickError(p.sid, p.gen, computed))
             return False
-        conn.send(("tick", p.sid, p.gen, *reply[1:], deadline, time.monotonic(), missed))
-        return not reply[2]  # the simulation finished with this tick
+        conn.send(computed.released(p.sid, p.gen, deadline, time.monotonic(), missed))
+        return not computed.done  # the simulation finished with this tick
 
     while True:
         try:
@@ -170,42 +226,42 @@ def worker_main(
                 elif (
                     len(ahead) < lookahead
                     and not sim.done
-                    and not (ahead and ahead[-1][0] != "tick")  # a raise ends the look-ahead
+                    and not (ahead and isinstance(ahead[-1], ErrorReply))  # a raise ends it
                 ):
                     ahead.append(state.step(sim))
                     continue
                 elif not conn.poll(max(0.0, pace.next_t - now - POLL_SLACK_S)):
                     time.sleep(max(0.0, pace.next_t - time.monotonic()))  # ms-rounded poll
                     continue  # the deadline
-            msg = conn.recv()
+            msg: Request = conn.recv()
         except (EOFError, OSError):
             break  # the parent is gone
-        op = msg[0]
-        if op == "stop":
-            break
-        if op == "ping":
-            conn.send(("pong", os.getpid()))
-        elif op == "build":
-            _, new_id, dcfg, calib_wire = msg
-            try:
-                new = DockingSimulation(dcfg, calibration=calibration_from_wire(calib_wire))
-            except Exception as exc:
-                conn.send(error_reply(exc))  # the running simulation (and schedule) is kept
-                continue
-            sim, sim_id, pace = new, new_id, None
-            ahead.clear()
-            conn.send(("built", new_id, bool(sim.done)))
-        elif op == "run":
-            _, sid, gen, period_s, first_deadline = msg
-            if sim is None or sid != sim_id:
-                conn.send(("tickerror", sid, gen, "RuntimeError", "stale simulation source", ""))
-            elif not ahead and sim.done:
-                conn.send(("tickerror", sid, gen, "RuntimeError", "simulation finished", ""))
-            else:
-                pace = Pace(sid, gen, float(period_s), float(first_deadline))
-        elif op == "pause":
-            pace = None  # the ticks computed ahead are kept for the next run
-        else:
-            conn.send(("error", "RuntimeError", f"unknown request {op!r}", ""))
+        match msg:
+            case Stop():
+                break
+            case Ping():
+                conn.send(Pong(pid=os.getpid()))
+            case Build(sid=new_id, config=dcfg, calibration=wire):
+                try:
+                    calibration = None if wire is None else calibration_from_wire(wire)
+                    new = DockingSimulation(dcfg, calibration=calibration)
+                except Exception as exc:
+                    conn.send(error_reply(exc))  # the running simulation (and schedule) is kept
+                    continue
+                sim, sim_id, pace = new, new_id, None
+                ahead.clear()
+                conn.send(Built(sid=new_id, done=bool(sim.done)))
+            case Run(sid=sid, gen=gen, period_s=period_s, first_deadline_s=first_deadline_s):
+                if sim is None or sid != sim_id:
+                    conn.send(TickError(sid, gen, _refused("stale simulation source")))
+                elif not ahead and sim.done:
+                    conn.send(TickError(sid, gen, _refused("simulation finished")))
+                else:
+                    pace = Pace(sid, gen, float(period_s), float(first_deadline_s))
+            case Pause():
+                pace = None  # the ticks computed ahead are kept for the next run
+            case _:
+                unknown = f"unknown request {type(msg).__name__}"
+                conn.send(ErrorReply("RuntimeError", unknown, ""))
     if ring is not None:
         ring.close()
