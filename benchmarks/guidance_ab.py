@@ -5,8 +5,9 @@ the nose came to the hose, then the counts per arm.
     .venv/bin/python benchmarks/guidance_ab.py --first-seed 440000 --runs 40 \\
         --turbulence moderate --imperfections harsh --setting stabilise_first
 
-The setting is a boolean ``DockingConfig`` field (:data:`SETTINGS`) (``None``: the plant's default); arm A flies
-it False, arm B True. The seeds used here are tuning seeds: quote held-out figures from
+The setting is a boolean ``DockingConfig`` field (:data:`SETTINGS`) (``None``: the plant's
+default), or ``pre_plane_checks`` (the high-pass and overspeed break-aways of
+:mod:`app.control.abort`: off, or at their defaults); arm A flies it False, arm B True. The seeds used here are tuning seeds: quote held-out figures from
 ``aar-dock campaign`` on other seeds. Asserts nothing.
 """
 
@@ -32,7 +33,13 @@ class Run:
     break_aways: str  # "t s: reason; …"
 
 
-SETTINGS = ("stabilise_first", "swing_model_abort", "bow_feedforward", "timed_closure")
+SETTINGS = (
+    "stabilise_first",
+    "swing_model_abort",
+    "bow_feedforward",
+    "timed_closure",
+    "pre_plane_checks",
+)
 
 
 def with_setting(cfg: DockingConfig, setting: str, value: bool) -> DockingConfig:
@@ -45,6 +52,8 @@ def with_setting(cfg: DockingConfig, setting: str, value: bool) -> DockingConfig
         return replace(cfg, bow_feedforward=value)
     if setting == "timed_closure":
         return replace(cfg, timed_closure=value)
+    if setting == "pre_plane_checks":  # the high-pass and overspeed break-aways (defaults: on)
+        return cfg if value else replace(cfg, high_gap_m=0.0, overspeed_gap_m=0.0)
     raise ValueError(f"unknown setting {setting!r} (one of {', '.join(SETTINGS)})")
 
 
