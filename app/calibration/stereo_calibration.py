@@ -56,7 +56,9 @@ from app.calibration.detection import (
 from app.calibration.held_out import held_out_check
 from app.calibration.opencv_fit import (
     MODEL_FLAGS,
+    CameraFit,
     Model,
+    StereoFit,
     as_calibration,
     board_pose,
     calibrate_camera,
@@ -67,6 +69,7 @@ from app.calibration.report import (
     SKEW_REFINED_NOTE,
     CalibrationReport,
     DroppedView,
+    HeldOutCheck,
     RejectedView,
     ViewReport,
     coverage_map,
@@ -88,6 +91,7 @@ from app.calibration.robust import (
 )
 from app.calibration.skew_refinement import refine_with_skew
 from app.geometry.calibration import StereoCalibration
+from app.types import FloatArray
 
 MIN_VIEWS = 6
 DEFAULT_MAX_STEREO_RMS_PX = 0.5
@@ -123,46 +127,79 @@ def _too_few_message(detections: Sequence[PairDetection], n_ok: int) -> str:
     )
 
 
-def calibrate_from_detections(
-    detections: Sequence[PairDetection],
-    board: Board,
-    model: Model | str = "paper",
-    max_stereo_rms_px: float = DEFAULT_MAX_STEREO_RMS_PX,
-    hint: Callable[[], str | None] | None = None,
-    estimate_skew: bool = False,
-    drop_outliers: bool = True,
-    held_out_folds: int | None = None,
-) -> CheckerboardCalibration:
-    """Calibrate both cameras, check the pairs, then the rig (steps 1–6 of the module doc).
+def _image_points(det: PairDetection, side: str) -> NDArray[np.float32]:
+    """One side's corners (px) as OpenCV's (n, 1, 2) float32 image points."""
+    p = det.left if side == "left" else det.right
+    return np.asarray(p, dtype=np.float32).reshape(-1, 1, 2)
 
-    ``estimate_skew``: refine everything jointly with the skew γ of eq. 2 at the end
-    (:func:`refine_with_skew`; OpenCV alone writes γ = 0). ``drop_outliers``: the robust view
-    dropping of step 4. ``held_out_folds``: 0 skips the held-out check. ``hint`` is called
-    when too few views are usable to add e.g. a board-size suggestion."""
+
+@dataclass(frozen=True)
+class RigChecked:
+    """Step 2's outcome (the rig check): ``detections`` with reversed right grids corrected
+    and rejections set, ``used`` the indices of the usable pairs, ``warnings`` what the check
+    reports (inconclusive, grids reversed), ``first_fit`` the check's own joint fit when it
+    used exactly the ``used`` pairs as they are (step 3 starts from it), else None."""
+
+    detections: list[PairDetection]
+    used: list[int]
+    warnings: list[str]
+    first_fit: StereoFit | None
+
+
+@dataclass(frozen=True)
+class JointFit:
+    """Steps 3–4's outcome: the last joint fit (``stereoCalibrateExtended``), the views it
+    used (indices into the detections) and the views dropped as reprojection outliers."""
+
+    fit: StereoFit
+    used: list[int]
+    dropped: list[DroppedView]
+
+
+@dataclass(frozen=True)
+class FinalEstimate:
+    """Steps 5–6's outcome: the final ``fit`` (OpenCV's, or the skew refinement's), each
+    camera's RMS (px), the calibration made from it and the held-out check (None if
+    skipped)."""
+
+    fit: StereoFit
+    rms_l: float
+    rms_r: float
+    calibration: StereoCalibration
+    held: HeldOutCheck | None
+
+
+def _usable_views(
+    dets: Sequence[PairDetection], model: Model | str, hint: Callable[[], str | None] | None
+) -> list[int]:
+    """Indices of the pairs with the board in both images; CheckerboardError for an unknown
+    model, no pairs or fewer than ``MIN_VIEWS`` usable ones (with ``hint``'s suggestion)."""
     if model not in MODEL_FLAGS:
         raise CheckerboardError(f"model {model!r}: expected one of {sorted(MODEL_FLAGS)}")
-    if not detections:
+    if not dets:
         raise CheckerboardError("no images given")
-    flags = MODEL_FLAGS[model]
-    dets = list(detections)
     both = [k for k, d in enumerate(dets) if d.usable]
     if len(both) < MIN_VIEWS:
         msg = _too_few_message(dets, len(both))
         extra = hint() if hint is not None else None
         raise CheckerboardError(msg + (f"; {extra}" if extra else ""))
-    size = dets[0].image_size
-    obj = board.object_points()
+    return both
 
-    def pts(k: int, side: str) -> NDArray[np.float32]:
-        p = dets[k].left if side == "left" else dets[k].right
-        return np.asarray(p, dtype=np.float32).reshape(-1, 1, 2)
 
-    # 1. each camera alone
-    cam_l = calibrate_camera(obj, [pts(k, "left") for k in both], size, flags)
-    cam_r = calibrate_camera(obj, [pts(k, "right") for k in both], size, flags)
-    rms_l, rms_r = cam_l.rms, cam_r.rms
+def _check_rig(
+    dets: list[PairDetection],
+    both: list[int],
+    cams: tuple[CameraFit, CameraFit],
+    board: Board,
+    flags: int,
+) -> RigChecked:
+    """Step 2: do the two grids of each pair hold the same corners in the same order
+    (:func:`rig_check`, from each camera's own fit ``cams``)? Reversed right grids are turned
+    round, offset or unfit pairs rejected; CheckerboardError when fewer than ``MIN_VIEWS``
+    pairs remain."""
+    cam_l, cam_r = cams
+    dets = list(dets)
     warnings: list[str] = []
-    # 2. rig check: the two grids of a pair are the same corners in the same order
     verdicts, inconclusive, seed = rig_check(
         [board_pose(r, t) for r, t in zip(cam_l.rvecs, cam_l.tvecs, strict=True)],
         [board_pose(r, t) for r, t in zip(cam_r.rvecs, cam_r.tvecs, strict=True)],
@@ -175,7 +212,7 @@ def calibrate_from_detections(
             )
             for k in both
         ],
-        size,
+        dets[0].image_size,
         flags,
     )
     if inconclusive:
@@ -195,20 +232,38 @@ def calibrate_from_detections(
     used = [k for k in both if dets[k].usable]
     if len(used) < MIN_VIEWS:
         raise CheckerboardError(_too_few_message(dets, len(used)))
-    K_l, K_r = cam_l.K, cam_r.K
-    d_l, d_r = cam_l.dist.ravel(), cam_r.dist.ravel()
-    # 3.-4. joint refinement, dropping outlier views one at a time
-    objd = obj.astype(np.float64)
-    dropped: list[DroppedView] = []
-    max_drops = int(MAX_DROP_FRACTION * len(used))
     # the rig check's calibration is the first fit when it used exactly these pairs
     reuse = seed is not None and [both[i] for i in seed[0]] == used and not flipped
+    first_fit = seed[1] if reuse and seed is not None else None
+    return RigChecked(dets, used, warnings, first_fit)
+
+
+def _refine_dropping_outliers(
+    rig: RigChecked,
+    cams: tuple[CameraFit, CameraFit],
+    obj: FloatArray,
+    flags: int,
+    drop_outliers: bool,
+) -> JointFit:
+    """Steps 3–4: the joint stereo fit of the used views (``obj``: board points, mm), then,
+    while the worst view's RMS reprojection error (px) is a robust outlier
+    (:func:`robust_outlier`), that view dropped and the fit repeated from the last one — at
+    most ``MAX_DROP_FRACTION`` of the views, never below ``MIN_VIEWS``."""
+    dets, used = rig.detections, list(rig.used)
+    size = dets[0].image_size
+    K_l, K_r = cams[0].K, cams[1].K
+    d_l, d_r = cams[0].dist.ravel(), cams[1].dist.ravel()
+    dropped: list[DroppedView] = []
+    max_drops = int(MAX_DROP_FRACTION * len(used))
+    first = rig.first_fit
     while True:
-        if reuse and seed is not None:
-            fit, reuse = seed[1], False
+        if first is not None:
+            fit, first = first, None
         else:
             fit = stereo_fit(
-                objd, [pts(k, "left") for k in used], [pts(k, "right") for k in used],
+                obj,
+                [_image_points(dets[k], "left") for k in used],
+                [_image_points(dets[k], "right") for k in used],
                 K_l, d_l, K_r, d_r, size, flags,
             )  # fmt: skip
         if not drop_outliers or len(dropped) >= max_drops or len(used) <= MIN_VIEWS:
@@ -230,11 +285,27 @@ def calibrate_from_detections(
             )
         )
         K_l, d_l, K_r, d_r = fit.K_l, fit.d_l, fit.K_r, fit.d_r
-    K_l, d_l, K_r, d_r, R, T = fit.K_l, fit.d_l, fit.K_r, fit.d_r, fit.R, fit.T
-    stereo_rms, per_view = fit.rms, fit.per_view
-    K_l[0, 1] = K_r[0, 1] = 0.0
-    img_l = [pts(k, "left") for k in used]
-    img_r = [pts(k, "right") for k in used]
+    return JointFit(fit, used, dropped)
+
+
+def _final_estimate(
+    joint: JointFit,
+    dets: Sequence[PairDetection],
+    cams: tuple[CameraFit, CameraFit],
+    board: Board,
+    model: Model | str,
+    estimate_skew: bool,
+    held_out_folds: int | None,
+) -> FinalEstimate:
+    """Steps 6 then 5: OpenCV's skew is set to exactly 0 (γ of eq. 2, in the fit itself),
+    the held-out scale check (mm) runs on that fit, then, with ``estimate_skew``, everything
+    is refined jointly with γ (:func:`refine_with_skew`)."""
+    fit, used = joint.fit, joint.used
+    size = dets[0].image_size
+    flags = MODEL_FLAGS[model]
+    fit.K_l[0, 1] = fit.K_r[0, 1] = 0.0
+    img_l = [_image_points(dets[k], "left") for k in used]
+    img_r = [_image_points(dets[k], "right") for k in used]
     # 6. held-out scale check (OpenCV's model; before the skew refinement)
     names = [dets[k].name for k in used]
     held = (
@@ -242,28 +313,31 @@ def calibrate_from_detections(
         if held_out_folds == 0
         else held_out_check(names, img_l, img_r, fit, board, size, flags, held_out_folds)
     )
+    final, rms_l, rms_r = fit, cams[0].rms, cams[1].rms
     # 5. skew
     if estimate_skew:
-        sk = refine_with_skew(
-            objd,
+        final = refine_with_skew(
+            board.object_points().astype(np.float64),
             [np.asarray(p, dtype=np.float64) for p in img_l],
             [np.asarray(p, dtype=np.float64) for p in img_r],
-            K_l, d_l, K_r, d_r, R, T, fit.rvecs, fit.tvecs, str(model),
+            fit.K_l, fit.d_l, fit.K_r, fit.d_r, fit.R, fit.T, fit.rvecs, fit.tvecs, str(model),
         )  # fmt: skip
-        K_l, d_l, K_r, d_r, R, T = sk.K_l, sk.d_l, sk.K_r, sk.d_r, sk.R, sk.T
-        stereo_rms, per_view, rms_l, rms_r = sk.rms, sk.per_view, sk.rms_l, sk.rms_r
-    calib = as_calibration(size, K_l, d_l, K_r, d_r, R, T)
+        rms_l, rms_r = final.rms_l, final.rms_r
+    calib = as_calibration(size, final.K_l, final.d_l, final.K_r, final.d_r, final.R, final.T)
+    return FinalEstimate(final, rms_l, rms_r, calib, held)
 
-    views = [
-        ViewReport(
-            dets[k].name,
-            float(per_view[i, 0]),
-            float(per_view[i, 1]),
-            None if held is None else held.per_view_rms_mm[dets[k].name],
-        )
-        for i, k in enumerate(used)
-    ]
-    rejected = [RejectedView(d.name, d.reason or "") for d in dets if d.reason is not None]
+
+def _quality_warnings(
+    rejected: Sequence[RejectedView],
+    joint: JointFit,
+    est: FinalEstimate,
+    views: Sequence[ViewReport],
+    max_stereo_rms_px: float,
+) -> list[str]:
+    """The report's warnings on the fit's quality (px): stereo RMS over the limit, views that
+    fit poorly, rejected and dropped pairs, too few views."""
+    warnings: list[str] = []
+    stereo_rms, per_view = est.fit.rms, est.fit.per_view
     if stereo_rms > max_stereo_rms_px:
         warnings.append(
             f"stereo RMS {stereo_rms:.3f} px is above {max_stereo_rms_px:.3f} px: check focus, "
@@ -276,21 +350,67 @@ def calibrate_from_detections(
             warnings.append(f"view {v.name} fits poorly ({worst:.3f} px vs median {med:.3f} px)")
     for r in rejected:
         warnings.append(f"pair {r.name} rejected: {r.reason}")
-    for dv in dropped:
+    for dv in joint.dropped:
         warnings.append(f"pair {dv.name} dropped: {dv.reason}")
-    if len(used) < 10:
-        warnings.append(f"only {len(used)} usable views; 10-20 varied views are recommended")
-    cov = coverage_map(
-        [np.asarray(dets[k].left) for k in used], [np.asarray(dets[k].right) for k in used], size
-    )
-    warnings.extend(coverage_warnings(cov))
+    if len(joint.used) < 10:
+        warnings.append(f"only {len(joint.used)} usable views; 10-20 varied views are recommended")
+    return warnings
+
+
+def _report_notes(model: Model | str, estimate_skew: bool) -> list[str]:
+    """The report's fixed notes: skew, distortion model, frame convention, outlier rule."""
+    return [
+        SKEW_REFINED_NOTE if estimate_skew else SKEW_NOTE,
+        "Distortion model: "
+        + ("k1, k2 only (the paper's eq. 7)" if model == "paper" else "k1, k2, p1, p2, k3"),
+        "Convention: X_right = R * X_left + T (mm); left camera frame = world frame.",
+        f"Outlier rule: a view is dropped when its RMS has robust z-score "
+        f"0.6745*(e - median)/MAD > {OUTLIER_Z}, e > {OUTLIER_RATIO} x median and "
+        f"e > median + {OUTLIER_MIN_EXCESS_PX} px "
+        f"(at most {int(100 * MAX_DROP_FRACTION)} % of the views).",
+    ]
+
+
+def _detector_counts(dets: Sequence[PairDetection]) -> dict[str, int]:
+    """How many grids each corner detector found."""
     detectors: dict[str, int] = {}
     for d in dets:
         for m in (d.left_method, d.right_method):
             if m is not None:
                 detectors[m] = detectors.get(m, 0) + 1
+    return detectors
+
+
+def _calibration_report(
+    rig: RigChecked,
+    joint: JointFit,
+    est: FinalEstimate,
+    board: Board,
+    model: Model | str,
+    max_stereo_rms_px: float,
+    estimate_skew: bool,
+) -> CalibrationReport:
+    """The report of a calibration: per-view RMS (px) and held-out residual (mm), rejected
+    and dropped pairs, RMS, rig (mm, deg), intrinsics, coverage and every warning."""
+    dets, used, calib, fit = rig.detections, joint.used, est.calibration, est.fit
+    size = dets[0].image_size
+    views = [
+        ViewReport(
+            dets[k].name,
+            float(fit.per_view[i, 0]),
+            float(fit.per_view[i, 1]),
+            None if est.held is None else est.held.per_view_rms_mm[dets[k].name],
+        )
+        for i, k in enumerate(used)
+    ]
+    rejected = [RejectedView(d.name, d.reason or "") for d in dets if d.reason is not None]
+    warnings = rig.warnings + _quality_warnings(rejected, joint, est, views, max_stereo_rms_px)
+    cov = coverage_map(
+        [np.asarray(dets[k].left) for k in used], [np.asarray(dets[k].right) for k in used], size
+    )
+    warnings.extend(coverage_warnings(cov))
     rot_deg = float(np.degrees(np.linalg.norm(cv2.Rodrigues(calib.R)[0])))
-    report = CalibrationReport(
+    return CalibrationReport(
         board=f"{board.cols}x{board.rows}",
         square_mm=float(board.square_mm),
         model=str(model),
@@ -299,32 +419,62 @@ def calibrate_from_detections(
         views_used=len(used),
         views=views,
         rejected=rejected,
-        left_rms_px=float(rms_l),
-        right_rms_px=float(rms_r),
-        stereo_rms_px=float(stereo_rms),
+        left_rms_px=float(est.rms_l),
+        right_rms_px=float(est.rms_r),
+        stereo_rms_px=float(fit.rms),
         max_stereo_rms_px=float(max_stereo_rms_px),
         baseline_mm=calib.baseline_mm,
         convergence_deg=calib.convergence_deg,
         T_mm=[float(x) for x in calib.T],
         rotation_deg=rot_deg,
-        intrinsics={"left": intrinsics_summary(K_l, d_l), "right": intrinsics_summary(K_r, d_r)},
+        intrinsics={
+            "left": intrinsics_summary(fit.K_l, fit.d_l),
+            "right": intrinsics_summary(fit.K_r, fit.d_r),
+        },
         warnings=warnings,
-        notes=[
-            SKEW_REFINED_NOTE if estimate_skew else SKEW_NOTE,
-            "Distortion model: "
-            + ("k1, k2 only (the paper's eq. 7)" if model == "paper" else "k1, k2, p1, p2, k3"),
-            "Convention: X_right = R * X_left + T (mm); left camera frame = world frame.",
-            f"Outlier rule: a view is dropped when its RMS has robust z-score "
-            f"0.6745*(e - median)/MAD > {OUTLIER_Z}, e > {OUTLIER_RATIO} x median and "
-            f"e > median + {OUTLIER_MIN_EXCESS_PX} px "
-            f"(at most {int(100 * MAX_DROP_FRACTION)} % of the views).",
-        ],
-        dropped=dropped,
+        notes=_report_notes(model, estimate_skew),
+        dropped=joint.dropped,
         coverage=cov,
-        held_out=held,
-        detectors=detectors,
+        held_out=est.held,
+        detectors=_detector_counts(dets),
     )
-    return CheckerboardCalibration(calib, report, dets, used)
+
+
+def calibrate_from_detections(
+    detections: Sequence[PairDetection],
+    board: Board,
+    model: Model | str = "paper",
+    max_stereo_rms_px: float = DEFAULT_MAX_STEREO_RMS_PX,
+    hint: Callable[[], str | None] | None = None,
+    estimate_skew: bool = False,
+    drop_outliers: bool = True,
+    held_out_folds: int | None = None,
+) -> CheckerboardCalibration:
+    """Calibrate both cameras, check the pairs, then the rig (steps 1–6 of the module doc).
+
+    ``estimate_skew``: refine everything jointly with the skew γ of eq. 2 at the end
+    (:func:`refine_with_skew`; OpenCV alone writes γ = 0). ``drop_outliers``: the robust view
+    dropping of step 4. ``held_out_folds``: 0 skips the held-out check. ``hint`` is called
+    when too few views are usable to add e.g. a board-size suggestion."""
+    dets = list(detections)
+    both = _usable_views(dets, model, hint)
+    flags = MODEL_FLAGS[model]
+    size = dets[0].image_size
+    obj = board.object_points()
+    # 1. each camera alone (Zhang's closed form + LM)
+    cams = (
+        calibrate_camera(obj, [_image_points(dets[k], "left") for k in both], size, flags),
+        calibrate_camera(obj, [_image_points(dets[k], "right") for k in both], size, flags),
+    )
+    rig = _check_rig(dets, both, cams, board, flags)  # 2.
+    joint = _refine_dropping_outliers(  # 3.-4.
+        rig, cams, obj.astype(np.float64), flags, drop_outliers
+    )
+    est = _final_estimate(  # 6., then 5.
+        joint, rig.detections, cams, board, model, estimate_skew, held_out_folds
+    )
+    report = _calibration_report(rig, joint, est, board, model, max_stereo_rms_px, estimate_skew)
+    return CheckerboardCalibration(est.calibration, report, rig.detections, joint.used)
 
 
 def calibrate_checkerboard(

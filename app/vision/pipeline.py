@@ -19,7 +19,14 @@ import numpy as np
 from app.geometry.calibration import StereoCalibration
 from app.geometry.led_ids import DEFAULT_PHASE_DEG, led_ids_for_angles, roll_from_offset
 from app.geometry.projection import undistort_pixels
-from app.geometry.ring import STRICT_RANK, RingFit, RingParams, RingPrior, find_ring
+from app.geometry.ring import (
+    STRICT_RANK,
+    RingFit,
+    RingParams,
+    RingPrior,
+    RingRejection,
+    find_ring,
+)
 from app.geometry.triangulation import refine_reprojection, triangulate_linear
 from app.model.pose import MAX_REJECTED_SHOWN, LedResult, PoseResult, StageTimings
 from app.vision.appearance import (
@@ -60,6 +67,7 @@ from app.vision.matching import (
     match_epipolar_indices,
     match_min_distance_indices,
 )
+from app.vision.pipeline_records import RingIds, RingLeds, StereoMatches, StereoPoints
 from app.vision.preprocess import (
     BACKGROUND_COL_STEP,
     BACKGROUND_ROW_STEP,
@@ -380,7 +388,10 @@ class NavigationPipeline:
     def _solve(
         self, feats_l: FeatureSet, feats_r: FeatureSet, background: tuple[float, float]
     ) -> PoseResult:
-        cfg, cal = self.config, self.calibration
+        """Algorithm 1 after the features, in phases: match (eq. 14) → triangulate (eqs.
+        15–16) → LED appearance → ring hypotheses, plane and circle fit (§5.2) → ids → error
+        bound and records. ``background``: each image's background level (DN)."""
+        cfg = self.config
         nl, nr = len(feats_l.blobs), len(feats_r.blobs)
         if nl < cfg.min_leds or nr < cfg.min_leds:
             return PoseResult(
@@ -388,8 +399,57 @@ class NavigationPipeline:
                 reason=f"found {nl} LED candidate(s) in the left image and {nr} in the right; "
                 f"need at least {cfg.min_leds} in each",
             )
-        # --- matching
         t0 = time.perf_counter()
+        stereo = self._match(feats_l, feats_r)
+        t1 = time.perf_counter()
+        self._stage_ms["match"] = (t1 - t0) * 1e3
+        if len(stereo.arrays) < cfg.min_leds:
+            return PoseResult(
+                lock=False,
+                reason=f"only {len(stereo.arrays)} stereo match(es) passed the epipolar gate; "
+                f"need at least {cfg.min_leds}",
+            )
+        points = self._triangulate(feats_l, feats_r, stereo)
+        t2 = time.perf_counter()
+        self._stage_ms["triangulate"] = (t2 - t1) * 1e3
+        self.trace.match_arrays = points.matches
+        self.trace.xyz_mm = points.xyz_mm
+        idx = self._consistent_matches(points)
+        if len(idx) < cfg.min_leds:
+            return PoseResult(
+                lock=False,
+                reason=f"only {len(idx)} match(es) triangulate consistently "
+                f"(reprojection ≤ {cfg.max_reprojection_px} px); need at least {cfg.min_leds}",
+            )
+        # --- LED appearance, ring hypotheses with integrity test, plane + circle fit
+        n_matched = len(idx)
+        pairs = (points.matches.left, points.matches.right)
+        idx = self._appearance_ok(pairs, idx, points.xyz_mm, feats_l, feats_r, background)
+        if len(idx) < cfg.min_leds:
+            self._stage_ms["pose"] = (time.perf_counter() - t2) * 1e3
+            return PoseResult(
+                lock=False,
+                reason=f"only {len(idx)} of {n_matched} matched point(s) look like LEDs "
+                f"(size, stereo consistency, colour); need at least {cfg.min_leds}",
+            )
+        track = self._track
+        ring = self._find_ring(points, idx, track)
+        self._stage_ms["pose"] = (time.perf_counter() - t2) * 1e3
+        if not isinstance(ring, RingFit):
+            return PoseResult(lock=False, reason=ring.reason)
+        self.trace.ring = ring
+        ring_ids = self._ring_ids(ring, track)
+        self.trace.roll_deg = ring_ids.roll_deg
+        self._track = TrackMemory(
+            ring.circle.center.copy(), ring.circle.normal.copy(), ring_ids.roll_deg
+        )
+        return self._bounded_lock(points, idx, ring, ring_ids)
+
+    def _match(self, feats_l: FeatureSet, feats_r: FeatureSet) -> StereoMatches:
+        """Undistort every candidate (px) and match them (eq. 14): the paper's minimum
+        descriptor distance, or ours gated by the epipolar distance (``epipolar_tol_px``) and
+        the depth range (mm) of the pair's linear triangulation."""
+        cfg, cal = self.config, self.calibration
         xl = undistort_pixels(cal.left, feats_l.points_px)
         xr = undistort_pixels(cal.right, feats_r.points_px)
         ddist = descriptor_distances(feats_l.descriptors, feats_r.descriptors)
@@ -399,86 +459,81 @@ class NavigationPipeline:
         else:
             # depth only for the pairs inside the epipolar gate (the others are never matched)
             il, ir = np.nonzero(epi <= cfg.epipolar_tol_px)
-            depth = np.full((nl, nr), np.inf)
+            depth = np.full((len(feats_l.blobs), len(feats_r.blobs)), np.inf)
             if len(il):
                 X_g = triangulate_linear(cal.P_left, cal.P_right, xl[il], xr[ir])
                 depth[il, ir] = X_g[:, 2]
             li, ri = match_epipolar_indices(
                 ddist, epi, depth, cfg.epipolar_tol_px, cfg.depth_range_mm
             )
-        matches = MatchArrays.of(li, ri, ddist, epi)
-        t1 = time.perf_counter()
-        self._stage_ms["match"] = (t1 - t0) * 1e3
-        if len(matches) < cfg.min_leds:
-            return PoseResult(
-                lock=False,
-                reason=f"only {len(matches)} stereo match(es) passed the epipolar gate; "
-                f"need at least {cfg.min_leds}",
-            )
-        # --- triangulation
-        X0 = triangulate_linear(cal.P_left, cal.P_right, xl[li], xr[ri])
-        X, reproj = refine_reprojection(cal.P_left, cal.P_right, xl[li], xr[ri], X0)
-        good = (reproj <= cfg.max_reprojection_px) & (X[:, 2] > 0) & np.all(np.isfinite(X), axis=1)
-        t2 = time.perf_counter()
-        self._stage_ms["triangulate"] = (t2 - t1) * 1e3
-        self.trace.match_arrays = matches
-        self.trace.xyz_mm = X
-        idx = np.flatnonzero(good)
-        if len(idx) < cfg.min_leds:
-            return PoseResult(
-                lock=False,
-                reason=f"only {len(idx)} match(es) triangulate consistently "
-                f"(reprojection ≤ {cfg.max_reprojection_px} px); need at least {cfg.min_leds}",
-            )
-        # --- LED appearance, ring hypotheses with integrity test, plane + circle fit
-        n_matched = len(idx)
-        idx = self._appearance_ok((li, ri), idx, X, feats_l, feats_r, background)
-        if len(idx) < cfg.min_leds:
-            self._stage_ms["pose"] = (time.perf_counter() - t2) * 1e3
-            return PoseResult(
-                lock=False,
-                reason=f"only {len(idx)} of {n_matched} matched point(s) look like LEDs "
-                f"(size, stereo consistency, colour); need at least {cfg.min_leds}",
-            )
-        track = self._track
+        return StereoMatches(left_px=xl, right_px=xr, arrays=MatchArrays.of(li, ri, ddist, epi))
+
+    def _triangulate(
+        self, feats_l: FeatureSet, feats_r: FeatureSet, stereo: StereoMatches
+    ) -> StereoPoints:
+        """Least-squares triangulation of every match (eqs. 15–16), refined by minimising the
+        reprojection error (mm, left camera frame; the residual in px)."""
+        cal = self.calibration
+        li, ri = stereo.arrays.left, stereo.arrays.right
+        xl, xr = stereo.left_px[li], stereo.right_px[ri]
+        X0 = triangulate_linear(cal.P_left, cal.P_right, xl, xr)
+        X, reproj = refine_reprojection(cal.P_left, cal.P_right, xl, xr, X0)
+        return StereoPoints(feats_l, feats_r, stereo.arrays, X, reproj)
+
+    def _consistent_matches(self, points: StereoPoints) -> np.ndarray:
+        """Indices of the matches that reproject within ``max_reprojection_px`` (px) and lie
+        finite in front of the cameras."""
+        X = points.xyz_mm
+        good = (
+            (points.reprojection_px <= self.config.max_reprojection_px)
+            & (X[:, 2] > 0)
+            & np.all(np.isfinite(X), axis=1)
+        )
+        return np.flatnonzero(good)
+
+    def _find_ring(
+        self, points: StereoPoints, idx: np.ndarray, track: TrackMemory | None
+    ) -> RingFit | RingRejection:
+        """The ring among the points ``idx`` (§5.2: hypotheses with the a-contrario integrity
+        test, plane and circle fit), a recent ``track`` as the prior of 3-LED hypotheses."""
         params = self.ring_params
         prior = None if track is None else RingPrior.at_range(track.center_mm, track.normal, params)
+        return find_ring(
+            points.xyz_mm[idx], params, prior, lambda fit: self._consistency(points, idx, fit)
+        )
 
-        def consistency(fit: RingFit) -> int:
-            """How well this hypothesis' residuals agree with the centroid noise (the error
-            bound's χ² test): 2 with the sensor model's σ alone (shot and read noise), 1 only
-            with the σ the image itself shows (compression, blur: a glint's lopsided blob
-            excuses its own offset that way), 0 with neither; 2 when not measured."""
-            rows = [int(idx[k]) for k in fit.indices]
-            bl = [feats_l.blobs[int(matches.left[j])] for j in rows]
-            br = [feats_r.blobs[int(matches.right[j])] for j in rows]
-            ul = np.array([b.centroid_px for b in bl])
-            ur = np.array([b.centroid_px for b in br])
-            rank = STRICT_RANK
-            for sigma in (isotropic_model_sigma_px, isotropic_sigma_px):
-                bound = lock_bound(
-                    cal,
-                    ul,
-                    ur,
-                    np.array([sigma(b) for b in bl]),
-                    np.array([sigma(b) for b in br]),
-                    X[rows],
-                    fit.circle,
-                    cfg.error_bound,
-                )
-                if bound is None or bound.consistent:
-                    return rank
-                rank -= 1
-            return 0
+    def _consistency(self, points: StereoPoints, idx: np.ndarray, fit: RingFit) -> int:
+        """How well this hypothesis' residuals agree with the centroid noise (the error
+        bound's χ² test): 2 with the sensor model's σ alone (shot and read noise), 1 only
+        with the σ the image itself shows (compression, blur: a glint's lopsided blob
+        excuses its own offset that way), 0 with neither; 2 when not measured."""
+        rows = [int(idx[k]) for k in fit.indices]
+        bl, br = points.left_blobs(rows), points.right_blobs(rows)
+        ul = np.array([b.centroid_px for b in bl])
+        ur = np.array([b.centroid_px for b in br])
+        rank = STRICT_RANK
+        for sigma in (isotropic_model_sigma_px, isotropic_sigma_px):
+            bound = lock_bound(
+                self.calibration,
+                ul,
+                ur,
+                np.array([sigma(b) for b in bl]),
+                np.array([sigma(b) for b in br]),
+                points.xyz_mm[rows],
+                fit.circle,
+                self.config.error_bound,
+            )
+            if bound is None or bound.consistent:
+                return rank
+            rank -= 1
+        return 0
 
-        ring = find_ring(X[idx], params, prior, consistency)
-        self._stage_ms["pose"] = (time.perf_counter() - t2) * 1e3
-        if not isinstance(ring, RingFit):
-            return PoseResult(lock=False, reason=ring.reason)
-        self.trace.ring = ring
+    def _ring_ids(self, ring: RingFit, track: TrackMemory | None) -> RingIds:
+        """The LED ids of the fit's slots: they continue the track's roll only if the ring is
+        where the track left it (within two radii, mm); otherwise the acquisition convention
+        (:mod:`app.geometry.led_ids`)."""
+        cfg = self.config
         spacing = 360.0 / cfg.led_count
-        # ids continue the track's roll only if the ring is where the track left it (within
-        # two radii); otherwise the acquisition convention (app.geometry.led_ids)
         near = (
             track is not None
             and float(np.linalg.norm(ring.circle.center - track.center_mm))
@@ -492,46 +547,65 @@ class NavigationPipeline:
         )
         slot_angles = ring.offset_deg + spacing * np.array(ring.slots, dtype=np.float64)
         ids = led_ids_for_angles(slot_angles, roll, cfg.led_count, cfg.led_phase_deg)
-        self.trace.roll_deg = roll
-        self._track = TrackMemory(ring.circle.center.copy(), ring.circle.normal.copy(), roll)
-        # the ring's LEDs in id order, their bound, then the records, built once with it
-        order = sorted(zip(ring.indices, ids.tolist(), strict=True), key=lambda t: t[1])
+        return RingIds(roll_deg=roll, ids=ids)
+
+    @staticmethod
+    def _ring_leds(
+        points: StereoPoints, idx: np.ndarray, ring: RingFit, ring_ids: RingIds
+    ) -> RingLeds:
+        """The ring's LEDs in id order with their blobs, centroid σ (px) and points (mm)."""
+        order = sorted(zip(ring.indices, ring_ids.ids.tolist(), strict=True), key=lambda t: t[1])
         rows = [int(idx[k]) for k, _ in order]
-        blobs_l = [feats_l.blobs[int(matches.left[j])] for j in rows]
-        blobs_r = [feats_r.blobs[int(matches.right[j])] for j in rows]
+        blobs_l, blobs_r = points.left_blobs(rows), points.right_blobs(rows)
         sigmas = [
             (isotropic_sigma_px(a), isotropic_sigma_px(b))
             for a, b in zip(blobs_l, blobs_r, strict=True)
         ]
-        X_ring = X[rows]
+        ids = [led_id for _, led_id in order]
+        return RingLeds(ids, rows, blobs_l, blobs_r, sigmas, points.xyz_mm[rows])
+
+    def _bounded_lock(
+        self, points: StereoPoints, idx: np.ndarray, ring: RingFit, ring_ids: RingIds
+    ) -> PoseResult:
+        """The lock with its error bound (covariance, protection levels, residual test:
+        :mod:`app.vision.error_bound`), the LED records built once with it; no lock (and no
+        track) when the residual test fails."""
+        leds_in = self._ring_leds(points, idx, ring, ring_ids)
         t3 = time.perf_counter()
         bound = bound_lock(
-            cal,
-            np.array([b.centroid_px for b in blobs_l]),
-            np.array([b.centroid_px for b in blobs_r]),
-            sigmas,
-            X_ring,
+            self.calibration,
+            np.array([b.centroid_px for b in leds_in.left]),
+            np.array([b.centroid_px for b in leds_in.right]),
+            leds_in.sigmas_px,
+            leds_in.xyz_mm,
             ring.circle,
-            cfg.error_bound,
+            self.config.error_bound,
         )
         self._stage_ms["bound"] = (time.perf_counter() - t3) * 1e3
         if isinstance(bound, str):
             self._track = None
             return PoseResult(lock=False, reason=bound)
-        X_f = X_ring.tolist()
+        m = points.matches
         leds = [
             LedResult(
                 id=int(led_id),
                 left_px=bl.centroid_px,
                 right_px=br.centroid_px,
                 xyz_mm=(x[0], x[1], x[2]),
-                descriptor_distance=float(matches.descriptor_distance[j]),
-                epipolar_px=float(matches.epipolar_px[j]),
-                reprojection_px=float(reproj[j]),
-                **led_bound_fields(bound, k, sigmas[k]),
+                descriptor_distance=float(m.descriptor_distance[j]),
+                epipolar_px=float(m.epipolar_px[j]),
+                reprojection_px=float(points.reprojection_px[j]),
+                **led_bound_fields(bound, k, leds_in.sigmas_px[k]),
             )
-            for k, ((_, led_id), j, bl, br, x) in enumerate(
-                zip(order, rows, blobs_l, blobs_r, X_f, strict=True)
+            for k, (led_id, j, bl, br, x) in enumerate(
+                zip(
+                    leds_in.ids,
+                    leds_in.rows,
+                    leds_in.left,
+                    leds_in.right,
+                    leds_in.xyz_mm.tolist(),
+                    strict=True,
+                )
             )
         ]
         t4 = time.perf_counter()

@@ -19,8 +19,10 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import NDArray
 
 from app.geometry.calibration import StereoCalibration
 from app.sim.led_ring import LedRing, check_pose, ring_points
@@ -60,6 +62,229 @@ def _check_windows(windows: object) -> tuple[list[Rect], list[Rect]]:
     return sides[0], sides[1]
 
 
+@dataclass(frozen=True)
+class RingPose:
+    """The drogue ring's pose: centre (mm, left camera frame), unit normal, roll (rad)."""
+
+    center_mm: FloatArray
+    normal: FloatArray
+    roll_rad: float
+
+
+@dataclass(frozen=True)
+class LedImages:
+    """Where the ring's LEDs land in both images (the truth the blobs are drawn from).
+
+    Per LED (rows in ring order): ``xyz_mm`` (N, 3) centres in the left camera frame (mm),
+    ``ids`` (N,) ring ids, ``left_px``/``right_px`` (N, 2) projected centres through the full
+    camera model (eqs. 2, 7; px); ``draw_left``/``draw_right`` in the image and not occluded;
+    ``shape_left``/``shape_right`` (N, 2, 2) the sphere's image ellipse (unit disc → px, NaN
+    where out of frame); ``radius_left_px``/``radius_right_px`` its equivalent radius
+    √|det A| (px, NaN where out of frame)."""
+
+    xyz_mm: FloatArray
+    ids: NDArray[np.int64]
+    left_px: FloatArray
+    right_px: FloatArray
+    draw_left: NDArray[np.bool_]
+    draw_right: NDArray[np.bool_]
+    shape_left: FloatArray
+    shape_right: FloatArray
+    radius_left_px: FloatArray
+    radius_right_px: FloatArray
+
+
+@dataclass(frozen=True)
+class Distractors:
+    """What is drawn besides the LEDs: ``clutter`` (main random stream) and the hostile
+    ``extras`` (their own stream); both empty when ``settings`` asks for none."""
+
+    clutter: Clutter
+    extras: Extras
+
+
+@dataclass(frozen=True)
+class ImagePair:
+    """The two composed images (uint8, (h, w) or (h, w, 3) with colour)."""
+
+    left: NDArray[np.uint8]
+    right: NDArray[np.uint8]
+
+
+def _check_request(settings: RenderSettings, ring: LedRing, roll_rad: float) -> None:
+    """ValueError for a non-finite roll (rad) or LED ids outside 1..``ring.count``."""
+    if not math.isfinite(float(roll_rad)):
+        raise ValueError(f"roll_rad must be finite, got {roll_rad}")
+    bad = [i for i in settings.occluded if not 1 <= i <= ring.count]
+    if bad:
+        raise ValueError(f"occluded LED ids must be in 1..{ring.count}, got {bad}")
+    bad = [i for i, _ in settings.rim_reflections if not 1 <= i <= ring.count]
+    if bad:
+        raise ValueError(f"rim_reflections LED ids must be in 1..{ring.count}, got {bad}")
+
+
+def _equivalent_radii(shapes: FloatArray, seen: NDArray[np.bool_]) -> FloatArray:
+    """√|det A| of each 2×2 image ellipse (px); NaN where not ``seen``."""
+    return np.array(
+        [np.sqrt(abs(np.linalg.det(a))) if k else np.nan for a, k in zip(shapes, seen, strict=True)]
+    )
+
+
+def project_leds(
+    calib: StereoCalibration,
+    ring: LedRing,
+    pose: RingPose,
+    occluded: Sequence[int],
+) -> LedImages:
+    """Project the ring's LEDs at ``pose`` into both cameras: centres through the full model
+    (eqs. 2, 7), each LED sphere's image ellipse from the local Jacobian (radius ≈ f·r/Z px),
+    and which LEDs are drawn (in frame, not ``occluded``)."""
+    xyz = ring_points(pose.center_mm, pose.normal, ring, pose.roll_rad)
+    ids = ring.ids.astype(np.int64)
+    pl, pr, _, _ = project_checked(calib, xyz)
+    in_l = in_frame(pl, calib.image_size)
+    in_r = in_frame(pr, calib.image_size)
+    occ = np.isin(ids, np.array(occluded, dtype=np.int64))
+
+    r_led = np.full(len(xyz), 0.5 * ring.led_diameter_mm)
+    a_l = np.full((len(xyz), 2, 2), np.nan)
+    a_r = np.full((len(xyz), 2, 2), np.nan)
+    if np.any(in_l):
+        a_l[in_l] = sphere_shapes(calib.left, xyz[in_l], r_led[in_l])
+    xyz_r = to_right(calib, xyz)
+    if np.any(in_r):
+        a_r[in_r] = sphere_shapes(calib.right, xyz_r[in_r], r_led[in_r])
+    return LedImages(
+        xyz_mm=xyz,
+        ids=ids,
+        left_px=pl,
+        right_px=pr,
+        draw_left=in_l & ~occ,
+        draw_right=in_r & ~occ,
+        shape_left=a_l,
+        shape_right=a_r,
+        radius_left_px=_equivalent_radii(a_l, in_l),
+        radius_right_px=_equivalent_radii(a_r, in_r),
+    )
+
+
+def make_distractors(
+    calib: StereoCalibration,
+    settings: RenderSettings,
+    ring: LedRing,
+    leds: LedImages,
+    pose: RingPose,
+    rng: np.random.Generator,
+    seed: int | None,
+    led_bgr: NDArray[np.float32],
+) -> Distractors:
+    """Clutter (drawn from ``rng``, the main stream) and the hostile extras (their own stream
+    from ``seed`` and :data:`EXTRAS_STREAM`), kept off the LEDs' and the ring centre's images."""
+    c = pose.center_mm
+    clutter = Clutter()
+    keep: tuple[Keepout, Keepout] | None = None
+    glinting = settings.glints > 0 or settings.mono_glints > 0
+    if settings.clutter > 0 or settings.second_object or glinting:
+        cl, cr, _, _ = project_checked(calib, c[None, :])
+        keep = (
+            Keepout(cl[0], leds.left_px, np.nan_to_num(leds.radius_left_px, nan=0.0)),
+            Keepout(cr[0], leds.right_px, np.nan_to_num(leds.radius_right_px, nan=0.0)),
+        )
+    if keep is not None and (settings.clutter > 0 or settings.second_object):
+        range_mm = max(float(c[2]), 100.0)
+        gray_bgr = np.ones(3, dtype=np.float32)
+        clutter = make_clutter(calib, settings, rng, range_mm, keep[0], keep[1], gray_bgr)
+
+    extras = Extras()
+    if glinting or settings.rim_reflections:
+        # own stream, so the main one (clutter, noise) is the same with or without extras
+        rng_x = np.random.default_rng(None if seed is None else [int(seed), EXTRAS_STREAM])
+        extras = make_extras(
+            calib,
+            settings,
+            ring,
+            rng_x,
+            c,
+            pose.normal,
+            pose.roll_rad,
+            keep if glinting else None,
+            clutter,
+            led_bgr,
+        )
+    return Distractors(clutter=clutter, extras=extras)
+
+
+def compose_pair(
+    image_size: tuple[int, int],
+    settings: RenderSettings,
+    spots: tuple[list[LightSpot], list[LightSpot]],
+    rng: np.random.Generator,
+    wins: tuple[list[Rect], list[Rect]] | None,
+) -> ImagePair:
+    """Background, noise and the light ``spots`` (left, right) → both images. With windows
+    (``wins``) and ``fast_noise`` only the spots reaching a window are rendered. The noise
+    is drawn from ``rng``, left image first."""
+    w, h = image_size
+    shape: tuple[int, ...] = (h, w, 3) if settings.color else (h, w)
+    win_l, win_r = (None, None) if wins is None else wins
+    all_l, all_r = spots
+    if wins is not None and settings.fast_noise:  # only the blobs that reach a window
+        box = settings.blur_sigma_px
+        r_l, r_r = clip_rects(win_l or [], shape), clip_rects(win_r or [], shape)
+        all_l = [b for b in all_l if overlaps(patch_box(b, box), r_l)]
+        all_r = [b for b in all_r if overlaps(patch_box(b, box), r_r)]
+    # the patches of both images in one batch (bit-identical to separate calls)
+    made = blob_patches(all_l + all_r, settings.supersample, settings.blur_sigma_px)
+    pts = [(x0, y0, p, b.bgr) for (x0, y0, p), b in zip(made, all_l + all_r, strict=True)]
+    left = compose(shape, all_l, settings, rng, win_l, pts[: len(all_l)])
+    right = compose(shape, all_r, settings, rng, win_r, pts[len(all_l) :])
+    return ImagePair(left=left, right=right)
+
+
+def _rows(items: list[FloatArray], dim: int) -> FloatArray:
+    """Points as an (n, ``dim``) float64 array (n may be 0)."""
+    return np.array(items, dtype=np.float64).reshape(-1, dim)
+
+
+def render_truth(
+    leds: LedImages,
+    pose: RingPose,
+    ring: LedRing,
+    distractors: Distractors,
+) -> RenderTruth:
+    """The render's ground truth: the LEDs' 3-D centres (mm) and pixels, what was drawn,
+    and every distractor's position (mm, px)."""
+    clutter, extras = distractors.clutter, distractors.extras
+    return RenderTruth(
+        led_xyz_mm=leds.xyz_mm,
+        led_ids=leds.ids,
+        visible=leds.draw_left & leds.draw_right,
+        led_left_px=leds.left_px,
+        led_right_px=leds.right_px,
+        center_mm=pose.center_mm,
+        normal=pose.normal,
+        radius_mm=float(ring.radius_mm),
+        clutter_left_px=_rows(clutter.left_px, 2),
+        clutter_right_px=_rows(clutter.right_px, 2),
+        in_left=leds.draw_left,
+        in_right=leds.draw_right,
+        led_left_radius_px=leds.radius_left_px,
+        led_right_radius_px=leds.radius_right_px,
+        clutter_xyz_mm=_rows(clutter.xyz, 3),
+        second_object_left_px=clutter.second_left,
+        second_object_right_px=clutter.second_right,
+        roll_rad=pose.roll_rad,
+        glint_xyz_mm=_rows(extras.glint_xyz, 3),
+        glint_left_px=_rows(extras.glint_left_px, 2),
+        glint_right_px=_rows(extras.glint_right_px, 2),
+        mono_glint_left_px=_rows(extras.mono_left_px, 2),
+        mono_glint_right_px=_rows(extras.mono_right_px, 2),
+        reflection_xyz_mm=_rows(list(extras.refl_xyz), 3),
+        reflection_left_px=_rows(list(extras.refl_left_px), 2),
+        reflection_right_px=_rows(list(extras.refl_right_px), 2),
+    )
+
+
 def render_pair(
     calib: StereoCalibration,
     center_mm: object,
@@ -86,124 +311,33 @@ def render_pair(
     and only the blobs reaching a window are drawn — so inside them the images are
     bit-identical to the full render with the same seed; pixels outside are 0. The truth is
     the full render's. With ``fast_noise`` this costs only the windows' pixels.
+
+    Phases: project the LEDs (:func:`project_leds`) → distractors
+    (:func:`make_distractors`) → images (:func:`compose_pair`) → truth
+    (:func:`render_truth`).
     """
     settings = settings or RenderSettings()
     wins = None if windows is None else _check_windows(windows)
     ring = ring or LedRing()
     c, n = check_pose(center_mm, normal)
-    if not math.isfinite(float(roll_rad)):
-        raise ValueError(f"roll_rad must be finite, got {roll_rad}")
-    bad = [i for i in settings.occluded if not 1 <= i <= ring.count]
-    if bad:
-        raise ValueError(f"occluded LED ids must be in 1..{ring.count}, got {bad}")
-    bad = [i for i, _ in settings.rim_reflections if not 1 <= i <= ring.count]
-    if bad:
-        raise ValueError(f"rim_reflections LED ids must be in 1..{ring.count}, got {bad}")
+    _check_request(settings, ring, roll_rad)
     rng = np.random.default_rng(seed)
-
-    xyz = ring_points(c, n, ring, roll_rad)
-    ids = ring.ids.astype(np.int64)
-    pl, pr, _, _ = project_checked(calib, xyz)
-    in_l = in_frame(pl, calib.image_size)
-    in_r = in_frame(pr, calib.image_size)
-    occ = np.isin(ids, np.array(settings.occluded, dtype=np.int64))
-    draw_l, draw_r = in_l & ~occ, in_r & ~occ
-
-    r_led = np.full(len(xyz), 0.5 * ring.led_diameter_mm)
-    a_l = np.full((len(xyz), 2, 2), np.nan)
-    a_r = np.full((len(xyz), 2, 2), np.nan)
-    if np.any(in_l):
-        a_l[in_l] = sphere_shapes(calib.left, xyz[in_l], r_led[in_l])
-    xyz_r = to_right(calib, xyz)
-    if np.any(in_r):
-        a_r[in_r] = sphere_shapes(calib.right, xyz_r[in_r], r_led[in_r])
-    rad_l = np.array(
-        [np.sqrt(abs(np.linalg.det(a))) if k else np.nan for a, k in zip(a_l, in_l, strict=True)]
+    pose = RingPose(center_mm=c, normal=n, roll_rad=float(roll_rad))
+    leds = project_leds(calib, ring, pose, settings.occluded)
+    led_bgr = LED_BGR if settings.color else np.ones(3, dtype=np.float32)
+    spots_l = [
+        LightSpot(leds.left_px[k], leds.shape_left[k], settings.led_peak, led_bgr)
+        for k in np.flatnonzero(leds.draw_left)
+    ]
+    spots_r = [
+        LightSpot(leds.right_px[k], leds.shape_right[k], settings.led_peak, led_bgr)
+        for k in np.flatnonzero(leds.draw_right)
+    ]
+    extra = make_distractors(calib, settings, ring, leds, pose, rng, seed, led_bgr)
+    spots = (
+        spots_l + extra.clutter.left + extra.extras.left,
+        spots_r + extra.clutter.right + extra.extras.right,
     )
-    rad_r = np.array(
-        [np.sqrt(abs(np.linalg.det(a))) if k else np.nan for a, k in zip(a_r, in_r, strict=True)]
-    )
-
-    color = settings.color
-    led_bgr = LED_BGR if color else np.ones(3, dtype=np.float32)
-    gray_bgr = np.ones(3, dtype=np.float32)
-    blobs_l = [LightSpot(pl[k], a_l[k], settings.led_peak, led_bgr) for k in np.flatnonzero(draw_l)]
-    blobs_r = [LightSpot(pr[k], a_r[k], settings.led_peak, led_bgr) for k in np.flatnonzero(draw_r)]
-
-    clutter = Clutter()
-    keep: tuple[Keepout, Keepout] | None = None
-    glinting = settings.glints > 0 or settings.mono_glints > 0
-    if settings.clutter > 0 or settings.second_object or glinting:
-        cl, cr, _, _ = project_checked(calib, c[None, :])
-        keep_l = Keepout(cl[0], pl, np.nan_to_num(rad_l, nan=0.0))
-        keep_r = Keepout(cr[0], pr, np.nan_to_num(rad_r, nan=0.0))
-        keep = (keep_l, keep_r)
-    if settings.clutter > 0 or settings.second_object:
-        range_mm = max(float(c[2]), 100.0)
-        clutter = make_clutter(calib, settings, rng, range_mm, keep_l, keep_r, gray_bgr)
-
-    extras = Extras()
-    if glinting or settings.rim_reflections:
-        # own stream, so the main one (clutter, noise) is the same with or without extras
-        rng_x = np.random.default_rng(None if seed is None else [int(seed), EXTRAS_STREAM])
-        extras = make_extras(
-            calib,
-            settings,
-            ring,
-            rng_x,
-            c,
-            n,
-            float(roll_rad),
-            keep if glinting else None,
-            clutter,
-            led_bgr,
-        )
-
-    w, h = calib.image_size
-    shape: tuple[int, ...] = (h, w, 3) if color else (h, w)
-    win_l, win_r = (None, None) if wins is None else wins
-    all_l = blobs_l + clutter.left + extras.left
-    all_r = blobs_r + clutter.right + extras.right
-    if wins is not None and settings.fast_noise:  # only the blobs that reach a window
-        box = settings.blur_sigma_px
-        r_l, r_r = clip_rects(win_l or [], shape), clip_rects(win_r or [], shape)
-        all_l = [b for b in all_l if overlaps(patch_box(b, box), r_l)]
-        all_r = [b for b in all_r if overlaps(patch_box(b, box), r_r)]
-    # the patches of both images in one batch (bit-identical to separate calls)
-    made = blob_patches(all_l + all_r, settings.supersample, settings.blur_sigma_px)
-    pts = [(x0, y0, p, b.bgr) for (x0, y0, p), b in zip(made, all_l + all_r, strict=True)]
-    left = compose(shape, all_l, settings, rng, win_l, pts[: len(all_l)])
-    right = compose(shape, all_r, settings, rng, win_r, pts[len(all_l) :])
-
-    def rows(items: list[FloatArray], dim: int) -> FloatArray:
-        return np.array(items, dtype=np.float64).reshape(-1, dim)
-
-    truth = RenderTruth(
-        led_xyz_mm=xyz,
-        led_ids=ids,
-        visible=draw_l & draw_r,
-        led_left_px=pl,
-        led_right_px=pr,
-        center_mm=c,
-        normal=n,
-        radius_mm=float(ring.radius_mm),
-        clutter_left_px=rows(clutter.left_px, 2),
-        clutter_right_px=rows(clutter.right_px, 2),
-        in_left=draw_l,
-        in_right=draw_r,
-        led_left_radius_px=rad_l,
-        led_right_radius_px=rad_r,
-        clutter_xyz_mm=rows(clutter.xyz, 3),
-        second_object_left_px=clutter.second_left,
-        second_object_right_px=clutter.second_right,
-        roll_rad=float(roll_rad),
-        glint_xyz_mm=rows(extras.glint_xyz, 3),
-        glint_left_px=rows(extras.glint_left_px, 2),
-        glint_right_px=rows(extras.glint_right_px, 2),
-        mono_glint_left_px=rows(extras.mono_left_px, 2),
-        mono_glint_right_px=rows(extras.mono_right_px, 2),
-        reflection_xyz_mm=rows(list(extras.refl_xyz), 3),
-        reflection_left_px=rows(list(extras.refl_left_px), 2),
-        reflection_right_px=rows(list(extras.refl_right_px), 2),
-    )
-    return RenderedPair(left=left, right=right, truth=truth)
+    images = compose_pair(calib.image_size, settings, spots, rng, wins)
+    truth = render_truth(leds, pose, ring, extra)
+    return RenderedPair(left=images.left, right=images.right, truth=truth)
