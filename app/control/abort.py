@@ -20,25 +20,23 @@ import numpy as np
 from app.types import FloatArray
 
 
-def predicted_height_above_m(
+def offset_at_plane_m(
     rel_pos_m: FloatArray, rel_vel_mps: FloatArray, min_closure_mps: float = 0.2
-) -> float:
-    """How far (m) the probe tip is predicted to pass above the drogue's centre at the plane
-    (tanker frame, z down; negative: below). ``rel_*`` = drogue minus probe tip."""
+) -> FloatArray:
+    """The drogue's centre less the probe tip (y, z; m, tanker frame, z down) predicted at the
+    plane crossing, both carried on straight lines for ``t_go = gap / closure``. ``rel_*`` =
+    drogue minus probe tip. Its norm is the predicted miss; its z how far the tip passes
+    above the centre (negative: below)."""
     closure = max(-float(rel_vel_mps[0]), min_closure_mps)
     t_go = max(float(rel_pos_m[0]), 0.0) / closure
-    return float(rel_pos_m[2]) + t_go * float(rel_vel_mps[2])
+    return np.asarray(rel_pos_m[1:3], float) + t_go * np.asarray(rel_vel_mps[1:3], float)
 
 
 def predicted_miss_m(
     rel_pos_m: FloatArray, rel_vel_mps: FloatArray, min_closure_mps: float = 0.2
 ) -> float:
-    """Lateral miss (m) predicted at the plane crossing. ``rel_*`` = drogue minus probe tip."""
-    gap = float(rel_pos_m[0])
-    closure = max(-float(rel_vel_mps[0]), min_closure_mps)
-    t_go = max(gap, 0.0) / closure
-    lat = np.asarray(rel_pos_m[1:3], float) + t_go * np.asarray(rel_vel_mps[1:3], float)
-    return float(np.linalg.norm(lat))
+    """Lateral miss (m) predicted at the plane crossing (:func:`offset_at_plane_m`)."""
+    return float(np.linalg.norm(offset_at_plane_m(rel_pos_m, rel_vel_mps, min_closure_mps)))
 
 
 def should_abort(
@@ -57,7 +55,7 @@ def should_abort(
 ) -> str | None:
     """Reason to break away (``"overspeed"``, ``"passing_high"``, ``"predicted_miss"``,
     ``"lock_lost"``) or None to continue; ``closure_mps``: the probe's closing speed on the
-    drogue (m/s); ``above_at_plane_m``: :func:`predicted_height_above_m`."""
+    drogue (m/s); ``above_at_plane_m``: the z of :func:`offset_at_plane_m`."""
     if 0.0 <= gap_m <= overspeed_gap_m and closure_mps > max_closure_mps:
         return "overspeed"
     if 0.0 <= gap_m <= high_gap_m and above_at_plane_m > high_pass_m:

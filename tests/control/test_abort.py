@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from app.control.abort import describe, predicted_height_above_m, should_abort
+from app.control.abort import describe, offset_at_plane_m, should_abort
 
 RIM_M = 0.305
 
@@ -21,12 +21,12 @@ def test_the_predicted_height_above_is_the_straight_line_height_at_the_plane():
     tip, tip_vel = np.array([-13.6, 0.1, 2.05]), np.array([2.7, 0.0, -0.7])
     drogue, drogue_vel = np.array([-12.0, 0.2, 2.3]), np.array([0.3, 0.0, -0.3])
     rel, rel_vel = drogue - tip, drogue_vel - tip_vel
-    predicted = predicted_height_above_m(rel, rel_vel)
+    predicted = float(offset_at_plane_m(rel, rel_vel)[1])
     assert predicted == pytest.approx(
         _height_at_plane_by_stepping(tip, tip_vel, drogue, drogue_vel), abs=1e-3
     )
     assert predicted > 0.5  # the traced keep-out approach (seed 360087): a high pass
-    below = predicted_height_above_m(np.array([1.6, 0.0, -0.4]), np.array([-2.0, 0.0, 0.0]))
+    below = float(offset_at_plane_m(np.array([1.6, 0.0, -0.4]), np.array([-2.0, 0.0, 0.0]))[1])
     assert below == pytest.approx(-0.4)  # a tip below the drogue stays below
 
 

@@ -42,8 +42,7 @@ import numpy as np
 from app.control.abort import (
     AlphaBetaTracker,
     describe,
-    predicted_height_above_m,
-    predicted_miss_m,
+    offset_at_plane_m,
     should_abort,
 )
 from app.control.bow_wave import BowWaveModel
@@ -473,8 +472,8 @@ class DockingSimulation:
                 )
                 miss_pred, above = float(np.linalg.norm(at_plane)), float(at_plane[1])
             else:
-                miss_pred = predicted_miss_m(rel, d_vel - tip_vel_hat)
-                above = predicted_height_above_m(rel, d_vel - tip_vel_hat)
+                at_plane = offset_at_plane_m(rel, d_vel - tip_vel_hat)
+                miss_pred, above = float(np.linalg.norm(at_plane)), float(at_plane[1])
             reason = should_abort(
                 float(rel[0]),
                 miss_pred,
