@@ -20,8 +20,8 @@ process) and of the worker's compute time per tick, in these cases:
 for the two modes:
 
 * ``process``: the default (the simulation in a worker process, uploads in a process pool);
-* ``thread``: ``AAR_SIM_IN_PROCESS=true AAR_UPLOADS_IN_PROCESS=true`` (the simulation in a
-  thread of the web server, uploads in its worker threads: the old mode, the baseline).
+* ``thread``: ``AAR_SIM_IN_PROCESS=true`` (the simulation in a thread of the web server: the
+  old mode, the baseline); uploads always go to the process pool (one path).
 
 The clients run in this process (asyncio: ``websockets``, ``httpx``). Each mode runs with
 AAR_MAX_CONCURRENT_UPLOADS = 2 (the default: at most 2 uploads processed at once, the others
@@ -59,8 +59,8 @@ N_WS = 50
 N_UP = {"up16": 16, "both": 16, "full": 4}
 CHROMIUM = "/usr/bin/chromium"
 MODE_ENV = {
-    "process": {"AAR_SIM_IN_PROCESS": "false", "AAR_UPLOADS_IN_PROCESS": "false"},
-    "thread": {"AAR_SIM_IN_PROCESS": "true", "AAR_UPLOADS_IN_PROCESS": "true"},
+    "process": {"AAR_SIM_IN_PROCESS": "false"},
+    "thread": {"AAR_SIM_IN_PROCESS": "true"},
 }
 
 

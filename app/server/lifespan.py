@@ -27,15 +27,20 @@ from app.service.runtime import (
 from app.service.settings import Settings
 from app.service.sim_source import SourceFactory
 from app.service.sim_worker.priority import raise_thread_priority
+from app.service.upload_pool import ExecutorFactory
 
 log = logging.getLogger(__name__)
 SERVICE_NICE = -5  # the web server's threads, where permitted (the tick thread: −10)
 
 
 def make_lifespan(
-    settings: Settings, clock: Clock | None, source_factory: SourceFactory | None
+    settings: Settings,
+    clock: Clock | None,
+    source_factory: SourceFactory | None,
+    upload_executor: ExecutorFactory | None = None,
 ) -> Callable[[FastAPI], AbstractAsyncContextManager[None]]:
-    """The app's lifespan: start-up, ``app.state.aar`` while it runs, shutdown."""
+    """The app's lifespan: start-up, ``app.state.aar`` while it runs, shutdown
+    (``upload_executor``: what runs the uploads, ``None``: worker processes)."""
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
@@ -46,7 +51,7 @@ def make_lifespan(
         calib = StereoCalibration.load(settings.calibration)
         warn_about_setup(settings)
         backend = sim_backend(settings, source_factory)
-        st = build_state(settings, calib, backend, clock)
+        st = build_state(settings, calib, backend, clock, upload_executor)
         try:
             start_services(st, settings, warm=source_factory is None)
         except BaseException:

@@ -40,6 +40,7 @@ from app.server.ws_guard import WebSocketGuard
 from app.service.clock import Clock
 from app.service.settings import Settings
 from app.service.sim_source import SourceFactory, SourceUnavailable
+from app.service.upload_pool import ExecutorFactory
 
 API_PREFIX = "/api/v1"
 PUSH_PATH = f"{API_PREFIX}/stream/push"
@@ -124,15 +125,18 @@ def create_app(
     clock: Clock | None = None,
     *,
     source_factory: SourceFactory | None = None,
+    upload_executor: ExecutorFactory | None = None,
 ) -> FastAPI:
-    """Build the service. ``clock`` and ``source_factory`` are injection points for tests."""
+    """Build the service. ``clock``, ``source_factory`` and ``upload_executor`` (what runs
+    ``POST /stereo``'s work: ``max_workers`` → an executor; ``None``: worker processes) are
+    injection points for tests."""
     settings = settings or Settings()
     swagger_dir = _swagger_static_dir()
     app = FastAPI(
         title="aar-dock",
         version="0.1.0",
         description="Vision-based probe-and-drogue docking (Luo et al. 2019): live service",
-        lifespan=make_lifespan(settings, clock, source_factory),
+        lifespan=make_lifespan(settings, clock, source_factory, upload_executor),
         docs_url=None if swagger_dir is not None else "/docs",
         redoc_url=None,
     )

@@ -28,6 +28,7 @@ from app.service.state import AppState, CalibrationStore, UploadProcessor
 from app.service.stream_service import StreamService
 from app.service.telemetry import TelemetryHub
 from app.service.tick_loop import TickLoop
+from app.service.upload_pool import ExecutorFactory, UploadPool
 from app.sim.sim_config import SimConfig
 
 if TYPE_CHECKING:
@@ -89,14 +90,15 @@ def sim_backend(settings: Settings, injected: SourceFactory | None) -> SimBacken
 
 
 def build_state(
-    settings: Settings, calib: StereoCalibration, backend: SimBackend, clock: Clock | None
+    settings: Settings,
+    calib: StereoCalibration,
+    backend: SimBackend,
+    clock: Clock | None,
+    upload_executor: ExecutorFactory | None = None,
 ) -> AppState:
-    """The service's parts, built but not started (no thread runs yet)."""
-    upload_pool = None
-    if not settings.uploads_in_process:
-        from app.service.upload_pool import UploadPool
-
-        upload_pool = UploadPool(settings.max_concurrent_uploads)
+    """The service's parts, built but not started (no thread runs yet). ``upload_executor``:
+    what runs the uploads (``None``: the default process pool, :class:`UploadPool`)."""
+    upload_pool = UploadPool(settings.max_concurrent_uploads, executor_factory=upload_executor)
     loop = TickLoop(
         SimConfig(
             tick_hz=settings.tick_hz,
@@ -201,7 +203,7 @@ def start_services(st: AppState, settings: Settings, *, warm: bool) -> None:
     if settings.sim_autostart and not stream_configured:  # one source: the configured one
         st.loop.start_sim()  # with a worker process: spawned and the simulation built here
     st.loop.start()
-    if warm and st.upload_pool is not None:
+    if warm:
         # the app as deployed: the upload workers start now, not with the first upload
         # (apps with an injected source, i.e. tests, start them on demand)
         st.upload_pool.warm()
@@ -214,8 +216,7 @@ def release_workers(st: AppState, backend: SimBackend) -> None:
     sys.setswitchinterval(backend.switch_interval_s)
     if backend.worker is not None:
         backend.worker.close()
-    if st.upload_pool is not None:
-        st.upload_pool.shutdown()
+    st.upload_pool.shutdown()
 
 
 def stop_services(st: AppState, backend: SimBackend) -> None:

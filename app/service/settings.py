@@ -19,8 +19,8 @@ gate's), ``AAR_MAX_WEBSOCKETS``, ``AAR_MAX_WEBSOCKETS_PER_CLIENT``,
 ``AAR_PUSH_MAX_MESSAGES_PER_S``, ``AAR_WS_ABUSE_PENALTY_S``).
 
 Where the CPU work runs: ``AAR_SIM_IN_PROCESS`` (default false: the simulation steps in a
-worker process, ``app.service.sim_worker``), ``AAR_SIM_STEP_TIMEOUT_S``,
-``AAR_UPLOADS_IN_PROCESS`` (default false: uploads in a process pool, ``app.service.upload_pool``).
+worker process, ``app.service.sim_worker``), ``AAR_SIM_STEP_TIMEOUT_S``; uploads always run in
+a process pool (``app.service.upload_pool``).
 """
 
 from __future__ import annotations
@@ -114,11 +114,6 @@ class Settings(BaseSettings):
         le=600.0,
         description="a simulation worker that does not answer a step "
         "within this is killed and replaced",
-    )
-    uploads_in_process: bool = Field(
-        False,
-        description="decode and process POST /stereo uploads in threads of the web server's "
-        "process instead of a pool of worker processes",
     )
     log_level: str = Field("info")
 

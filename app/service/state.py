@@ -1,6 +1,6 @@
-"""The running service's state: the active calibration (and the one before it), the
-navigation pipelines of uploads, and :class:`AppState`, what the routes, the 3-D scene's
-actions and shutdown reach."""
+"""The running service's state: the active calibration (and the one before it), what the
+uploads are processed with, and :class:`AppState`, what the routes, the 3-D scene's actions and
+shutdown reach."""
 
 from __future__ import annotations
 
@@ -25,7 +25,6 @@ if TYPE_CHECKING:  # each imported where it runs (viser, the worker pools: optio
     from app.service.sim_worker.proxy import SimWorker
     from app.service.stream_service import StreamService
     from app.service.upload_pool import UploadPool
-    from app.vision.pipeline import NavigationPipeline
     from app.viz.service import VizService
 
 
@@ -51,11 +50,13 @@ class CalibrationStore:
 
 
 class UploadProcessor:
-    """Navigation pipelines for uploaded pairs.
+    """What uploaded pairs are processed with: the calibration, the configured drogue, the
+    count and the image rate to the dashboard.
 
-    Every upload gets a fresh pipeline (0.02 ms to build): uploaded pairs are independent
-    frames, so no track (LED-id continuity, 3-LED prior) carries from one to the next, and
-    concurrent requests share no state.
+    Every upload gets a fresh pipeline (0.02 ms to build; built by
+    :func:`app.service.upload_pool.process_upload`): uploaded pairs are independent frames, so
+    no track (LED-id continuity, 3-LED prior) carries from one to the next, and concurrent
+    requests share no state.
     """
 
     def __init__(
@@ -85,17 +86,6 @@ class UploadProcessor:
     def calibration(self) -> StereoCalibration:
         return self._calibration
 
-    def pipeline(
-        self, matcher: str, calibration: StereoCalibration | None = None
-    ) -> NavigationPipeline:
-        from app.vision.pipeline import NavigationPipeline, PipelineConfig
-
-        if calibration is None:
-            with self._lock:
-                calibration = self._calibration
-        config = PipelineConfig(matcher=matcher)  # type: ignore[arg-type]
-        return NavigationPipeline(calibration, self.drogue.pipeline_config(config))
-
 
 @dataclass
 class AppState:
@@ -109,9 +99,9 @@ class AppState:
     uploads: UploadProcessor
     recorder: Recorder
     streams: StreamService  # the active frame source (the simulation or a camera stream)
+    upload_pool: UploadPool  # where POST /stereo decodes and processes (worker processes)
     viz: VizService | None = None  # when viser runs
     viser_port: int | None = None
-    upload_pool: UploadPool | None = None  # None: uploads in threads of this process
     sim_worker: SimWorker | None = None  # None: the simulation in the tick thread
     mavlink: MavlinkOutput | None = None  # the MAVLink 2 output (settings.mavlink)
     camera_view: CameraView = field(default_factory=CameraView)  # the page's camera images

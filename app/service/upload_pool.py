@@ -1,4 +1,5 @@
-"""Uploaded pairs decoded and processed in worker processes (off the web server's GIL).
+"""Uploaded pairs decoded and processed in an executor: worker processes by default (off the
+web server's GIL).
 
 ``POST /stereo`` checks the token, the sizes and the image headers in the web server's
 process (``app.server.security``, ``app.service.image_guard``); only then are the encoded bytes,
@@ -11,6 +12,10 @@ The workers (``spawn``; ``max_workers = AAR_MAX_CONCURRENT_UPLOADS``, the same b
 request guard enforces, so nothing queues) run at a lower CPU priority (``nice``): the
 closed-loop simulation comes first. A worker that dies breaks a ``ProcessPoolExecutor``; the
 pool is then replaced and the request answered 503.
+
+This is the uploads' one execution path: the executor is injectable
+(``UploadPool(executor_factory=...)``, threaded from ``create_app(upload_executor=...)``), so a
+test that must see the work in its own process gives a thread pool, not another route.
 
 This module imports neither FastAPI nor the server: the workers stay light.
 """
@@ -29,8 +34,7 @@ import threading
 import time
 import traceback
 from collections.abc import Callable
-from concurrent.futures import ProcessPoolExecutor
-from concurrent.futures.process import BrokenProcessPool
+from concurrent.futures import BrokenExecutor, Executor, ProcessPoolExecutor
 from dataclasses import dataclass
 from functools import lru_cache
 from typing import TYPE_CHECKING, ParamSpec, TypeVar
@@ -48,6 +52,7 @@ log = logging.getLogger(__name__)
 
 Params = ParamSpec("Params")  # the arguments of a function run in a worker
 Result = TypeVar("Result")  # what it returns
+ExecutorFactory = Callable[[int], Executor]  # max_workers → a fresh executor
 WORKER_NICE = 10  # uploads are best effort; the tick loop's worker keeps priority
 
 
@@ -177,28 +182,49 @@ def _warm() -> int:
 
 
 # ---- in the web server ------------------------------------------------------------------------
-class UploadPool:
-    """A ``ProcessPoolExecutor`` (spawn) that is replaced when one of its workers dies."""
+def spawn_process_pool(max_workers: int, nice: int = WORKER_NICE) -> ProcessPoolExecutor:
+    """The default executor: ``max_workers`` spawned processes at CPU priority ``nice``, each
+    ending with this process."""
+    import multiprocessing
 
-    def __init__(self, max_workers: int, *, nice: int = WORKER_NICE) -> None:
+    return ProcessPoolExecutor(
+        max_workers=max_workers,
+        mp_context=multiprocessing.get_context("spawn"),
+        initializer=_init_worker,
+        initargs=(nice, os.getpid()),
+    )
+
+
+class UploadPool:
+    """An executor (by default a spawn ``ProcessPoolExecutor``) that is replaced when it breaks
+    (one of its workers died).
+
+    ``executor_factory(max_workers)`` makes each executor (the first and every replacement);
+    ``None``: :func:`spawn_process_pool` at ``nice``. A factory's functions and arguments are
+    pickled only if its executor pickles them (a ``ThreadPoolExecutor`` does not).
+    """
+
+    def __init__(
+        self,
+        max_workers: int,
+        *,
+        nice: int = WORKER_NICE,
+        executor_factory: ExecutorFactory | None = None,
+    ) -> None:
         self.max_workers = max_workers
         self.nice = nice
+        self._factory = executor_factory
         self._lock = threading.Lock()
         self._pool = self._new()
         self.restarts = 0
         self.submitted = 0
 
-    def _new(self) -> ProcessPoolExecutor:
-        import multiprocessing
+    def _new(self) -> Executor:
+        if self._factory is not None:
+            return self._factory(self.max_workers)
+        return spawn_process_pool(self.max_workers, self.nice)
 
-        return ProcessPoolExecutor(
-            max_workers=self.max_workers,
-            mp_context=multiprocessing.get_context("spawn"),
-            initializer=_init_worker,
-            initargs=(self.nice, os.getpid()),
-        )
-
-    def _replace(self, broken: ProcessPoolExecutor) -> ProcessPoolExecutor:
+    def _replace(self, broken: Executor) -> Executor:
         with self._lock:
             if self._pool is broken:
                 log.error("an upload worker died: replacing the upload pool")
@@ -217,29 +243,31 @@ class UploadPool:
     async def run(
         self, fn: Callable[Params, Result], *args: Params.args, **kwargs: Params.kwargs
     ) -> Result:
-        """``fn(*args, **kwargs)`` in a worker (``fn`` and its arguments pickled); raises
-        ``UploadWorkerCrashed`` if the worker dies."""
+        """``fn(*args, **kwargs)`` in a worker (for processes: ``fn`` and its arguments
+        pickled); raises ``UploadWorkerCrashed`` if the worker dies."""
         with self._lock:
             pool = self._pool
         try:
             future = pool.submit(fn, *args, **kwargs)
-        except BrokenProcessPool:
+        except BrokenExecutor:
             pool = self._replace(pool)
             future = pool.submit(fn, *args, **kwargs)
         self.submitted += 1
         try:
             return await asyncio.wrap_future(future)
-        except BrokenProcessPool as exc:
+        except BrokenExecutor as exc:
             self._replace(pool)
             raise UploadWorkerCrashed(str(exc) or "worker died") from None
 
     def pids(self) -> list[int]:
+        """The worker processes' ids (``[]`` for an executor of threads)."""
         procs = getattr(self._pool, "_processes", None) or {}
         return [int(p) for p in procs]
 
     def shutdown(self, timeout_s: float = 1.0) -> None:
-        """Cancel what is queued, give the workers ``timeout_s`` to exit, then terminate them
-        (at shutdown no request is in flight: uvicorn has finished them)."""
+        """Cancel what is queued, give the workers ``timeout_s`` to exit, then terminate the
+        processes among them (at shutdown no request is in flight: uvicorn has finished them;
+        threads are not waited for)."""
         with self._lock:
             pool = self._pool
         procs = list((getattr(pool, "_processes", None) or {}).values())

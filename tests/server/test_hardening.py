@@ -43,8 +43,10 @@ from app.calibration import plausibility as calibration_checks
 from app.server.main import create_app
 from app.service.image_guard import ImageHeaderError, peek_header
 from app.service.settings import Settings
+from app.service.upload_pool import ExecutorFactory
 from tests.support.fake_sim import FakeSim  # the tests' fake step source
 from tests.support.service_settings import service_settings
+from tests.support.upload_executor import thread_uploads
 
 REPO = Path(__file__).resolve().parents[2]
 PAIR = REPO / "sample_data" / "pair_1000mm"
@@ -56,9 +58,16 @@ def _settings(tmp_path: Path, **kw: Any) -> Settings:
     return service_settings(tmp_path, **{"sim_auto_restart_s": None, "token": TOKEN, **kw})
 
 
-def _app(tmp_path: Path, real_sim: bool = False, **kw: Any) -> FastAPI:
+def _app(
+    tmp_path: Path,
+    real_sim: bool = False,
+    upload_executor: ExecutorFactory | None = None,
+    **kw: Any,
+) -> FastAPI:
     factory = None if real_sim else (lambda cfg, cal: FakeSim(cfg, cal))
-    return create_app(_settings(tmp_path, **kw), source_factory=factory)
+    return create_app(
+        _settings(tmp_path, **kw), source_factory=factory, upload_executor=upload_executor
+    )
 
 
 @pytest.fixture
@@ -375,11 +384,14 @@ def test_huge_image_refused_on_its_header_fast(
     client: TestClient, monkeypatch: pytest.MonkeyPatch, name: str, data: bytes
 ) -> None:
     from app.server.routers import stereo
+    from app.service.upload_pool import UploadPool
 
     def no_decode(*a: Any, **k: Any) -> Any:
         raise AssertionError("decoder reached")
 
-    monkeypatch.setattr(stereo, "decode_or_400", no_decode)
+    # every decode is behind the upload pool (the one path), or the dashboard's lazy images
+    monkeypatch.setattr(UploadPool, "run", no_decode)
+    monkeypatch.setattr(stereo, "decode_upload_image", no_decode)
     assert len(data) < 5000
     ok = (PAIR / "left.png").read_bytes()
     t0 = time.perf_counter()
@@ -396,7 +408,7 @@ def test_huge_image_refused_on_its_header_fast(
 def test_image_guard_size_format_and_off_loop_decoding(
     client: TestClient, monkeypatch: pytest.MonkeyPatch, tmp_path: Path
 ) -> None:
-    from app.server.routers import stereo
+    from app.service import upload_pool
 
     ok = (PAIR / "left.png").read_bytes()
     # under the absolute limit but not the calibration's 1280x1024: 422 before decoding
@@ -418,10 +430,10 @@ def test_image_guard_size_format_and_off_loop_decoding(
         files={"left": ("l.gif", b"GIF89a" + b"\0" * 64), "right": ("r.png", ok)},
     )
     assert r.status_code == 400 and "PNG, JPEG, BMP or TIFF" in r.json()["detail"]
-    # with AAR_UPLOADS_IN_PROCESS, decoding happens in a worker thread (no event loop running
-    # there); by default in a worker process (tests/service/test_processes.py)
+    # with an injected thread executor, decoding happens in a worker thread (no event loop
+    # running there); by default in a worker process (tests/service/test_processes.py)
     threads: list[bool] = []
-    original = stereo.decode_or_400
+    original = upload_pool.decode_upload_image
 
     def spy(data: bytes, name: str) -> np.ndarray:
         try:
@@ -431,8 +443,8 @@ def test_image_guard_size_format_and_off_loop_decoding(
             threads.append(True)
         return original(data, name)
 
-    monkeypatch.setattr(stereo, "decode_or_400", spy)
-    with TestClient(_app(tmp_path, uploads_in_process=True)) as threaded:
+    monkeypatch.setattr(upload_pool, "decode_upload_image", spy)
+    with TestClient(_app(tmp_path, upload_executor=thread_uploads)) as threaded:
         r = threaded.post(
             "/api/v1/stereo",
             headers=AUTH,

@@ -14,7 +14,9 @@ from fastapi.testclient import TestClient
 
 from app.server.main import create_app
 from app.service.settings import Settings
+from app.service.upload_pool import ExecutorFactory
 from app.streams.annotations import led_color
+from tests.support.upload_executor import thread_uploads
 
 PAIR = Path(__file__).resolve().parents[2] / "sample_data" / "pair_1000mm_clutter"
 
@@ -70,17 +72,20 @@ def test_live_images_carry_the_records_detections(tmp_path: Path) -> None:
         assert c.get("/api/v1/camera/left.jpg", params={"source": "upload"}).status_code == 404
 
 
-@pytest.mark.parametrize("in_threads", [False, True], ids=["worker-process", "threads"])
-def test_uploaded_pair_is_drawn_by_the_same_producer(tmp_path: Path, in_threads: bool) -> None:
-    """Either upload path (a worker process decodes, or the web process's threads) hands the
-    camera view a complete raw side."""
+@pytest.mark.parametrize(
+    "upload_executor", [None, thread_uploads], ids=["worker-process", "threads"]
+)
+def test_uploaded_pair_is_drawn_by_the_same_producer(
+    tmp_path: Path, upload_executor: ExecutorFactory | None
+) -> None:
+    """The one upload path hands the camera view a complete raw side, whether its executor is
+    the default worker processes or threads of the web process."""
     settings = Settings(  # type: ignore[call-arg]
         viser_enabled=False,
         recordings_dir=tmp_path,
         sim_autostart=False,
-        uploads_in_process=in_threads,
     )
-    with TestClient(create_app(settings)) as c:
+    with TestClient(create_app(settings, upload_executor=upload_executor)) as c:
         assert c.get("/api/v1/camera/left.jpg").status_code == 404  # nothing yet, JSON reason
         files = {
             "left": ("left.png", (PAIR / "left.png").read_bytes(), "image/png"),

@@ -146,9 +146,11 @@ def status():
     s = open("/proc/self/status").read()
     return {k: int(re.search(k + r":\s+(\d+)", s).group(1)) / 1024 for k in ("VmHWM", "VmRSS")}
 
-settings = Settings(viser_enabled=False, recordings_dir=Path(sys.argv[1]), sim_auto_restart_s=None,
-                    uploads_in_process=True)
-app = create_app(settings, source_factory=lambda cfg, cal: FakeSim(cfg, cal))
+from tests.support.upload_executor import thread_uploads
+settings = Settings(viser_enabled=False, recordings_dir=Path(sys.argv[1]), sim_auto_restart_s=None)
+# the uploads in this process's threads: the web process's memory is what is measured
+app = create_app(settings, source_factory=lambda cfg, cal: FakeSim(cfg, cal),
+                 upload_executor=thread_uploads)
 bad = hostile_tiff()
 out = {}
 with TestClient(app) as c:

@@ -6,8 +6,10 @@ from __future__ import annotations
 import asyncio
 import os
 import signal
+import threading
 import time
 from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -19,7 +21,9 @@ from fastapi.testclient import TestClient
 from app.server.main import create_app
 from app.service.settings import Settings
 from app.service.sim_worker import image_ring, proxy
+from app.service.upload_pool import ExecutorFactory
 from tests.support.service_settings import service_settings
+from tests.support.upload_executor import thread_uploads
 from tests.support.waiting import wait_until
 
 REPO = Path(__file__).resolve().parents[2]
@@ -150,13 +154,13 @@ def test_a_hung_worker_times_out_and_is_replaced(tmp_path: Path) -> None:
 
 def _in_process_result(matcher: str) -> Any:
     from app.geometry.calibration import StereoCalibration
-    from app.server.routers.stereo import decode_or_400
     from app.service.settings import DEFAULT_CALIBRATION
+    from app.service.upload_pool import decode_upload_image
     from app.vision.pipeline import NavigationPipeline, PipelineConfig
 
     calib = StereoCalibration.load(DEFAULT_CALIBRATION)
-    left = decode_or_400((PAIR / "left.png").read_bytes(), "left")
-    right = decode_or_400((PAIR / "right.png").read_bytes(), "right")
+    left = decode_upload_image((PAIR / "left.png").read_bytes(), "left")
+    right = decode_upload_image((PAIR / "right.png").read_bytes(), "right")
     return NavigationPipeline(calib, PipelineConfig(matcher=matcher)).process(left, right)  # type: ignore[arg-type]
 
 
@@ -168,7 +172,6 @@ def test_upload_in_a_worker_process_equals_the_in_process_pipeline(tmp_path: Pat
     }
     with TestClient(create_app(settings)) as c:
         st = c.app.state.aar  # type: ignore[attr-defined]
-        assert st.upload_pool is not None
         got = {}
         for matcher in ("epipolar", "paper"):
             r = c.post("/api/v1/stereo", files=files, data={"matcher": matcher})
@@ -192,17 +195,97 @@ def test_upload_in_a_worker_process_equals_the_in_process_pipeline(tmp_path: Pat
         )
 
 
-def test_upload_errors_are_the_same_in_both_modes(tmp_path: Path) -> None:
+def test_upload_errors_are_the_same_with_either_executor(tmp_path: Path) -> None:
     ok = (PAIR / "left.png").read_bytes()
     broken = ok[:200]  # a valid PNG header (passes the guard), no image data
     answers = []
-    for in_process in (False, True):
-        settings = _settings(tmp_path, sim_autostart=False, uploads_in_process=in_process)
-        with TestClient(create_app(settings)) as c:
+    for executor in (None, thread_uploads):  # the default worker processes, then threads
+        settings = _settings(tmp_path, sim_autostart=False)
+        with TestClient(create_app(settings, upload_executor=executor)) as c:
             r = c.post("/api/v1/stereo", files={"left": ("l.png", ok), "right": ("r.png", broken)})
             answers.append((r.status_code, r.json()))
     assert answers[0] == answers[1]
     assert answers[0][0] == 400 and "right: could not decode" in answers[0][1]["detail"]
+
+
+@pytest.mark.parametrize("executor", [None, thread_uploads], ids=["processes", "threads"])
+def test_the_route_runs_process_upload_in_the_pool_whatever_its_executor(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, executor: ExecutorFactory | None
+) -> None:
+    """One path: ``POST /stereo`` hands ``process_upload`` to the ``UploadPool``; only where it
+    runs differs (worker processes by default, the injected executor's threads)."""
+    from app.service import upload_pool
+
+    ran: list[object] = []
+    real_run = upload_pool.UploadPool.run
+
+    async def spy_run(self: Any, fn: Any, *args: Any, **kwargs: Any) -> Any:
+        ran.append(fn)
+        return await real_run(self, fn, *args, **kwargs)
+
+    decoded_in: list[str] = []  # seen only where the work runs in this process
+    real_decode = upload_pool.decode_upload_image
+
+    def spy_decode(data: bytes, name: str) -> np.ndarray:
+        decoded_in.append(threading.current_thread().name)
+        return real_decode(data, name)
+
+    monkeypatch.setattr(upload_pool.UploadPool, "run", spy_run)
+    monkeypatch.setattr(upload_pool, "decode_upload_image", spy_decode)
+    files = {
+        "left": ("l.png", (PAIR / "left.png").read_bytes()),
+        "right": ("r.png", (PAIR / "right.png").read_bytes()),
+    }
+    with TestClient(
+        create_app(_settings(tmp_path, sim_autostart=False), upload_executor=executor)
+    ) as c:
+        r = c.post("/api/v1/stereo", files=files)
+        assert r.status_code == 200 and r.json()["lock"], r.text
+        pids = c.app.state.aar.upload_pool.pids()  # type: ignore[attr-defined]
+    assert ran == [upload_pool.process_upload]
+    if executor is None:  # decoded in a worker process: this process's spy saw nothing
+        assert pids and os.getpid() not in pids and decoded_in == []
+    else:
+        assert pids == []
+        assert len(decoded_in) == 2
+        assert all(name.startswith("aar-upload-test") for name in decoded_in), decoded_in
+
+
+def test_upload_pool_with_a_thread_executor_answers_in_this_process() -> None:
+    from app.service.upload_pool import UploadPool
+
+    pool = UploadPool(2, executor_factory=thread_uploads)
+    try:
+        assert asyncio.run(pool.run(os.getpid)) == os.getpid()
+        thread = asyncio.run(pool.run(threading.current_thread))
+        assert thread is not threading.main_thread() and thread.name.startswith("aar-upload")
+        assert pool.pids() == [] and pool.submitted == 2 and pool.restarts == 0
+    finally:
+        pool.shutdown()
+
+
+def test_a_broken_injected_executor_is_replaced() -> None:
+    """Any ``BrokenExecutor`` (here a thread pool whose initializer fails), not only a process
+    pool's, is answered ``UploadWorkerCrashed`` and the executor replaced."""
+    from app.service.upload_pool import UploadPool, UploadWorkerCrashed
+
+    made: list[ThreadPoolExecutor] = []
+
+    def fail() -> None:
+        raise RuntimeError("initializer failed")
+
+    def factory(max_workers: int) -> ThreadPoolExecutor:
+        made.append(ThreadPoolExecutor(max_workers, initializer=fail if not made else None))
+        return made[-1]
+
+    pool = UploadPool(1, executor_factory=factory)
+    try:
+        with pytest.raises(UploadWorkerCrashed):
+            asyncio.run(pool.run(abs, -1))
+        assert pool.restarts == 1 and len(made) == 2
+        assert asyncio.run(pool.run(abs, -2)) == 2  # the new executor answers
+    finally:
+        pool.shutdown()
 
 
 def test_upload_pool_survives_a_dead_worker() -> None:

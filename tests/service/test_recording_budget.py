@@ -53,7 +53,7 @@ def test_time_left_during_a_default_frame_recording_and_ten_minutes_fit(tmp_path
     """The default simulated stream (1280×1024 frames), the default options: the estimate
     before the start, the measured rate and the time left during it; the measured bytes of a
     pair, driven at 30 Hz, fit 10 minutes in the default bounds."""
-    settings = service_settings(tmp_path, sim_in_process=True, uploads_in_process=True)
+    settings = service_settings(tmp_path, sim_in_process=True)
     defaults = Settings()
     with TestClient(create_app(settings)) as c:
         wait_until(lambda: c.get("/api/v1/healthz").json()["ticks"] >= 10, 60, "first ticks")

@@ -28,7 +28,7 @@ MIN_REPLAYED = 0.95
 def test_a_simulated_stream_recording_replays_with_its_own_drogue_and_calibration(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    settings = service_settings(tmp_path, sim_in_process=True, uploads_in_process=True)
+    settings = service_settings(tmp_path, sim_in_process=True)
     with TestClient(create_app(settings)) as c:
         wait_until(lambda: c.get("/api/v1/healthz").json()["ticks"] >= 10, 60, "first ticks")
         assert c.get("/api/v1/healthz").json()["drogue"]["ring_radius_mm"] == 305.0

@@ -161,7 +161,7 @@ def served_push(tmp_path: Path) -> Iterator[tuple[str, int]]:
     """``aar-dock serve --source push`` as a real process (token s3cret)."""
     port = _free_port()
     env = {k: v for k, v in os.environ.items() if not k.startswith("AAR_")}
-    env.update(AAR_TOKEN="s3cret", AAR_SIM_IN_PROCESS="1", AAR_UPLOADS_IN_PROCESS="1")
+    env.update(AAR_TOKEN="s3cret", AAR_SIM_IN_PROCESS="1")
     env.update(AAR_LOG_LEVEL="warning", AAR_RECORDINGS_DIR=str(tmp_path / "rec"))
     cmd = [sys.executable, "-m", "app", "serve", "--source", "push", "--no-viser", "--no-sim"]
     log = (tmp_path / "serve.log").open("wb")

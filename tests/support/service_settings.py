@@ -8,8 +8,9 @@ from typing import Any
 
 from app.service.settings import Settings
 
-#: the simulation and the uploads in the test's own process, nothing started by itself
-IN_PROCESS: dict[str, Any] = dict(sim_autostart=False, sim_in_process=True, uploads_in_process=True)
+#: the simulation in the test's own process, nothing started by itself (the uploads: see
+#: ``tests.support.upload_executor``)
+IN_PROCESS: dict[str, Any] = dict(sim_autostart=False, sim_in_process=True)
 
 
 def service_settings(tmp_path: Path, **kw: Any) -> Settings:

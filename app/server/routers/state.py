@@ -140,7 +140,7 @@ def metrics(state: StateDep) -> PlainTextResponse:
         ws_clients=state.hub.client_count,
         uploads=state.uploads.count,
         sim_worker_restarts=None if state.sim_worker is None else state.sim_worker.restarts,
-        upload_pool_restarts=None if state.upload_pool is None else state.upload_pool.restarts,
+        upload_pool_restarts=state.upload_pool.restarts,
         streams=state.streams,
         guard_counters=guard_events.snapshot(),
     )

@@ -2,24 +2,21 @@
 
 Before anything is decoded, both images' headers are read (``app.service.image_guard``): not a
 PNG/JPEG/BMP/TIFF → 400, more than ``AAR_MAX_IMAGE_PIXELS`` → 413, sizes that differ or do not
-match the calibration → 422. Decoding and the pipeline then run in a worker process
-(``app.service.upload_pool``: off the web server's GIL), or, with ``AAR_UPLOADS_IN_PROCESS``, in
-worker threads; never on the event loop. Token, request size and concurrency are checked
-earlier, on the headers (``app.server.security``).
+match the calibration → 422. Decoding and the pipeline then run, by one path, in the
+:class:`~app.service.upload_pool.UploadPool` (``process_upload``: worker processes, off the web
+server's GIL; tests may inject another executor); never on the event loop. Token, request size
+and concurrency are checked earlier, on the headers (``app.server.security``).
 
-The dashboard shows an upload's images: in process mode they are decoded again here, lazily
-(when the 3-D scene reads them) and for at most ``AAR_IMAGE_HZ`` uploads a second; the others
-are published without images (the scene keeps the last ones).
+The dashboard shows an upload's images: they are decoded again here, lazily (when the 3-D scene
+reads them) and for at most ``AAR_IMAGE_HZ`` uploads a second; the others are published
+without images (the scene keeps the last ones).
 """
 
 from __future__ import annotations
 
-import asyncio
 import logging
-from dataclasses import dataclass
 from typing import Annotated, Literal
 
-import numpy as np
 from fastapi import APIRouter, Depends, File, Form, HTTPException, UploadFile, status
 
 from app.geometry.calibration import StereoCalibration
@@ -39,21 +36,9 @@ from app.service.upload_pool import (
     decode_upload_image,
     process_upload,
 )
-from app.types import UInt8Array
 
 log = logging.getLogger(__name__)
 router = APIRouter(tags=["stereo"])
-
-
-@dataclass
-class UploadFrames:
-    """The raw side of an upload record (what the 3-D scene and the camera view show)."""
-
-    left_image: UInt8Array
-    right_image: UInt8Array
-    stereo_frame: None = None  # an upload is no stream's frame
-    image_windows_px: None = None  # whole images
-    camera_pose_T: None = None  # a real camera's pose is not known
 
 
 class LazyUploadFrames(LazyImagePair):
@@ -101,22 +86,6 @@ def screen(data: bytes, name: str, *, max_pixels: int) -> ImageHeader:
         raise HTTPException(exc.status, exc.detail) from None
 
 
-def decode_or_400(data: bytes, name: str) -> np.ndarray:
-    """Bytes (PNG/JPEG/BMP/TIFF) → uint8 grey image; ``HTTPException(400)`` if not an image."""
-    try:
-        return decode_upload_image(data, name)
-    except UploadError as exc:
-        raise HTTPException(exc.status, exc.detail) from None
-
-
-def _decode_pair(left: bytes, right: bytes) -> tuple[np.ndarray, np.ndarray]:
-    return decode_or_400(left, "left"), decode_or_400(right, "right")
-
-
-def _shape_header(img: np.ndarray) -> ImageHeader:
-    return ImageHeader("decoded", img.shape[1], img.shape[0], 1, 8)
-
-
 def _check_sizes(lh: ImageHeader, rh: ImageHeader, expected: tuple[int, int] | None) -> None:
     try:
         check_pair_sizes((lh.width, lh.height), (rh.width, rh.height), expected)
@@ -124,38 +93,16 @@ def _check_sizes(lh: ImageHeader, rh: ImageHeader, expected: tuple[int, int] | N
         raise HTTPException(exc.status, exc.detail) from None
 
 
-async def _in_threads(
+async def _in_upload_pool(
     state: AppState,
     left_bytes: bytes,
     right_bytes: bytes,
     matcher: str,
     calibration: StereoCalibration,
 ) -> tuple[PoseResult, RawFrame | None]:
-    """``AAR_UPLOADS_IN_PROCESS``: decode and pipeline in worker threads of this process."""
-    expected = calibration.image_size
-    left_img, right_img = await asyncio.to_thread(_decode_pair, left_bytes, right_bytes)
-    _check_sizes(_shape_header(left_img), _shape_header(right_img), expected)  # as decoded
-    pipeline = state.uploads.pipeline(matcher, calibration)
+    """Decode and pipeline in a worker of the :class:`UploadPool` (the one path)."""
     try:
-        result: PoseResult = await asyncio.to_thread(pipeline.process, left_img, right_img)
-    except Exception as exc:  # the contract is a 4xx with a detail, never a 500
-        log.exception("pipeline failed on an upload")
-        raise HTTPException(422, f"pipeline failed: {type(exc).__name__}: {exc}") from None
-    return result, UploadFrames(left_img, right_img)
-
-
-async def _in_worker_process(
-    state: AppState,
-    left_bytes: bytes,
-    right_bytes: bytes,
-    matcher: str,
-    calibration: StereoCalibration,
-) -> tuple[PoseResult, RawFrame | None]:
-    """Decode and pipeline in an :class:`UploadPool` worker process."""
-    pool = state.upload_pool
-    assert pool is not None
-    try:
-        out = await pool.run(
+        out = await state.upload_pool.run(
             process_upload,
             left_bytes,
             right_bytes,
@@ -218,8 +165,7 @@ async def post_stereo(
     rh = screen(right_bytes, "right", max_pixels=settings.max_image_pixels)
     calibration = state.uploads.calibration  # one calibration for the whole request
     _check_sizes(lh, rh, calibration.image_size)
-    run = _in_threads if state.upload_pool is None else _in_worker_process
-    result, raw = await run(state, left_bytes, right_bytes, matcher, calibration)
+    result, raw = await _in_upload_pool(state, left_bytes, right_bytes, matcher, calibration)
     del left_bytes, right_bytes
     state.uploads.count += 1
     # an upload is not on the loop's schedule: its timings stay out of the stage statistics
