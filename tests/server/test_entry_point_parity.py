@@ -1,8 +1,8 @@
 """One pair, one answer (issue 31 items 4–5, acceptance "Parity" and "Profile").
 
 The same rendered pairs — colour and mono, the paper's 75 mm ring and a 305 mm basket — go
-through ``aar-dock process``, ``POST /api/v1/stereo`` (in the web process and in an upload
-worker's function), a pushed pair on ``/api/v1/stream/push`` and ``aar-dock track``; each
+through ``aar-dock process``, ``POST /api/v1/stereo`` (its one path, ``process_upload``,
+called directly and through the route with a thread executor in the web process), a pushed pair on ``/api/v1/stream/push`` and ``aar-dock track``; each
 entry point is told the drogue by the same profile file. The answers must agree: the same
 lock and reason, the centre within 0.01 mm. Then the profile: a 305 mm drogue is locked by
 ``--ring-radius-mm 305`` (the service with ``AAR_RING_RADIUS_MM`` and no simulation, and
@@ -31,6 +31,7 @@ from app.streams.protocol import encode_message
 from app.vision.drogue import BASKET_24IN, PAPER_DROGUE, DrogueProfile
 from tests.support.service_settings import IN_PROCESS, service_settings
 from tests.support.stream_checks import history_records
+from tests.support.upload_executor import thread_uploads
 from tests.support.waiting import wait_until
 
 CENTRE_TOL_MM = 0.01
@@ -115,7 +116,7 @@ def test_process_upload_push_and_track_give_one_answer(
         _assert_same(f"{name} upload worker", answers[name], out.result.model_dump(mode="python"))
     # the service (AAR_DROGUE): POST /stereo, then each pair pushed to a fresh push stream
     settings = service_settings(tmp_path, **IN_PROCESS, drogue=profile, history_s=600.0)
-    with TestClient(create_app(settings)) as c:
+    with TestClient(create_app(settings, upload_executor=thread_uploads)) as c:
         assert c.get("/api/v1/healthz").json()["configured_drogue"]["ring_radius_mm"] == (
             drogue.ring_radius_mm
         )
@@ -161,7 +162,7 @@ def test_ring_radius_shortcut_locks_a_305mm_drogue_and_the_75mm_profile_never_do
     settings = service_settings(tmp_path, **IN_PROCESS, ring_radius_mm=305.0)
     settings_75 = service_settings(tmp_path, **IN_PROCESS)
     for s, want in ((settings, True), (settings_75, False)):
-        with TestClient(create_app(s)) as c:
+        with TestClient(create_app(s, upload_executor=thread_uploads)) as c:
             assert c.get("/api/v1/healthz").json()["configured_drogue"]["ring_radius_mm"] == (
                 305.0 if want else 75.0
             )
