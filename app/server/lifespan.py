@@ -53,7 +53,7 @@ def make_lifespan(
         backend = sim_backend(settings, source_factory)
         st = build_state(settings, calib, backend, clock, upload_executor)
         try:
-            start_services(st, settings, warm=source_factory is None)
+            start_services(st, settings, warm=backend.worker is not None)
         except BaseException:
             st.streams.close()
             if st.viz is not None:

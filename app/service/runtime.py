@@ -195,7 +195,8 @@ def start_outputs(st: AppState, settings: Settings) -> None:
 
 def start_services(st: AppState, settings: Settings, *, warm: bool) -> None:
     """Subscribe the outputs, start the simulation, the tick thread and the configured frame
-    source; ``warm``: start the upload workers now (the app as deployed)."""
+    source; ``warm``: start the upload workers now (the app as deployed, its simulation in a
+    worker process; otherwise they start with the first upload)."""
     if settings.viser_enabled:
         start_viz(st, settings)
     start_outputs(st, settings)
@@ -205,7 +206,7 @@ def start_services(st: AppState, settings: Settings, *, warm: bool) -> None:
     st.loop.start()
     if warm:
         # the app as deployed: the upload workers start now, not with the first upload
-        # (apps with an injected source, i.e. tests, start them on demand)
+        # (apps with an injected source or the simulation in process start them on demand)
         st.upload_pool.warm()
     if stream_configured:
         st.streams.switch(settings.source)  # SourceError: the service does not start
