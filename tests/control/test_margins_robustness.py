@@ -47,9 +47,11 @@ def _current_loop(**extra):  # type: ignore[no-untyped-def]
     return _models().margin_loop(DT, **extra)
 
 
-def _first_tuning_loop(**extra):  # type: ignore[no-untyped-def]
-    """The loop before this fix (commit 933ab54): observer model uncertainty 1e-2 on u…r,
-    LQR without the servo-lag model, its weights."""
+@cache
+def _first_tuning():  # type: ignore[no-untyped-def]
+    """The gains before this fix (commit 933ab54): observer model uncertainty 1e-2 on u…r,
+    LQR without the servo-lag model, its weights. Designed once: they depend only on the
+    design model (``_models()``), not on the plant a loop closes them on."""
     m = _models()
     q0 = m.ed @ m.ed.T * 4.0 + np.diag([1e-2] * 6 + [0.0] * 6) + np.eye(12) * 1e-6
     obs = StateObserver(m.ad, m.bd, m.c_meas, q0, np.diag(m.meas_sigma**2))
@@ -62,8 +64,16 @@ def _first_tuning_loop(**extra):  # type: ignore[no-untyped-def]
         np.array([3.0, 300.0, 300.0]),
         np.array([300.0, 4.0e5, 4.0e5, 4.0e5]),
     )
-    first = dict(obs_gain=obs.gain, kp=ctrl.kp, ki=ctrl.ki, ke=None, design_lag_s=0.0)
-    return m.margin_loop(DT, **first, **extra)
+    gains = {"obs_gain": obs.gain, "kp": ctrl.kp, "ki": ctrl.ki}
+    for name, g in gains.items():  # shared between tests: read-only copies
+        gains[name] = np.array(g, dtype=np.float64)
+        gains[name].setflags(write=False)
+    return dict(**gains, ke=None, design_lag_s=0.0)
+
+
+def _first_tuning_loop(**extra):  # type: ignore[no-untyped-def]
+    """The loop before this fix with the first tuning's gains (:func:`_first_tuning`)."""
+    return _models().margin_loop(DT, **_first_tuning(), **extra)
 
 
 def test_every_sampled_standard_plant_keeps_40ms_of_delay_margin_with_the_lag() -> None:
