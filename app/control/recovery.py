@@ -63,20 +63,14 @@ class RecoveryGains:
     drop_back_mps: float = 8.0  # the drop-back speed relative to the tanker
     sink_mps: float = 3.0  # the descent's sink rate
     sink_gain: float = 2.0  # k_z (per unit: m/s of sink-rate error per m/s)
-    # k_i and the clip of |∫e| (m, anti-windup): k_i · clip = 6 m/s of sink the integral can
-    # add against an updraft (a gust of 4–5 m/s lifted the receiver over the drogue in the
-    # held-out keep-outs; 0.5 and 3 m, i.e. 1.5 m/s, held it level for 2 s: tests/control/
-    # test_recovery.py)
-    sink_integral_per_s: float = 1.5
-    sink_integral_max_m: float = 4.0
+    sink_integral_per_s: float = 0.5  # k_i
+    sink_integral_max_m: float = 3.0  # |∫e| (m): the integrator's clip (anti-windup)
     heading_gain: float = 4.0  # k_ψ (rad of bank per rad of track angle)
     side_position_gain: float = 0.1  # k_y (m/s of sideways speed per m of offset)
     side_return_max_mps: float = 1.0  # the most sideways speed it commands back to station
     bank_max_deg: float = 10.0
     omega_roll_rad_s: float = 2.0
-    # the attitude hold's bandwidth: a PD hold leaves an error ∝ M_α Δα / ω² against the A-4's
-    # pitch stiffness (≈ 1.5° at 2 rad/s in a break-away; 3 rad/s: ≈ 0.7°)
-    omega_pitch_rad_s: float = 3.0
+    omega_pitch_rad_s: float = 2.0
     omega_yaw_rad_s: float = 1.5
     damping: float = 0.8
     max_fraction: float = 0.3  # of each command's travel
