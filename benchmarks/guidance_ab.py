@@ -39,6 +39,7 @@ SETTINGS = (
     "bow_feedforward",
     "timed_closure",
     "pre_plane_checks",
+    "nav_covariance",
 )
 
 
@@ -52,6 +53,8 @@ def with_setting(cfg: DockingConfig, setting: str, value: bool) -> DockingConfig
         return replace(cfg, bow_feedforward=value)
     if setting == "timed_closure":
         return replace(cfg, timed_closure=value)
+    if setting == "nav_covariance":
+        return replace(cfg, nav_covariance=value)
     if setting == "pre_plane_checks":  # the high-pass and overspeed break-aways (defaults: on)
         return cfg if value else replace(cfg, high_gap_m=0.0, overspeed_gap_m=0.0)
     raise ValueError(f"unknown setting {setting!r} (one of {', '.join(SETTINGS)})")

@@ -190,6 +190,10 @@ class DockingConfig:
     imperfections: str | Imperfections = "none"
     # fuse delayed camera measurements at their exposure time (False: as if current; ablation)
     latency_compensation: bool = True
+    # weigh each camera fix in the drogue filter by the navigation's own centre covariance
+    # (``DrogueFit.center_cov_mm2``: the fit's noise and the calibration's doubt, which grows
+    # as Z²) — False: a stereo-geometry model of the noise alone (ablation)
+    nav_covariance: bool = True
     # a lock lost before the last metre (coast limit passed): True — hold the gap (the guidance
     # closes only while the drogue is tracked) and resume when it is re-acquired; False — break
     # away (counts as an abort). Inside the last metre a lost lock always breaks away

@@ -337,7 +337,11 @@ class DockingSimulation:
             return None, None, shot
         r_tc_hat, cam_hat = self._camera_pose(x_hat)
         z_t, r_t = drogue_in_tanker(
-            shot.measurement_m, r_tc_hat, cam_hat, self._camera.nav_calibration
+            shot.measurement_m,
+            r_tc_hat,
+            cam_hat,
+            self._camera.nav_calibration,
+            shot.measurement_cov_m2 if self.config.nav_covariance else None,
         )
         return z_t, r_t, shot
 

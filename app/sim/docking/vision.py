@@ -82,6 +82,8 @@ class DrogueFrame:
     left: NDArray[np.uint8] | None = None
     right: NDArray[np.uint8] | None = None
     led_truth_cam_mm: FloatArray | None = None
+    # the navigation's covariance of ``measurement_m`` (camera frame, m²), when it gave one
+    measurement_cov_m2: FloatArray | None = None
 
 
 def take_frame(
@@ -99,11 +101,21 @@ def take_frame(
     n_cam = r_tc.T @ drogue_normal
     frame = sensor.capture(c_cam_m * 1000.0, n_cam, seed=seed)
     pose = frame.pose
-    meas = None
+    meas = cov = None
     if pose.lock and pose.drogue is not None:
         meas = np.asarray(pose.drogue.center_mm, float) / 1000.0
+        if pose.drogue.center_cov_mm2 is not None:
+            cov = np.asarray(pose.drogue.center_cov_mm2, float) / 1e6
     leds = np.asarray(frame.led_truth_cam_mm, float)
-    return DrogueFrame(meas, pose, frame.left, frame.right, leds), frame.windows
+    shot = DrogueFrame(
+        meas,
+        pose=pose,
+        left=frame.left,
+        right=frame.right,
+        led_truth_cam_mm=leds,
+        measurement_cov_m2=cov,
+    )
+    return shot, frame.windows
 
 
 def drogue_in_tanker(
@@ -111,10 +123,14 @@ def drogue_in_tanker(
     r_tc_hat: FloatArray,
     camera_hat_m: FloatArray,
     nav_calibration: StereoCalibration,
+    nav_cov_m2: FloatArray | None = None,
 ) -> tuple[FloatArray, FloatArray]:
     """The drogue centre measured in the camera frame (m) in the tanker frame, converted with
-    the *estimated* camera pose (R_TC, origin m), and its covariance (m²): lateral and depth
-    noise of the stereo fit (depth error ∝ Z² / (f·B)), plus 1 cm for the own-pose error."""
+    the *estimated* camera pose (R_TC, origin m), and its covariance (m²), plus 1 cm for the
+    own-pose error: the navigation's own ``nav_cov_m2`` (camera frame) where given — it knows
+    the calibration's doubt, a disparity bias whose depth error grows as Z² (harsh: a fix of a
+    drogue 21.7 m away read 56.7 m, centre σ 36 m) —, never below a model of the stereo fit's
+    noise (lateral, and depth ∝ Z² / (f·B))."""
     z_t = camera_hat_m + r_tc_hat @ measurement_m
     depth = max(float(measurement_m[2]), 0.5)
     f_px = float(nav_calibration.left.fx)
@@ -123,5 +139,7 @@ def drogue_in_tanker(
     sig_lat = 0.003 + depth * 0.1 / f_px
     sig_z = 0.005 + depth**2 * sig_d / (f_px * base_m)
     r_cam = np.diag([sig_lat**2, sig_lat**2, sig_z**2])
+    if nav_cov_m2 is not None:
+        r_cam = r_cam + np.asarray(nav_cov_m2, float)
     r_t = r_tc_hat @ r_cam @ r_tc_hat.T + np.eye(3) * 0.01**2
     return np.asarray(z_t), np.asarray(r_t)
