@@ -6,6 +6,15 @@ gating: normalised innovation squared ``νᵀ S⁻¹ ν`` above the χ²(3) thre
 16.27). Three consecutive rejections mean the filter (not the measurements) is wrong — it lagged a
 manoeuvre — and it is re-seeded from the measurement, keeping its velocity. Without accepted measurements the filter coasts (predicts only); :attr:`coast_time_s`
 tells the guidance how long, so it can command a back-off after a bounded time.
+
+A far stereo fix's error along the line of sight — the tanker frame's x, fore and aft — is
+mostly a *bias*: a calibration the navigation doubts shifts every disparity alike, and the
+depth error grows as Z² (harsh: a drogue 21.7 m away read at 56.7 m). Fifty such fixes a second
+taken as independent average their noise away but not their bias, and a filter fed them walks
+onto it (seen: 10 m in 1.6 s, the rejoin then closing at 5–7 m/s). The drogue is tethered —
+its fore-aft position moves by the swing's ``L (1 − cos θ)``, centimetres —, so a fix whose
+fore-aft σ exceeds ``fore_aft_fix_sigma_max_m`` updates the cross-stream axes only (y, z:
+its marginal, gated at χ²(2)); the fore-aft estimate waits for the nearer fixes.
 """
 
 from __future__ import annotations
@@ -17,6 +26,7 @@ import numpy as np
 from app.types import FloatArray
 
 CHI2_3_999 = 16.266
+CHI2_2_999 = 13.816
 # (x, P, initialised, ever_initialised, coast_time_s, consecutive_rejections)
 _Snapshot = tuple[FloatArray, FloatArray, bool, bool, float, int]
 
@@ -29,6 +39,7 @@ class DrogueFilter:
         reseed_after: int = 3,
         history: int = 0,
         hold_after_s: float = float("inf"),
+        fore_aft_fix_sigma_max_m: float = float("inf"),
     ) -> None:
         self.accel_sigma = accel_sigma
         self.gate = gate
@@ -38,6 +49,8 @@ class DrogueFilter:
         # coasting longer than this, the estimate stops extrapolating (velocity zeroed): a lost
         # drogue is held where it was last seen instead of drifting away with a stale velocity
         self.hold_after_s = hold_after_s
+        # fixes knowing the fore-aft position worse than this (σ, m) update y, z only
+        self.fore_aft_fix_sigma_max_m = fore_aft_fix_sigma_max_m
         self._hist: deque[_Snapshot] = deque(maxlen=history + 1 if history else 1)
         self._hist_dt: deque[float] = deque(maxlen=history + 1 if history else 1)
         self.consecutive_rejections = 0
@@ -51,7 +64,12 @@ class DrogueFilter:
 
     def reset(self) -> None:
         self.__init__(  # type: ignore[misc]
-            self.accel_sigma, self.gate, self.reseed_after, self.history, self.hold_after_s
+            self.accel_sigma,
+            self.gate,
+            self.reseed_after,
+            self.history,
+            self.hold_after_s,
+            self.fore_aft_fix_sigma_max_m,
         )
 
     def _snapshot(self) -> _Snapshot:
@@ -119,6 +137,19 @@ class DrogueFilter:
         if self.coast_time_s > self.hold_after_s:
             self.x[3:] = 0.0  # hold the last seen position (see hold_after_s)
 
+    def _reseed(self, z: FloatArray, r: FloatArray, axes: list[int]) -> None:
+        """The position on ``axes`` from the fix ``z`` (covariance ``r``), the velocity
+        estimate kept (its variance reset to 1 m²/s²), both uncorrelated with the rest; a
+        position axis the fix does not inform keeps its estimate and variance."""
+        for i in axes + [3, 4, 5]:
+            self.P[i, :] = 0.0
+            self.P[:, i] = 0.0
+        self.x[axes] = z[axes]
+        self.P[np.ix_(axes, axes)] = r[np.ix_(axes, axes)]
+        self.P[3:, 3:] = np.eye(3) * 1.0
+        self.consecutive_rejections = 0
+        self.coast_time_s = 0.0
+
     def update(self, z: FloatArray, r: FloatArray) -> bool:
         """Fuse a position measurement ``z`` (m) with covariance ``r``; False if gated out."""
         z = np.asarray(z, float)
@@ -130,20 +161,23 @@ class DrogueFilter:
             self.initialised = self.ever_initialised = True
             self.coast_time_s = 0.0
             return True
-        h = np.hstack([np.eye(3), np.zeros((3, 3))])
-        nu = z - h @ self.x
-        s = h @ self.P @ h.T + r
+        r = np.asarray(r, float)
+        axes = [0, 1, 2]
+        gate = self.gate
+        if float(r[0, 0]) > self.fore_aft_fix_sigma_max_m**2:
+            axes, gate = [1, 2], self.gate * CHI2_2_999 / CHI2_3_999  # cross-stream only
+        h = np.hstack([np.eye(3), np.zeros((3, 3))])[axes]
+        nu = z[axes] - h @ self.x
+        r_used = r[np.ix_(axes, axes)]
+        s = h @ self.P @ h.T + r_used
         nis = float(nu @ np.linalg.solve(s, nu))
-        if nis > self.gate:
+        if nis > gate:
             self.rejected += 1
             self.consecutive_rejections += 1
             # persistent disagreement means the filter, not the measurement, is wrong (it lagged
-            # a manoeuvre): re-seed from the measurement, keeping the velocity estimate
+            # a manoeuvre): re-seed the axes the fix informs from it, keeping the velocity
             if self.consecutive_rejections >= self.reseed_after:
-                vel = self.x[3:].copy()
-                self.initialised = False
-                self.update(z, r)
-                self.x[3:] = vel
+                self._reseed(z, r, axes)
                 self.reseeds += 1
                 return True
             return False

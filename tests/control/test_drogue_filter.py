@@ -100,3 +100,53 @@ def test_filter_holds_a_lost_drogue_after_the_coast_limit():
     for _ in range(100):
         free.predict(0.02)
     assert free.position[1] == pytest.approx(2.0)
+
+
+def _tracked(**kw: float) -> DrogueFilter:
+    """A filter that has tracked a still drogue at the origin to a centimetre."""
+    f = DrogueFilter(**kw)
+    for _ in range(50):
+        f.predict(0.02)
+        f.update(np.zeros(3), np.eye(3) * 0.01**2)
+    return f
+
+
+def test_far_fixes_update_only_the_cross_stream_axes():
+    """Fixes whose fore-aft σ exceeds the bound (a far stereo fix: its depth error is a
+    calibration bias) move y and z and leave x alone — however many of them, however biased
+    along x; a fix inside the bound updates all three."""
+    f = _tracked(fore_aft_fix_sigma_max_m=1.0)
+    far = np.diag([5.0**2, 0.05**2, 0.05**2])  # σ_x 5 m
+    fix = np.array([12.0, 0.1, -0.05])  # 12 m too far along x (2.4 σ), 0.1 m aside
+    for _ in range(100):  # 2 s at 50 Hz
+        f.predict(0.02)
+        assert f.update(fix, far)  # inside the gate (2 σ across, 2.4 σ along)
+    assert abs(f.position[0]) < 0.05  # the fore-aft estimate waits
+    np.testing.assert_allclose(f.position[1:], fix[1:], atol=0.02)
+    free = _tracked()  # without the bound: the same fixes drag x onto the bias
+    for _ in range(100):
+        free.predict(0.02)
+        free.update(fix, far)
+    assert free.position[0] > 4.0  # a third of the bias in 2 s, and walking on
+    near = _tracked(fore_aft_fix_sigma_max_m=1.0)
+    for _ in range(100):
+        near.predict(0.02)
+        near.update(np.array([0.5, 0.0, 0.0]), np.eye(3) * 0.1**2)
+    assert near.position[0] == pytest.approx(0.5, abs=0.05)
+
+
+def test_a_far_fix_reseeds_the_cross_stream_axes_and_keeps_the_fore_aft_estimate():
+    f = _tracked(fore_aft_fix_sigma_max_m=1.0)
+    far = np.diag([5.0**2, 0.01**2, 0.01**2])
+    jumped = np.array([30.0, 0.5, 0.0])  # 0.5 m aside: a real jump across the stream
+    results = []
+    for _ in range(3):
+        f.predict(0.02)
+        results.append(f.update(jumped, far))
+    assert results == [False, False, True]
+    assert f.reseeds == 1
+    np.testing.assert_allclose(f.position[1:], jumped[1:], atol=1e-6)
+    assert abs(f.position[0]) < 0.01  # not 30 m
+    p = f.P
+    np.testing.assert_allclose(p, p.T)
+    assert np.all(np.linalg.eigvalsh(p) >= -1e-12)

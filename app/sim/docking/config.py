@@ -194,6 +194,10 @@ class DockingConfig:
     # (``DrogueFit.center_cov_mm2``: the fit's noise and the calibration's doubt, which grows
     # as Z²) — False: a stereo-geometry model of the noise alone (ablation)
     nav_covariance: bool = True
+    # camera fixes knowing the drogue's fore-aft position worse than this (σ, m: far fixes,
+    # whose depth error is a calibration bias ∝ Z²) update the drogue filter's cross-stream
+    # axes only (app.control.drogue_filter; inf: every fix updates all three)
+    fore_aft_fix_sigma_max_m: float = 1.0
     # a lock lost before the last metre (coast limit passed): True — hold the gap (the guidance
     # closes only while the drogue is tracked) and resume when it is re-acquired; False — break
     # away (counts as an abort). Inside the last metre a lost lock always breaks away

@@ -207,7 +207,11 @@ class DockingSimulation:
         self.x_trim = m.model.x_trim.copy()
         self._build_controller(imp)
         self.u_applied = np.zeros(4)
-        self.filter = DrogueFilter(history=self._latency_ticks + 1, hold_after_s=cfg.coast_limit_s)
+        self.filter = DrogueFilter(
+            history=self._latency_ticks + 1,
+            hold_after_s=cfg.coast_limit_s,
+            fore_aft_fix_sigma_max_m=cfg.fore_aft_fix_sigma_max_m,
+        )
         self.tip_tracker = AlphaBetaTracker(self.dt)
         self.drogue_model = nominal_drogue_model(cfg, trim.air_density_kgm3, trim.tas_mps)
         self.bow_model = BowWaveModel(self.drogue_model)
