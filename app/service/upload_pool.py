@@ -37,6 +37,7 @@ from collections.abc import Callable
 from concurrent.futures import BrokenExecutor, Executor, ProcessPoolExecutor
 from dataclasses import dataclass
 from functools import lru_cache
+from multiprocessing.process import BaseProcess
 from typing import TYPE_CHECKING, ParamSpec, TypeVar
 
 import numpy as np
@@ -182,17 +183,52 @@ def _warm() -> int:
 
 
 # ---- in the web server ------------------------------------------------------------------------
-def spawn_process_pool(max_workers: int, nice: int = WORKER_NICE) -> ProcessPoolExecutor:
+class RecordingSpawnContext:
+    """The ``spawn`` multiprocessing context, keeping every process it makes: the executor's
+    workers known through the public context interface (``ProcessPoolExecutor`` makes its
+    workers with ``mp_context.Process``), not through the executor's private state."""
+
+    def __init__(self) -> None:
+        import multiprocessing
+
+        self._spawn = multiprocessing.get_context("spawn")
+        self.processes: list[BaseProcess] = []
+
+    def Process(self, *args: object, **kwargs: object) -> BaseProcess:  # noqa: N802 (the API's name)
+        proc = self._spawn.Process(*args, **kwargs)  # type: ignore[arg-type]
+        self.processes.append(proc)
+        return proc
+
+    def __getattr__(self, name: str) -> object:  # queues, locks, the start method
+        return getattr(self._spawn, name)
+
+
+class SpawnedProcessPool(ProcessPoolExecutor):
+    """A ``ProcessPoolExecutor`` on a :class:`RecordingSpawnContext`, which knows its workers."""
+
+    def __init__(self, max_workers: int, nice: int) -> None:
+        self.context = RecordingSpawnContext()
+        super().__init__(  # type: ignore[call-overload]  # a BaseContext by duck typing
+            max_workers=max_workers,
+            mp_context=self.context,
+            initializer=_init_worker,
+            initargs=(nice, os.getpid()),
+        )
+
+    def worker_processes(self) -> list[BaseProcess]:
+        """The workers started so far (living or not)."""
+        return [p for p in self.context.processes if p.pid is not None]
+
+
+def spawn_process_pool(max_workers: int, nice: int = WORKER_NICE) -> SpawnedProcessPool:
     """The default executor: ``max_workers`` spawned processes at CPU priority ``nice``, each
     ending with this process."""
-    import multiprocessing
+    return SpawnedProcessPool(max_workers, nice)
 
-    return ProcessPoolExecutor(
-        max_workers=max_workers,
-        mp_context=multiprocessing.get_context("spawn"),
-        initializer=_init_worker,
-        initargs=(nice, os.getpid()),
-    )
+
+def _worker_processes(pool: Executor) -> list[BaseProcess]:
+    """``pool``'s worker processes: none for an executor of threads (or another's)."""
+    return pool.worker_processes() if isinstance(pool, SpawnedProcessPool) else []
 
 
 class UploadPool:
@@ -261,8 +297,9 @@ class UploadPool:
 
     def pids(self) -> list[int]:
         """The worker processes' ids (``[]`` for an executor of threads)."""
-        procs = getattr(self._pool, "_processes", None) or {}
-        return [int(p) for p in procs]
+        with self._lock:
+            pool = self._pool
+        return [int(p.pid) for p in _worker_processes(pool) if p.pid and p.is_alive()]
 
     def shutdown(self, timeout_s: float = 1.0) -> None:
         """Cancel what is queued, give the workers ``timeout_s`` to exit, then terminate the
@@ -270,7 +307,7 @@ class UploadPool:
         threads are not waited for)."""
         with self._lock:
             pool = self._pool
-        procs = list((getattr(pool, "_processes", None) or {}).values())
+        procs = _worker_processes(pool)
         pool.shutdown(wait=False, cancel_futures=True)
         deadline = time.monotonic() + timeout_s
         for p in procs:
