@@ -104,7 +104,10 @@ class ContactReport:
             self.last_reason = f"rim strike: probe head {miss_m:.3f} m from the centre"
             return "rim_strike"
         if miss_m > outer:
-            self.last_reason = f"missed the drogue by {miss_m - rim_radius_m:.3f} m"
+            self.last_reason = (
+                f"missed the drogue: probe tip {miss_m:.3f} m from the centre, "
+                f"{miss_m - rim_radius_m:.3f} m outside the rim"
+            )
             return "missed"
         if not lo <= closure_mps <= hi:
             self.last_reason = (
