@@ -340,13 +340,9 @@ class DockingSimulation:
         if shot.measurement_m is None:
             return None, None, shot
         r_tc_hat, cam_hat = self._camera_pose(x_hat)
-        z_t, r_t = drogue_in_tanker(
-            shot.measurement_m,
-            r_tc_hat,
-            cam_hat,
-            self._camera.nav_calibration,
-            shot.measurement_cov_m2 if self.config.nav_covariance else None,
-        )
+        nav_cov = shot.measurement_cov_m2 if self.config.nav_covariance else None
+        calib = self._camera.nav_calibration
+        z_t, r_t = drogue_in_tanker(shot.measurement_m, r_tc_hat, cam_hat, calib, nav_cov)
         return z_t, r_t, shot
 
     def _own_measurement(self) -> FloatArray:
