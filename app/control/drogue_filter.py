@@ -27,6 +27,9 @@ from app.types import FloatArray
 
 CHI2_3_999 = 16.266
 CHI2_2_999 = 13.816
+_H = np.hstack([np.eye(3), np.zeros((3, 3))])  # position from the state (x y z vx vy vz)
+_CROSS = [1, 2]  # the cross-stream axes (y, z)
+_H_CROSS = _H[_CROSS]
 # (x, P, initialised, ever_initialised, coast_time_s, consecutive_rejections)
 _Snapshot = tuple[FloatArray, FloatArray, bool, bool, float, int]
 
@@ -162,13 +165,11 @@ class DrogueFilter:
             self.coast_time_s = 0.0
             return True
         r = np.asarray(r, float)
-        axes = [0, 1, 2]
-        gate = self.gate
-        if float(r[0, 0]) > self.fore_aft_fix_sigma_max_m**2:
-            axes, gate = [1, 2], self.gate * CHI2_2_999 / CHI2_3_999  # cross-stream only
-        h = np.hstack([np.eye(3), np.zeros((3, 3))])[axes]
+        axes, h, r_used, gate = [0, 1, 2], _H, r, self.gate
+        if float(r[0, 0]) > self.fore_aft_fix_sigma_max_m**2:  # cross-stream only
+            axes, h, r_used = _CROSS, _H_CROSS, r[np.ix_(_CROSS, _CROSS)]
+            gate = self.gate * CHI2_2_999 / CHI2_3_999
         nu = z[axes] - h @ self.x
-        r_used = r[np.ix_(axes, axes)]
         s = h @ self.P @ h.T + r_used
         nis = float(nu @ np.linalg.solve(s, nu))
         if nis > gate:

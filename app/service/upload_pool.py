@@ -299,7 +299,7 @@ class UploadPool:
         """The worker processes' ids (``[]`` for an executor of threads)."""
         with self._lock:
             pool = self._pool
-        return [int(p.pid) for p in _worker_processes(pool) if p.pid and p.is_alive()]
+        return [p.pid for p in _worker_processes(pool) if p.pid is not None and p.is_alive()]
 
     def shutdown(self, timeout_s: float = 1.0) -> None:
         """Cancel what is queued, give the workers ``timeout_s`` to exit, then terminate the
