@@ -60,20 +60,24 @@ def test_reference_closes_at_commanded_speed_and_backs_off():
     assert vel[0] < 0.0  # reference moves aft, away from the drogue
 
 
+def _feed(f: DrogueFilter, z: np.ndarray, r: np.ndarray, n: int) -> list[bool]:
+    """``n`` ticks of 20 ms, each a prediction and the fix ``z`` (covariance ``r``); the
+    update results."""
+    results = []
+    for _ in range(n):
+        f.predict(0.02)
+        results.append(f.update(z, r))
+    return results
+
+
 def test_filter_reseeds_after_consistent_rejections():
     """If the drogue really jumped, consecutive consistent measurements re-seed the filter."""
     f = DrogueFilter(accel_sigma=0.5)
     r = np.eye(3) * 0.005**2
     p = np.array([-14.0, 0.0, 4.0])
-    for _ in range(50):
-        f.predict(0.02)
-        f.update(p, r)
+    _feed(f, p, r, 50)
     jumped = p + np.array([0.0, 0.5, 0.0])
-    results = []
-    for _ in range(3):
-        f.predict(0.02)
-        results.append(f.update(jumped, r))
-    assert results == [False, False, True]
+    assert _feed(f, jumped, r, 3) == [False, False, True]
     assert f.reseeds == 1
     assert np.allclose(f.position, jumped, atol=1e-6)
 
@@ -105,9 +109,7 @@ def test_filter_holds_a_lost_drogue_after_the_coast_limit():
 def _tracked(**kw: float) -> DrogueFilter:
     """A filter that has tracked a still drogue at the origin to a centimetre."""
     f = DrogueFilter(**kw)
-    for _ in range(50):
-        f.predict(0.02)
-        f.update(np.zeros(3), np.eye(3) * 0.01**2)
+    _feed(f, np.zeros(3), np.eye(3) * 0.01**2, 50)
     return f
 
 
@@ -118,20 +120,15 @@ def test_far_fixes_update_only_the_cross_stream_axes():
     f = _tracked(fore_aft_fix_sigma_max_m=1.0)
     far = np.diag([5.0**2, 0.05**2, 0.05**2])  # σ_x 5 m
     fix = np.array([12.0, 0.1, -0.05])  # 12 m too far along x (2.4 σ), 0.1 m aside
-    for _ in range(100):  # 2 s at 50 Hz
-        f.predict(0.02)
-        assert f.update(fix, far)  # inside the gate (2 σ across, 2.4 σ along)
+    # 2 s at 50 Hz, every fix inside the gate (2 σ across, 2.4 σ along)
+    assert all(_feed(f, fix, far, 100))
     assert abs(f.position[0]) < 0.05  # the fore-aft estimate waits
     np.testing.assert_allclose(f.position[1:], fix[1:], atol=0.02)
     free = _tracked()  # without the bound: the same fixes drag x onto the bias
-    for _ in range(100):
-        free.predict(0.02)
-        free.update(fix, far)
+    _feed(free, fix, far, 100)
     assert free.position[0] > 4.0  # a third of the bias in 2 s, and walking on
     near = _tracked(fore_aft_fix_sigma_max_m=1.0)
-    for _ in range(100):
-        near.predict(0.02)
-        near.update(np.array([0.5, 0.0, 0.0]), np.eye(3) * 0.1**2)
+    _feed(near, np.array([0.5, 0.0, 0.0]), np.eye(3) * 0.1**2, 100)
     assert near.position[0] == pytest.approx(0.5, abs=0.05)
 
 
@@ -139,11 +136,7 @@ def test_a_far_fix_reseeds_the_cross_stream_axes_and_keeps_the_fore_aft_estimate
     f = _tracked(fore_aft_fix_sigma_max_m=1.0)
     far = np.diag([5.0**2, 0.01**2, 0.01**2])
     jumped = np.array([30.0, 0.5, 0.0])  # 0.5 m aside: a real jump across the stream
-    results = []
-    for _ in range(3):
-        f.predict(0.02)
-        results.append(f.update(jumped, far))
-    assert results == [False, False, True]
+    assert _feed(f, jumped, far, 3) == [False, False, True]
     assert f.reseeds == 1
     np.testing.assert_allclose(f.position[1:], jumped[1:], atol=1e-6)
     assert abs(f.position[0]) < 0.01  # not 30 m
