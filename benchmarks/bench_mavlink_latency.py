@@ -8,9 +8,11 @@ UDP loopback in this process, which notes the monotonic time each ``LANDING_TARG
 the rounds' figures.
 
 * **pushed pairs at 30 Hz** (``--source push``, the ``aar-dock push`` protocol on the push
-  WebSocket): the stream tests' rendered 1280×1024 sequence, encoded once as PNG (what
-  ``aar-dock push`` sends by default) and as JPEG (``--format jpg``, quality 95); the camera
-  computer's encoding is not counted. Each
+  WebSocket): the stream tests' rendered 1280×1024 sequence, encoded once as PNG with
+  Huffman coding only (what ``aar-dock push`` sends by default), as PNG at deflate level 1
+  with adaptive filters (its default before, the baseline), as JPEG (``--format jpg``,
+  quality 95) and as uncompressed BMP (``--format bmp``); the camera computer's encoding is
+  not counted. Each
   pair's ``t_s`` is this process's monotonic time when it is sent: its exposure, so the
   latency is ``arrival − time_usec`` (the service's work: receive, decode, track, filter,
   publish, send).
@@ -37,7 +39,7 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -51,6 +53,7 @@ sys.path.insert(0, str(ROOT))
 os.environ["MAVLINK20"] = "1"
 from pymavlink import mavutil  # noqa: E402
 
+from app.cli.push import push_encoder  # noqa: E402
 from app.streams.processor import StreamProcessor  # noqa: E402
 from app.streams.protocol import encode_message  # noqa: E402
 from tests.support.streams_sequence import Sequence, cached_sequence  # noqa: E402
@@ -245,13 +248,17 @@ def main() -> None:
     ap.add_argument("--seconds", type=float, default=10.0)
     args = ap.parse_args()
     seq = cached_sequence(40)
-    encodings = {
-        "PNG": (".png", [cv2.IMWRITE_PNG_COMPRESSION, 1]),
-        "JPEG 95": (".jpg", [cv2.IMWRITE_JPEG_QUALITY, 95]),
+    encoders: dict[str, Callable[[np.ndarray], bytes]] = {
+        "PNG deflate 1 (push's default until Dec 2026, the baseline)": lambda im: cv2.imencode(
+            ".png", im, [cv2.IMWRITE_PNG_COMPRESSION, 1]
+        )[1].tobytes(),
+        "PNG Huffman (push's default)": push_encoder("png", 95),
+        "JPEG 95": push_encoder("jpg", 95),
+        "BMP (uncompressed)": push_encoder("bmp", 95),
     }
     encoded = {}
-    for name, (ext, params) in encodings.items():
-        images = [cv2.imencode(ext, im, params)[1].tobytes() for im in seq.lefts + seq.rights]
+    for name, encode in encoders.items():
+        images = [encode(im) for im in seq.lefts + seq.rights]
         encoded[name] = list(zip(images[:40], images[40:], strict=True))
     rows: list[tuple[str, list[tuple[float, float, int]]]] = []
     with service("--source", "push", "--no-sim") as (listener, base):

@@ -26,10 +26,10 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-import cv2
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from app.cli.push import push_encoder  # noqa: E402
 from app.resources import load_default_calibration  # noqa: E402
 from app.streams.frames import EndOfStream  # noqa: E402
 from app.streams.processor import StreamProcessor  # noqa: E402
@@ -82,11 +82,15 @@ def main() -> None:
 
         return run
 
-    def encode() -> int:
-        for left, right in zip(seq.lefts, seq.rights, strict=True):
-            for img in (left, right):
-                cv2.imencode(".png", img, [cv2.IMWRITE_PNG_COMPRESSION, 1])
-        return len(seq.lefts)
+    def encode(fmt: str) -> Callable[[], int]:
+        encode_image = push_encoder(fmt, 95)
+
+        def run() -> int:
+            for left, right in zip(seq.lefts, seq.rights, strict=True):
+                encode_image(left), encode_image(right)
+            return len(seq.lefts)
+
+        return run
 
     rows = [
         ("tracker (in memory, baseline)", tracker_in_memory),
@@ -94,7 +98,9 @@ def main() -> None:
         ("read PNG folders pair", read(lp, rp, False)),
         ("read MJPG + track + guidance", read(la, ra, True)),
         ("read PNG + track + guidance", read(lp, rp, True)),
-        ("push: encode a pair as PNG", encode),
+        ("push: encode a pair as PNG (Huffman only)", encode("png")),
+        ("push: encode a pair as JPEG 95", encode("jpg")),
+        ("push: encode a pair as BMP", encode("bmp")),
     ]
     results = [(name, per_pair(fn, args.repeats)) for name, fn in rows]
     base = float(np.median(results[0][1]))

@@ -37,6 +37,8 @@ def test_unknown_option_is_one_line_and_exit_2(
         (["push", "--left", "a", "--url", "http://h:99999"], "--url"),
         (["push", "--left", "a", "--url", "http://h", "--fps", "-1"], "--fps"),
         (["push", "--left", "a", "--url", "http://h", "--count", "0"], "--count"),
+        (["push", "--left", "a", "--url", "http://h", "--jpeg-quality", "0"], "--jpeg-quality"),
+        (["push", "--left", "a", "--url", "http://h", "--format", "webp"], "invalid choice"),
         (["nonsense"], "invalid choice"),
         (["simulate", "--hose", "rope"], "invalid choice"),
         (["campaign", "--runs", "1", "--hose", "rope"], "invalid choice"),

@@ -179,11 +179,15 @@ def served_push(tmp_path: Path) -> Iterator[tuple[str, int]]:
         log.close()
 
 
-def test_push_cli_to_serve_cli(served_push: tuple[str, int], media: dict[str, Path]) -> None:
+@pytest.mark.parametrize("fmt", ["png", "bmp"])
+def test_push_cli_to_serve_cli(
+    served_push: tuple[str, int], media: dict[str, Path], fmt: str
+) -> None:
     base, port = served_push
     url = f"ws://127.0.0.1:{port}/api/v1/stream/push"
     cmd = [sys.executable, "-m", "app", "push", "--left", str(media["left_avi"])]
     cmd += ["--right", str(media["right_avi"]), "--url", url, "--fps", "15", "--count", "20"]
+    cmd += ["--format", fmt]
     bad = subprocess.run(cmd + ["--token", "wrong"], capture_output=True, text=True, timeout=60)
     assert bad.returncode == 1 and "403" in bad.stderr
     proc = subprocess.run(cmd + ["--token", "s3cret"], capture_output=True, text=True, timeout=120)
