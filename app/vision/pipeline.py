@@ -156,6 +156,12 @@ class PipelineConfig:
     max_reprojection_px: float = 1.5  # matched points reprojecting worse are dropped
     appearance: AppearanceConfig = field(default_factory=AppearanceConfig)
     log10_nfa_max: float = -2.0  # a-contrario integrity: lock only if NFA ≤ 10^this
+    # A frame refused while blobs of this area (px) up to the gate's minimum were gated out
+    # is solved once more with them as candidates (None: never). A far, dim LED lights only
+    # 2 px above eq. 10's threshold (the flight drogue at 9.5 m in sunlight, its 20 mm LEDs
+    # ≈ 5 px across); taking such blobs on every frame lets glints compete with rings the
+    # larger blobs already give (docs/integrity.md, "Small blobs, second pass").
+    retry_min_area_px: int | None = 2
     track_frames: int = 5  # a lock this many frames old still serves as the prior
 
 
@@ -215,7 +221,9 @@ class NavigationPipeline:
         return PAPER_WINDOW_FACTOR if self.config.matcher == "paper" else OUR_WINDOW_FACTOR
 
     # ------------------------------------------------------------------ stages
-    def _features(self, image: np.ndarray) -> tuple[FeatureSet, int, tuple[float, float]]:
+    def _features(
+        self, image: np.ndarray, gate: BlobGate | None = None
+    ) -> tuple[FeatureSet, int, tuple[float, float]]:
         cfg = self.config
         gray = detection_image(image, cfg.colour_detect)
         t0 = time.perf_counter()
@@ -236,7 +244,7 @@ class NavigationPipeline:
         # binarise, median-filter, label and centroid only around the bright pixels
         # (each blob built once with its local-support centroid: app.vision.local_centroid)
         blobs, rejected = detect_blobs(
-            gray, threshold, bg, cfg.gate, cfg.median_ksize, bands, cfg.centroid
+            gray, threshold, bg, gate or cfg.gate, cfg.median_ksize, bands, cfg.centroid
         )
         if image.ndim == 3 and cfg.colour_detect == "green" and cfg.centroid.enabled:
             if cfg.centroid.gray_too and blobs:
@@ -319,6 +327,10 @@ class NavigationPipeline:
         self.trace.thresholds = (thr_l, thr_r)
         self.trace.backgrounds = (stats_l, stats_r)
         result = self._solve(feats_l, feats_r, (stats_l[0], stats_r[0]))
+        if not result.lock and self._small_blobs_gated(feats_l, feats_r):
+            retried = self._solve_with_small_blobs(left, right)
+            if retried is not None and retried[0].lock:
+                result, feats_l, feats_r = retried
         result.rejected_left_px = rejected_candidates(feats_l, [led.left_px for led in result.leds])
         result.rejected_right_px = rejected_candidates(
             feats_r, [led.right_px for led in result.leds]
@@ -328,6 +340,40 @@ class NavigationPipeline:
         self._stage_ms["total"] = (time.perf_counter() - t_start) * 1e3
         result.timing_ms = StageTimings(**self._stage_ms)
         return result
+
+    def _small_blobs_gated(self, feats_l: FeatureSet, feats_r: FeatureSet) -> bool:
+        """Whether either image gated out a blob for its area alone, at or above
+        ``retry_min_area_px`` (the second pass's condition)."""
+        lo, gate = self.config.retry_min_area_px, self.config.gate
+        if lo is None or lo >= gate.min_area_px:
+            return False
+        return any(
+            lo <= r.area_px < gate.min_area_px and r.reason.startswith("area")
+            for r in (*feats_l.rejected, *feats_r.rejected)
+        )
+
+    def _solve_with_small_blobs(
+        self, left: np.ndarray, right: np.ndarray
+    ) -> tuple[PoseResult, FeatureSet, FeatureSet] | None:
+        """The frame solved again with blobs down to ``retry_min_area_px`` (every other test
+        unchanged: the NFA counts the extra candidates); None if that floods the frame."""
+        gate = replace(self.config.gate, min_area_px=self.config.retry_min_area_px)
+        try:
+            feats_l, _, stats_l = self._features(left, gate)
+            feats_r, _, stats_r = self._features(right, gate)
+        except TooManyBlobs:
+            return None
+        trace = self.trace
+        self.trace = PipelineTrace(
+            left=feats_l,
+            right=feats_r,
+            thresholds=trace.thresholds,
+            backgrounds=(stats_l, stats_r),
+        )
+        result = self._solve(feats_l, feats_r, (stats_l[0], stats_r[0]))
+        if not result.lock:
+            self.trace = trace
+        return result, feats_l, feats_r
 
     def _age_track(self) -> None:
         if self._track is not None:
