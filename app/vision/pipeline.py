@@ -327,8 +327,9 @@ class NavigationPipeline:
         self.trace.thresholds = (thr_l, thr_r)
         self.trace.backgrounds = (stats_l, stats_r)
         result = self._solve(feats_l, feats_r, (stats_l[0], stats_r[0]))
-        if not result.lock and self._small_blobs_gated(feats_l, feats_r):
-            retried = self._solve_with_small_blobs(left, right)
+        floor = None if result.lock else self._small_blob_floor(feats_l, feats_r)
+        if floor is not None:
+            retried = self._solve_with_small_blobs(left, right, floor)
             if retried is not None and retried[0].lock:
                 result, feats_l, feats_r = retried
         result.rejected_left_px = rejected_candidates(feats_l, [led.left_px for led in result.leds])
@@ -341,23 +342,24 @@ class NavigationPipeline:
         result.timing_ms = StageTimings(**self._stage_ms)
         return result
 
-    def _small_blobs_gated(self, feats_l: FeatureSet, feats_r: FeatureSet) -> bool:
-        """Whether either image gated out a blob for its area alone, at or above
-        ``retry_min_area_px`` (the second pass's condition)."""
+    def _small_blob_floor(self, feats_l: FeatureSet, feats_r: FeatureSet) -> int | None:
+        """``retry_min_area_px`` if either image gated out a blob for its area alone at or
+        above it (the second pass's condition), else None."""
         lo, gate = self.config.retry_min_area_px, self.config.gate
         if lo is None or lo >= gate.min_area_px:
-            return False
-        return any(
+            return None
+        small = any(
             lo <= r.area_px < gate.min_area_px and r.reason.startswith("area")
             for r in (*feats_l.rejected, *feats_r.rejected)
         )
+        return lo if small else None
 
     def _solve_with_small_blobs(
-        self, left: np.ndarray, right: np.ndarray
+        self, left: np.ndarray, right: np.ndarray, min_area_px: int
     ) -> tuple[PoseResult, FeatureSet, FeatureSet] | None:
-        """The frame solved again with blobs down to ``retry_min_area_px`` (every other test
+        """The frame solved again with blobs down to ``min_area_px`` (every other test
         unchanged: the NFA counts the extra candidates); None if that floods the frame."""
-        gate = replace(self.config.gate, min_area_px=self.config.retry_min_area_px)
+        gate = replace(self.config.gate, min_area_px=min_area_px)
         try:
             feats_l, _, stats_l = self._features(left, gate)
             feats_r, _, stats_r = self._features(right, gate)
