@@ -343,14 +343,14 @@ class NavigationPipeline:
         return result
 
     def _small_blob_floor(self, feats_l: FeatureSet, feats_r: FeatureSet) -> int | None:
-        """``retry_min_area_px`` if either image gated out a blob for its area alone at or
-        above it (the second pass's condition), else None."""
+        """``retry_min_area_px`` if either image gated out a blob of an area from it up to the
+        gate's minimum (the second pass's condition: the area test comes first, so such a
+        blob was refused for its area), else None."""
         lo, gate = self.config.retry_min_area_px, self.config.gate
         if lo is None or lo >= gate.min_area_px:
             return None
         small = any(
-            lo <= r.area_px < gate.min_area_px and r.reason.startswith("area")
-            for r in (*feats_l.rejected, *feats_r.rejected)
+            lo <= r.area_px < gate.min_area_px for r in (*feats_l.rejected, *feats_r.rejected)
         )
         return lo if small else None
 
