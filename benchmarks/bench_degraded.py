@@ -15,7 +15,7 @@ coverage: the true errors of a lock all inside its reported 99.9 % protection le
 
     .venv/bin/python benchmarks/bench_degraded.py [--sets degraded,mjpg,hostile,optics]
         [--seeds 6] [--frames 45] [--hostile-seeds 12] [--optics dev] [--eq11]
-        [--noise default|sensor|image]
+        [--noise default|sensor|image] [--hostile-colour grey|whitish|green] [--no-second-pass]
 """
 
 from __future__ import annotations
@@ -24,6 +24,7 @@ import argparse
 import sys
 import time
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 
@@ -36,7 +37,7 @@ from app.sim.hostile import hostile_cases  # noqa: E402
 from app.sim.led_ring import random_pose  # noqa: E402
 from app.sim.optics_eval import evaluate, summarise  # noqa: E402
 from app.sim.optics_set import load_optics_set  # noqa: E402
-from app.sim.stereo_render import render_pair  # noqa: E402
+from app.sim.stereo_render import RenderSettings, render_pair  # noqa: E402
 from app.vision.local_centroid import LocalCentroidConfig  # noqa: E402
 from app.vision.pipeline import NavigationPipeline, PipelineConfig  # noqa: E402
 from app.vision.tracking import StereoTracker  # noqa: E402
@@ -94,12 +95,17 @@ def mjpg(cfg: PipelineConfig, frames: int, colour: bool) -> None:
     print(row(f"MJPG {kind} 2.5→1 m, tracker", scored), flush=True)
 
 
-def hostile(cfg: PipelineConfig, seeds: int, only: str) -> None:
+def hostile(cfg: PipelineConfig, seeds: int, only: str, colour: str = "grey") -> None:
+    """The hostile set; ``colour``: ``grey`` as defined, ``whitish`` / ``green``: every case
+    rendered as colour frames with whitish / LED-green glints (the second pass on gray runs
+    only on colour frames)."""
     calib = load_default_calibration()
     everything = []
     for case in hostile_cases():
         if only and only not in case.name:
             continue
+        if colour != "grey":
+            case = replace(case, settings=_coloured(case.settings, colour == "green"))
         scored = []
         for seed in range(seeds):
             rng = np.random.default_rng([seed, 7])
@@ -118,6 +124,12 @@ def hostile(cfg: PipelineConfig, seeds: int, only: str) -> None:
         everything += scored
         print(row(case.name, scored), flush=True)
     print(row("all hostile", everything), flush=True)
+
+
+def _coloured(
+    settings: Callable[[int], RenderSettings], led_green: bool
+) -> Callable[[int], RenderSettings]:
+    return lambda seed: replace(settings(seed), color=True, glint_led_color=led_green)
 
 
 def optics(cfg: PipelineConfig, which: str, seeds: int) -> None:
@@ -144,6 +156,17 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=45, help="frames of the MJPG clip")
     ap.add_argument("--hostile-seeds", type=int, default=12)
     ap.add_argument("--only", default="", help="hostile cases whose name contains this")
+    ap.add_argument(
+        "--hostile-colour",
+        default="grey",
+        choices=["grey", "whitish", "green"],
+        help="render every hostile case as colour frames, glints whitish or LED-green",
+    )
+    ap.add_argument(
+        "--no-second-pass",
+        action="store_true",
+        help="without the second pass on refused frames (small blobs, gray): the baseline",
+    )
     ap.add_argument("--optics", default="dev", choices=["dev", "holdout", "both"])
     ap.add_argument("--optics-seeds", type=int, default=2)
     ap.add_argument("--eq11", action="store_true", help="the paper's eq. 11 centroid instead")
@@ -159,6 +182,8 @@ def main() -> None:
         cfg = replace(cfg, centroid=LocalCentroidConfig(enabled=False))
     if args.noise != "default":
         cfg = replace(cfg, centroid=replace(cfg.centroid, image_noise=args.noise == "image"))
+    if args.no_second_pass:
+        cfg = replace(cfg, retry_min_area_px=None, retry_gray=False)
     sets = args.sets.split(",")
     t0 = time.perf_counter()
     print(HEAD)
@@ -168,7 +193,7 @@ def main() -> None:
         mjpg(cfg, args.frames, colour=True)
         mjpg(cfg, args.frames, colour=False)
     if "hostile" in sets:
-        hostile(cfg, args.hostile_seeds, args.only)
+        hostile(cfg, args.hostile_seeds, args.only, args.hostile_colour)
     if "optics" in sets:
         optics(cfg, args.optics, args.optics_seeds)
     print(f"({time.perf_counter() - t0:.0f} s)")

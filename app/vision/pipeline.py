@@ -162,6 +162,11 @@ class PipelineConfig:
     # ≈ 5 px across); taking such blobs on every frame lets glints compete with rings the
     # larger blobs already give (docs/integrity.md, "Small blobs, second pass").
     retry_min_area_px: int | None = 2
+    # A colour frame refused on the green excess is solved once more on eq. 9's gray (with
+    # the colour gate as before). JPEG's 4:2:0 chroma subsampling, bloom and motion blur
+    # smear a small LED's green excess below eq. 10's threshold while its gray image stays
+    # sharp (docs/integrity.md, "Second pass").
+    retry_gray: bool = True
     track_frames: int = 5  # a lock this many frames old still serves as the prior
 
 
@@ -222,10 +227,11 @@ class NavigationPipeline:
 
     # ------------------------------------------------------------------ stages
     def _features(
-        self, image: np.ndarray, gate: BlobGate | None = None
+        self, image: np.ndarray, gate: BlobGate | None = None, detect: ColourDetect | None = None
     ) -> tuple[FeatureSet, int, tuple[float, float]]:
         cfg = self.config
-        gray = detection_image(image, cfg.colour_detect)
+        detect = detect or cfg.colour_detect
+        gray = detection_image(image, detect)
         t0 = time.perf_counter()
         # one pass over the frame: the band maxima (the peak of eq. 10's "auto" rule and the
         # bright bands), the background's histogram and that of neighbouring pixels'
@@ -246,7 +252,7 @@ class NavigationPipeline:
         blobs, rejected = detect_blobs(
             gray, threshold, bg, gate or cfg.gate, cfg.median_ksize, bands, cfg.centroid
         )
-        if image.ndim == 3 and cfg.colour_detect == "green" and cfg.centroid.enabled:
+        if image.ndim == 3 and detect == "green" and cfg.centroid.enabled:
             if cfg.centroid.gray_too and blobs:
                 # each blob measured on eq. 9's gray too; the sharper measurement is kept
                 # (eq. 9 only where the local centroids read: the rest is never looked at)
@@ -327,9 +333,8 @@ class NavigationPipeline:
         self.trace.thresholds = (thr_l, thr_r)
         self.trace.backgrounds = (stats_l, stats_r)
         result = self._solve(feats_l, feats_r, (stats_l[0], stats_r[0]))
-        floor = None if result.lock else self._small_blob_floor(feats_l, feats_r)
-        if floor is not None:
-            retried = self._solve_with_small_blobs(left, right, floor)
+        if not result.lock:
+            retried = self._second_pass(left, right, feats_l, feats_r)
             if retried is not None and retried[0].lock:
                 result, feats_l, feats_r = retried
         result.rejected_left_px = rejected_candidates(feats_l, [led.left_px for led in result.leds])
@@ -354,23 +359,29 @@ class NavigationPipeline:
         )
         return lo if small else None
 
-    def _solve_with_small_blobs(
-        self, left: np.ndarray, right: np.ndarray, min_area_px: int
+    def _second_pass(
+        self, left: np.ndarray, right: np.ndarray, feats_l: FeatureSet, feats_r: FeatureSet
     ) -> tuple[PoseResult, FeatureSet, FeatureSet] | None:
-        """The frame solved again with blobs down to ``min_area_px`` (every other test
-        unchanged: the NFA counts the extra candidates); None if that floods the frame."""
-        gate = replace(self.config.gate, min_area_px=min_area_px)
+        """A refused frame solved once more where the first pass may have missed LEDs: with
+        blobs down to ``retry_min_area_px`` (if such blobs were gated out) and, for a colour
+        frame detected on the green excess, on eq. 9's gray (``retry_gray``). Every other test
+        is unchanged (the NFA counts the extra candidates, the colour gate still applies).
+        None when neither applies or the second pass floods the frame."""
+        cfg = self.config
+        floor = self._small_blob_floor(feats_l, feats_r)
+        gray = cfg.retry_gray and left.ndim == 3 and cfg.colour_detect == "green"
+        if floor is None and not gray:
+            return None
+        gate = cfg.gate if floor is None else replace(cfg.gate, min_area_px=floor)
+        detect: ColourDetect | None = "gray" if gray else None
         try:
-            feats_l, _, stats_l = self._features(left, gate)
-            feats_r, _, stats_r = self._features(right, gate)
+            feats_l, thr_l, stats_l = self._features(left, gate, detect)
+            feats_r, thr_r, stats_r = self._features(right, gate, detect)
         except TooManyBlobs:
             return None
         trace = self.trace
         self.trace = PipelineTrace(
-            left=feats_l,
-            right=feats_r,
-            thresholds=trace.thresholds,
-            backgrounds=(stats_l, stats_r),
+            left=feats_l, right=feats_r, thresholds=(thr_l, thr_r), backgrounds=(stats_l, stats_r)
         )
         result = self._solve(feats_l, feats_r, (stats_l[0], stats_r[0]))
         if not result.lock:
