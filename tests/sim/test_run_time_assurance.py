@@ -174,3 +174,33 @@ def test_the_break_away_gaps_refuse_a_negative_or_non_finite_distance(
     with pytest.raises(ValueError, match=field):
         DockingConfig(**{field: value}).validate()
     DockingConfig(**{field: 0.0}).validate()  # 0 m is a distance
+
+
+def test_the_recovery_laws_gains_are_a_setting_and_the_break_away_descends_at_them() -> None:
+    """The recovery law flies the configured descent (``DockingConfig.recovery``; its A-4
+    defaults otherwise): after a forced break-away at 1 m the probe sinks, within 2.5 s,
+    faster with the default 5 m/s than with the 3 m/s of before — the six held-out hose
+    keep-outs (benchmarks/replay_keep_outs.py) came from a descent that took hold too late."""
+    from dataclasses import replace
+
+    from app.control.recovery import RecoveryGains
+
+    def sunk_m(gains: RecoveryGains | None) -> float:
+        sim = DockingSimulation(
+            DockingConfig(
+                turbulence="none", imperfections="none", seed=2, vision=False, recovery=gains
+            )
+        )
+        assert sim.recovery.gains == (gains or RecoveryGains())
+        while float(sim.drogue.position_m[0] - sim.probe_tip()[0]) > 1.0:
+            sim.step()
+        z0, t0 = float(sim.probe_tip()[2]), sim.t
+        sim.break_away("forced by the test")
+        while sim.t < t0 + 2.5:
+            sim.step()
+        return float(sim.probe_tip()[2]) - z0  # m, down +
+
+    before = sunk_m(replace(RecoveryGains(), sink_mps=3.0, sink_gain=2.0))
+    now = sunk_m(None)
+    assert RecoveryGains().sink_mps == 5.0
+    assert now > before + 2.0, (now, before)  # 6.5 m against 3.0 m when written

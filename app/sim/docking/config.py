@@ -15,6 +15,7 @@ from typing import NamedTuple
 import numpy as np
 
 from app.control.envelope import EnvelopeBounds
+from app.control.recovery import RecoveryGains
 from app.geometry.rotations import look_at_camera
 from app.model.mount import CameraMount
 from app.sim.camera_sensor import RENDER_MODES
@@ -229,6 +230,8 @@ class DockingConfig:
     # the run-time assurance's envelope (app.control.envelope.EnvelopeBounds; None: the
     # plant's, PLANT_ENVELOPE — the A-4's defaults and sources)
     envelope: EnvelopeBounds | None = None
+    # the recovery law's gains (app.control.recovery.RecoveryGains; None: its A-4 defaults)
+    recovery: RecoveryGains | None = None
     # the flown hose and drogue (HOSE_MODELS): "reduced" — the reduced-order swing on a static
     # hose shape, welded to the probe at contact (app.sim.hose_drogue); "multibody" — the
     # lumped-mass hose with its reel and coupling (app.sim.hose, through

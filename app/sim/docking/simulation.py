@@ -235,7 +235,7 @@ class DockingSimulation:
         self._armed = True  # a break-away now counts as an abort (see _abort)
         # run-time assurance: the monitor, the recovery law, the run's extremes and outcome
         self.monitor = EnvelopeMonitor(bounds=cfg.envelope or PLANT_ENVELOPE[cfg.plant])
-        self.recovery = RecoveryLaw(m.model)
+        self.recovery = RecoveryLaw(m.model, cfg.recovery)
         self.rta_reason: str | None = None  # why the recovery law flies now (None: the LQR)
         self._rta_station_y_m: float | None = None  # its lateral station (tanker frame, m)
         self.rta_events: list[RtaEvent] = []
