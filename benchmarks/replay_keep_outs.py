@@ -22,9 +22,11 @@ from __future__ import annotations
 import argparse
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import replace
+from typing import Any
 
 from app.control.recovery import RecoveryGains
-from app.sim.docking import DockingConfig, DockingSimulation
+from app.sim.campaign import run_one
+from app.sim.docking import DockingConfig
 
 KEEP_OUTS = (
     "170028:moderate:standard",
@@ -38,8 +40,9 @@ KEEP_OUTS = (
 DESCENTS = (("3 m/s, k_z 2 (before)", 3.0, 2.0), ("defaults", None, None))
 
 
-def replay(spec: str, sink_mps: float | None, sink_gain: float | None) -> dict[str, object]:
-    """One run of ``spec`` ("seed:turbulence:imperfections") to its end."""
+def replay(spec: str, sink_mps: float | None, sink_gain: float | None) -> dict[str, Any]:
+    """One run of ``spec`` ("seed:turbulence:imperfections") to its end, as the campaign runs
+    it (:func:`app.sim.campaign.run_one`: its row, an exception recorded as ``error``)."""
     seed, turbulence, imperfections = spec.split(":")
     gains = RecoveryGains()
     if sink_mps is not None and sink_gain is not None:
@@ -53,17 +56,7 @@ def replay(spec: str, sink_mps: float | None, sink_gain: float | None) -> dict[s
         render_mode="windows",
         recovery=gains,
     )
-    sim = DockingSimulation(cfg)
-    sim.reset(int(seed))
-    out = sim.run()
-    e = out.envelope
-    return {
-        "outcome": out.outcome,
-        "hose_m": e.min_hose_separation_m,
-        "tanker_m": e.min_tanker_separation_m,
-        "alpha": f"{e.alpha_min_deg:.1f} … {e.alpha_max_deg:.1f}",
-        "n": f"{e.load_factor_min_g:.2f} … {e.load_factor_max_g:.2f}",
-    }
+    return run_one(cfg, int(seed))
 
 
 def main() -> None:
@@ -79,8 +72,10 @@ def main() -> None:
     print("|---|---|---|---|---|---|---|")
     for (spec, label, _, _), r in zip(jobs, rows, strict=True):
         print(
-            f"| {spec} | {label} | {r['outcome']} | {r['hose_m']:.2f} | {r['tanker_m']:.2f} "
-            f"| {r['alpha']} | {r['n']} |"
+            f"| {spec} | {label} | {r['outcome']} | {r['min_hose_separation_m']:.2f} "
+            f"| {r['min_tanker_separation_m']:.2f} "
+            f"| {r['alpha_min_deg']:.1f} … {r['alpha_max_deg']:.1f} "
+            f"| {r['load_factor_min_g']:.2f} … {r['load_factor_max_g']:.2f} |"
         )
 
 
