@@ -1,4 +1,4 @@
-"""Tick rate of the live service under load: telemetry clients and uploaders, both modes.
+"""Tick rate of the live service under load: telemetry clients and uploaders.
 
 Starts ``aar-dock serve`` (vision on, 30 Hz, viser on, free ports) in a child process, as
 deployed, and measures the tick rate over a window (``/healthz`` ticks and dropped deadlines)
@@ -17,11 +17,9 @@ process) and of the worker's compute time per tick, in these cases:
 * ``full``: the page + 50 telemetry clients + 4 uploaders (issue 10's acceptance load); these
   uploaders honour the 429's ``Retry-After`` (in ``up16``/``both`` they retry at once: stress).
 
-for the two modes:
-
-* ``process``: the default (the simulation in a worker process, uploads in a process pool);
-* ``thread``: ``AAR_SIM_IN_PROCESS=true`` (the simulation in a thread of the web server: the
-  old mode, the baseline); uploads always go to the process pool (one path).
+in the service's one mode, ``process`` (the simulation in a worker process, uploads in a
+process pool; the old ``thread`` mode, the simulation in a thread of the web server, is gone:
+the simulation has one execution path, and its figures in ``docs/service.md`` are history).
 
 The clients run in this process (asyncio: ``websockets``, ``httpx``). Each mode runs with
 AAR_MAX_CONCURRENT_UPLOADS = 2 (the default: at most 2 uploads processed at once, the others
@@ -29,7 +27,7 @@ AAR_MAX_CONCURRENT_UPLOADS = 2 (the default: at most 2 uploads processed at once
 medians of N runs (the ``idle`` case of the same runs is the baseline); ``--detail`` prints
 every timing's p50/p99/max per case.
 
-    .venv/bin/python benchmarks/bench_load.py [--seconds 10] [--hz 30] [--modes process,thread]
+    .venv/bin/python benchmarks/bench_load.py [--seconds 10] [--hz 30] [--modes process]
     flock /tmp/aar_bench.lock .venv/bin/python benchmarks/bench_load.py --modes process \
         --max-uploads 2 --cases idle,ws50,page,full --repeat 3
 """
@@ -58,10 +56,7 @@ CASES = ("idle", "ws50", "up16", "both", "page", "full")
 N_WS = 50
 N_UP = {"up16": 16, "both": 16, "full": 4}
 CHROMIUM = "/usr/bin/chromium"
-MODE_ENV = {
-    "process": {"AAR_SIM_IN_PROCESS": "false"},
-    "thread": {"AAR_SIM_IN_PROCESS": "true"},
-}
+MODE_ENV: dict[str, dict[str, str]] = {"process": {}}
 
 
 def free_port() -> int:
@@ -356,7 +351,7 @@ def main() -> int:
     ap.add_argument("--seconds", type=float, default=10.0, help="measurement window per case")
     ap.add_argument("--ramp", type=float, default=2.0, help="load before the window starts (s)")
     ap.add_argument("--hz", type=float, default=30.0)
-    ap.add_argument("--modes", default="process,thread")
+    ap.add_argument("--modes", default="process")
     ap.add_argument("--cases", default=",".join(CASES))
     ap.add_argument(
         "--max-uploads",

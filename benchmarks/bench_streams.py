@@ -122,7 +122,6 @@ def service_latency(left: Path, right: Path, tmp: Path) -> None:
 
     settings = Settings(
         viser_enabled=False,
-        sim_in_process=True,
         sim_autostart=False,
         recordings_dir=tmp / "rec",
         stream_realtime=False,

@@ -75,16 +75,25 @@ def free_port() -> int:
         return int(s.getsockname()[1])
 
 
+def no_vision(config, calibration):
+    """The docking simulation without vision in the loop (built in the worker process)."""
+    import dataclasses
+
+    from app.sim.docking import DockingSimulation
+
+    return DockingSimulation(dataclasses.replace(config, vision=False), calibration=calibration)
+
+
 def serve(mode: str, port: int, hz: float) -> None:
     """Child process: the service with the given stream on ``port`` (uvicorn, one worker)."""
     import uvicorn
 
-    from app.service.sim_source import default_source_factory
+    from app.service.sim_worker.proxy import SpawnLauncher, process_source_factory
 
-    def no_vision(config, calibration):
-        return default_source_factory(config.model_copy(update={"vision": False}), calibration)
-
-    factory = {"baseline": TrivialSource, "novision": no_vision, "sim": None}[mode]
+    sim_factory = {"baseline": TrivialSource, "novision": no_vision, "sim": None}[mode]
+    factory = (
+        None if sim_factory is None else process_source_factory(launcher=SpawnLauncher(sim_factory))
+    )
     settings = Settings(
         port=port,
         viser_port=0,

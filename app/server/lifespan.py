@@ -25,8 +25,8 @@ from app.service.runtime import (
     warn_about_setup,
 )
 from app.service.settings import Settings
-from app.service.sim_source import SourceFactory
 from app.service.sim_worker.priority import raise_thread_priority
+from app.service.sim_worker.proxy import ProcessSourceFactory
 from app.service.upload_pool import ExecutorFactory
 
 log = logging.getLogger(__name__)
@@ -36,7 +36,7 @@ SERVICE_NICE = -5  # the web server's threads, where permitted (the tick thread:
 def make_lifespan(
     settings: Settings,
     clock: Clock | None,
-    source_factory: SourceFactory | None,
+    source_factory: ProcessSourceFactory | None,
     upload_executor: ExecutorFactory | None = None,
 ) -> Callable[[FastAPI], AbstractAsyncContextManager[None]]:
     """The app's lifespan: start-up, ``app.state.aar`` while it runs, shutdown
@@ -53,7 +53,7 @@ def make_lifespan(
         backend = sim_backend(settings, source_factory)
         st = build_state(settings, calib, backend, clock, upload_executor)
         try:
-            start_services(st, settings, warm=backend.worker is not None)
+            start_services(st, settings, warm=backend.deployed)
         except BaseException:
             st.streams.close()
             if st.viz is not None:
@@ -69,7 +69,7 @@ def make_lifespan(
         log.info(
             "aar-dock service: tick loop at %.1f Hz (simulation %s), viser on port %s",
             settings.tick_hz,
-            "in a worker process" if backend.worker is not None else "in this process",
+            "in a worker process" if backend.deployed else "in an injected worker",
             st.viser_port,
         )
         try:

@@ -39,7 +39,8 @@ from app.server.routers import (
 from app.server.ws_guard import WebSocketGuard
 from app.service.clock import Clock
 from app.service.settings import Settings
-from app.service.sim_source import SourceFactory, SourceUnavailable
+from app.service.sim_source import SourceUnavailable
+from app.service.sim_worker.proxy import ProcessSourceFactory
 from app.service.upload_pool import ExecutorFactory
 
 API_PREFIX = "/api/v1"
@@ -124,12 +125,12 @@ def create_app(
     settings: Settings | None = None,
     clock: Clock | None = None,
     *,
-    source_factory: SourceFactory | None = None,
+    source_factory: ProcessSourceFactory | None = None,
     upload_executor: ExecutorFactory | None = None,
 ) -> FastAPI:
-    """Build the service. ``clock``, ``source_factory`` and ``upload_executor`` (what runs
-    ``POST /stereo``'s work: ``max_workers`` → an executor; ``None``: worker processes) are
-    injection points for tests."""
+    """Build the service. ``clock``, ``source_factory`` (the simulation's worker: ``None``,
+    a worker process) and ``upload_executor`` (what runs ``POST /stereo``'s work:
+    ``max_workers`` → an executor; ``None``: worker processes) are injection points for tests."""
     settings = settings or Settings()
     swagger_dir = _swagger_static_dir()
     app = FastAPI(

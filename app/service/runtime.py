@@ -1,8 +1,8 @@
 """The service's runtime, built, started and stopped: what the web adapter's lifespan
 (:mod:`app.server.lifespan`) calls, with no web framework.
 
-Start-up, in order: the simulation's backend (:func:`sim_backend`: in a worker process by
-default), the service's state (:func:`build_state`: tick loop, telemetry bus, WebSocket hub,
+Start-up, in order: the simulation's backend (:func:`sim_backend`: a worker process), the
+service's state (:func:`build_state`: tick loop, telemetry bus, WebSocket hub,
 recorder, stream service), then the outputs subscribed to the bus and the threads started
 (:func:`start_services`). Shutdown (:func:`stop_services`) stops them in reverse.
 """
@@ -13,7 +13,6 @@ import asyncio
 import logging
 import sys
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 # sets OPENCV_IO_MAX_IMAGE_PIXELS; first, before anything imports cv2
 from app.service import image_guard  # isort: skip
@@ -23,16 +22,13 @@ from app.service.camera_view import CameraView
 from app.service.clock import Clock
 from app.service.recording import Recorder
 from app.service.settings import WILDCARD_BIND, Settings
-from app.service.sim_source import SourceFactory, default_source_factory
+from app.service.sim_worker.proxy import ProcessSourceFactory, process_source_factory
 from app.service.state import AppState, CalibrationStore, UploadProcessor
 from app.service.stream_service import StreamService
 from app.service.telemetry import TelemetryHub
 from app.service.tick_loop import TickLoop
 from app.service.upload_pool import ExecutorFactory, UploadPool
 from app.sim.sim_config import SimConfig
-
-if TYPE_CHECKING:
-    from app.service.sim_worker.proxy import ProcessSourceFactory
 
 log = logging.getLogger(__name__)
 GIL_SWITCH_S = 0.0005  # sys.setswitchinterval with the worker process (Python's default: 5 ms)
@@ -41,12 +37,13 @@ _warned_opencv: list[bool] = []  # warn once per process
 
 @dataclass
 class SimBackend:
-    """Where the simulation steps: ``factory`` for the tick loop; ``worker``: the worker
-    process's factory (``None``: in this process); ``switch_interval_s``: the interpreter's
-    GIL switch interval before start-up (restored at shutdown)."""
+    """The simulation's worker: ``factory`` for the tick loop (it owns the worker);
+    ``deployed``: the service's own worker process (``False``: a factory the caller
+    injected, e.g. the tests' worker in their process); ``switch_interval_s``: the
+    interpreter's GIL switch interval before start-up (restored at shutdown)."""
 
-    factory: SourceFactory
-    worker: ProcessSourceFactory | None
+    factory: ProcessSourceFactory
+    deployed: bool
     switch_interval_s: float
 
 
@@ -69,16 +66,12 @@ def warn_about_setup(settings: Settings) -> None:
         )
 
 
-def sim_backend(settings: Settings, injected: SourceFactory | None) -> SimBackend:
-    """The injected factory (tests: as given, in this process), the simulation in this
-    process (``AAR_SIM_IN_PROCESS``) or, by default, in a worker process off this GIL."""
+def sim_backend(settings: Settings, injected: ProcessSourceFactory | None) -> SimBackend:
+    """The simulation's worker: the injected factory (tests: a worker loop in their process)
+    or, by default, a worker process off this GIL."""
     switch_interval = sys.getswitchinterval()
     if injected is not None:
-        return SimBackend(injected, None, switch_interval)
-    if settings.sim_in_process:
-        return SimBackend(default_source_factory, None, switch_interval)
-    from app.service.sim_worker.proxy import process_source_factory
-
+        return SimBackend(injected, False, switch_interval)
     # the tick thread relays each tick through a few system calls, each of which gives the
     # GIL away; while the event loop is busy, taking it back can cost up to the switch
     # interval each time (5 ms by default): a shorter one keeps the relay on time
@@ -86,7 +79,7 @@ def sim_backend(settings: Settings, injected: SourceFactory | None) -> SimBacken
     worker = process_source_factory(
         image_hz=settings.image_hz, step_timeout_s=settings.sim_step_timeout_s
     )
-    return SimBackend(worker, worker, switch_interval)
+    return SimBackend(worker, True, switch_interval)
 
 
 def build_state(
@@ -110,7 +103,7 @@ def build_state(
         clock=clock,
         history_s=settings.history_s,
         auto_restart_s=settings.sim_auto_restart_s,
-        realtime=backend.worker is not None,  # its tick thread only relays the worker's
+        realtime=backend.deployed,  # its tick thread only relays the worker's
     )
     hub = TelemetryHub(settings.telemetry_queue)
     hub.bind_loop(asyncio.get_running_loop())
@@ -132,7 +125,7 @@ def build_state(
         recorder=recorder,
         streams=StreamService(loop, calib, settings, loop.bus),
         upload_pool=upload_pool,
-        sim_worker=None if backend.worker is None else backend.worker.worker,
+        sim_worker=backend.factory.worker,
         camera_view=CameraView(image_hz=settings.image_hz),
     )
 
@@ -215,8 +208,7 @@ def start_services(st: AppState, settings: Settings, *, warm: bool) -> None:
 def release_workers(st: AppState, backend: SimBackend) -> None:
     """Stop the worker processes and restore the GIL switch interval."""
     sys.setswitchinterval(backend.switch_interval_s)
-    if backend.worker is not None:
-        backend.worker.close()
+    backend.factory.close()
     st.upload_pool.shutdown()
 
 

@@ -18,9 +18,9 @@ gate's), ``AAR_MAX_WEBSOCKETS``, ``AAR_MAX_WEBSOCKETS_PER_CLIENT``,
 ``AAR_WS_MAX_MESSAGE_KB``, ``AAR_WS_MAX_MESSAGES_PER_S``, ``AAR_WS_MESSAGE_BURST``,
 ``AAR_PUSH_MAX_MESSAGES_PER_S``, ``AAR_WS_ABUSE_PENALTY_S``).
 
-Where the CPU work runs: ``AAR_SIM_IN_PROCESS`` (default false: the simulation steps in a
-worker process, ``app.service.sim_worker``), ``AAR_SIM_STEP_TIMEOUT_S``; uploads always run in
-a process pool (``app.service.upload_pool``).
+Where the CPU work runs: the simulation always steps in a worker process
+(``app.service.sim_worker``; ``AAR_SIM_STEP_TIMEOUT_S``), the uploads in a process pool
+(``app.service.upload_pool``).
 """
 
 from __future__ import annotations
@@ -103,11 +103,6 @@ class Settings(BaseSettings):
     scene_hz: float = Field(15.0, gt=0.0, le=60.0, description="3D scene update rate (Hz)")
     image_hz: float = Field(5.0, gt=0.0, le=30.0, description="camera image update rate (Hz)")
     static_dir: Path = Field(DEFAULT_STATIC, description="operators' page assets")
-    sim_in_process: bool = Field(
-        False,
-        description="step the simulation in a thread of the web server's process (the old "
-        "mode) instead of a worker process (the default: off the web server's GIL)",
-    )
     sim_step_timeout_s: float = Field(
         5.0,
         gt=0.0,

@@ -1,11 +1,11 @@
-"""What the tick loop steps: the simulation source contracts and the in-process factory.
+"""What the tick loop steps: the simulation source contract and the service's config of it.
 
-An in-process source (:class:`StepSource`, :class:`app.sim.docking.DockingSimulation`)
-returns each tick's :class:`~app.service.records.SimState` from ``step()`` when the loop's
-schedule calls it. A *paced* source (:class:`PacedSource`, the simulation worker process of
-:mod:`app.service.sim_worker`) keeps the schedule itself: its ``step()`` blocks until the tick
-for its next deadline is released and returns a :class:`PacedTick` (the state, the images read
-lazily, the schedule); ``pause()`` stops that schedule.
+The simulation has one execution path: the worker of :mod:`app.service.sim_worker` (a
+``spawn`` process in the service; tests inject a launcher that runs the same worker loop in
+their process). Its source is *paced* (:class:`PacedSource`): it keeps the schedule itself,
+its ``step()`` blocks until the tick for its next deadline is released and returns a
+:class:`PacedTick` (the state, the images read lazily, the schedule); ``pause()`` stops that
+schedule.
 """
 
 from __future__ import annotations
@@ -18,16 +18,7 @@ from app.sim.sim_config import SimConfig
 
 if TYPE_CHECKING:
     from app.geometry.calibration import StereoCalibration
-    from app.sim.docking import DockingConfig, DockingSimulation
-
-
-class StepSource(Protocol):
-    """What the loop drives on its own schedule: ``DockingSimulation`` satisfies it."""
-
-    @property
-    def done(self) -> bool: ...
-
-    def step(self) -> SimState: ...
+    from app.sim.docking import DockingConfig
 
 
 class PacedTick(RawFrame, Protocol):
@@ -67,8 +58,7 @@ class PacedSource(Protocol):
     def pause(self) -> None: ...
 
 
-SimSource = StepSource | PacedSource
-SourceFactory = Callable[[SimConfig, "StereoCalibration | None"], SimSource]
+SourceFactory = Callable[[SimConfig, "StereoCalibration | None"], PacedSource]
 
 
 class SourceRestarted(RuntimeError):
@@ -101,12 +91,3 @@ def docking_config(config: SimConfig) -> DockingConfig:
         led_diameter_mm=config.drogue.led_diameter_mm,
         hose_model=config.hose_model,
     )
-
-
-def default_source_factory(
-    config: SimConfig, calibration: StereoCalibration | None
-) -> DockingSimulation:
-    """Build the docking simulation (vision in the loop) for ``config``, in this process."""
-    from app.sim.docking import DockingSimulation
-
-    return DockingSimulation(docking_config(config), calibration=calibration)

@@ -2,22 +2,21 @@
 then publish. No FastAPI here: the loop runs in its own thread and hands each tick to the
 :class:`~app.service.telemetry_bus.TelemetryBus` (history, WebSocket hub, 3-D scene, recorder).
 
-A late tick is dropped and counted, never queued: when a step overruns the period the
-missed deadlines are skipped. The clock is injectable (:class:`~app.service.clock.FakeClock`)
-so that tests can step the loop deterministically with :meth:`TickLoop.run_iterations`.
-
-A *paced* source (:class:`~app.service.sim_source.PacedSource`: the simulation worker process,
-:mod:`app.service.sim_worker`) keeps the schedule itself, by the same rule, and its ``step()``
-returns each tick when the source releases it at its deadline: the loop thread then only
-relays (converts, publishes), and the source's missed deadlines are counted here.
+The source (:class:`~app.service.sim_source.PacedSource`: the simulation worker,
+:mod:`app.service.sim_worker`) keeps the schedule itself: a late tick is dropped and counted,
+never queued (when a step overruns the period the missed deadlines are skipped), and its
+``step()`` returns each tick when the source releases it at its deadline: the loop thread only
+relays (converts, publishes) and counts the source's missed deadlines. While nothing runs (the
+simulation stopped, or finished and waiting to restart) the loop keeps a schedule of its own
+on its clock. The clock is injectable (:class:`~app.service.clock.FakeClock`, with a worker
+on the same clock: ``tests/support/inline_sim.py``) so that tests can step the loop
+deterministically with :meth:`TickLoop.run_iterations`.
 
 Step latency (``timings_ms["step"]``, the ``/metrics`` stage ``step``): the time from the
-deadline a tick serves to its result being available: for a paced source, from the worker's
-deadline to the worker releasing the tick (computed ahead or, if late, just finished); for an
-in-process source, from the loop's deadline to ``step()`` returning (the thread's lateness in
-waking up included). ``timings_ms["relay"]`` (paced sources): from the deadline to the record
-being ready to publish in this process (``timings_ms["recv"]``: its part from the release to
-this process having read the tick).
+worker's deadline a tick serves to the worker releasing it (computed ahead or, if late, just
+finished). ``timings_ms["relay"]``: from the deadline to the record being ready to publish in
+this process (``timings_ms["recv"]``: its part from the release to this process having read
+the tick).
 """
 
 from __future__ import annotations
@@ -34,14 +33,7 @@ from app.model.tick import TickRecord
 from app.service import records
 from app.service.clock import Clock, MonotonicClock
 from app.service.records import PacedTiming
-from app.service.sim_source import (
-    PacedSource,
-    SimSource,
-    SourceFactory,
-    SourceRestarted,
-    StepSource,
-    default_source_factory,
-)
+from app.service.sim_source import PacedSource, SourceFactory, SourceRestarted
 from app.service.sim_worker.priority import raise_thread_priority
 from app.service.telemetry_bus import TelemetryBus
 from app.sim.sim_config import SimConfig
@@ -76,14 +68,15 @@ class TickLoop:
         config: SimConfig,
         calibration: StereoCalibration | None,
         *,
-        source_factory: SourceFactory = default_source_factory,
+        source_factory: SourceFactory,
         clock: Clock | None = None,
         history_s: float = 60.0,
         auto_restart_s: float | None = 3.0,
         realtime: bool = False,
         bus: TelemetryBus | None = None,
     ) -> None:
-        """``realtime``: the tick thread asks for ``SCHED_RR`` (else nice −10): for a thread
+        """``source_factory``: builds the simulation's source for a config (the worker's
+        :func:`~app.service.sim_worker.proxy.process_source_factory`); ``realtime``: the tick thread asks for ``SCHED_RR`` (else nice −10): for a thread
         that only relays a paced source's ticks (it would compete at that level otherwise).
         ``bus``: where the ticks are published (default: a bus of its own on ``clock``, which
         keeps ``history_s`` of ticks)."""
@@ -97,7 +90,7 @@ class TickLoop:
         self._history_s = history_s
         self.bus = bus if bus is not None else TelemetryBus(self.clock, self._history_len())
         self._lock = threading.RLock()  # guards the source and config
-        self._source: SimSource | None = None
+        self._source: PacedSource | None = None
         self.running = False
         self.run = 0
         self._done_at: float | None = None
@@ -195,8 +188,8 @@ class TickLoop:
         with self._lock:
             self.running = False
             self._end_epoch()
-            if isinstance(self._source, PacedSource):
-                self._source.pause()  # a paced source stops its schedule
+            if self._source is not None:
+                self._source.pause()  # the worker stops its schedule
 
     # ---- one tick -----------------------------------------------------------------
     def _step_failed(self, exc: Exception) -> None:
@@ -216,7 +209,7 @@ class TickLoop:
             self._end_epoch()
             self._consecutive_errors = 0
 
-    def _current_source(self, now: float) -> SimSource | None:
+    def _current_source(self, now: float) -> PacedSource | None:
         """The source to step now (rebuilt or restarted as due); ``None``: nothing to step.
         Under ``self._lock``."""
         if not self.running:
@@ -260,39 +253,17 @@ class TickLoop:
         )
         return Stepped(tick, run, epoch)
 
-    def _step_in_process(
-        self, src: StepSource, now: float, deadline: float | None
-    ) -> Stepped | None:
-        """Step an in-process source (under ``self._lock``): the tick, its run and epoch;
-        ``None`` if the step failed."""
-        t0 = time.perf_counter()
-        try:
-            state = src.step()
-        except Exception as exc:
-            self._step_failed(exc)
-            return None
-        late_s = 0.0 if deadline is None else max(0.0, now - deadline)
-        step_ms = (late_s + time.perf_counter() - t0) * 1e3
-        self._consecutive_errors = 0
-        return Stepped(records.from_sim(state, step_ms=step_ms), self.run, self._epoch)
-
-    def tick(self, deadline: float | None = None) -> TickRecord | None:
+    def tick(self) -> TickRecord | None:
         """Step the simulation once and publish; ``None`` if not running or finished.
 
-        ``deadline``: the loop clock's deadline this tick serves (the scheduler's; ``None``
-        when called directly) — the step latency starts there. A paced source's ``step()``
-        (a wait of up to a period) runs outside the loop's lock, so that ``set_config`` or
-        ``stop_sim`` never wait for it; a tick of a source replaced or stopped meanwhile is
-        dropped, not published."""
+        The source's ``step()`` (a wait of up to a period for the worker's next tick) runs
+        outside the loop's lock, so that ``set_config`` or ``stop_sim`` never wait for it; a
+        tick of a source replaced or stopped meanwhile is dropped, not published."""
         with self._lock:
-            now = self.clock.now()
-            src = self._current_source(now)
+            src = self._current_source(self.clock.now())
             if src is None:
                 return None
-            if not isinstance(src, PacedSource):
-                stepped = self._step_in_process(src, now, deadline)
-        if isinstance(src, PacedSource):
-            stepped = self._step_paced(src)
+        stepped = self._step_paced(src)
         if stepped is None:
             return None
         record = self.bus.publish(stepped.tick, run=stepped.run, epoch=stepped.epoch)
@@ -309,7 +280,7 @@ class TickLoop:
         now = self.clock.now()
         self.heartbeat = now
         src = self._source
-        if self.running and isinstance(src, PacedSource) and not src.done:
+        if self.running and src is not None and not src.done:
             self._next_t = None  # the source keeps the schedule: wait for its next tick
             self.tick()
             return
@@ -323,9 +294,8 @@ class TickLoop:
             if self.running:  # a stopped simulation has no ticks to drop (healthz says so)
                 self.dropped += missed
             self._next_t += missed * period
-        deadline = self._next_t
         self._next_t += period
-        self.tick(deadline)
+        self.tick()
 
     def run_iterations(self, n: int) -> None:
         """Drive the scheduler synchronously (tests, with a :class:`FakeClock`)."""

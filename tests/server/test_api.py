@@ -21,6 +21,7 @@ from app.service.settings import Settings
 from app.service.tick_loop import TickLoop
 from app.sim.sim_config import SimConfig
 from tests.support.fake_sim import FakeSim
+from tests.support.inline_sim import inline_sim
 from tests.support.service_settings import service_settings
 
 REPO = Path(__file__).resolve().parents[2]
@@ -32,7 +33,9 @@ def _settings(tmp_path: Path, **kw: object) -> Settings:
 
 @pytest.fixture
 def client(tmp_path: Path):
-    app = create_app(_settings(tmp_path), source_factory=lambda cfg, cal: FakeSim(cfg, cal))
+    app = create_app(
+        _settings(tmp_path), source_factory=inline_sim(lambda cfg, cal: FakeSim(cfg, cal))
+    )
     with TestClient(app) as c:
         yield c
 
@@ -52,7 +55,9 @@ def test_tick_loop_fixed_rate_with_fake_clock_drops_late_ticks() -> None:
         cfg,
         None,
         clock=clock,
-        source_factory=lambda c, k: FakeSim(c, k, clock=clock, step_cost_s=0.25),
+        source_factory=inline_sim(
+            lambda c, k: FakeSim(c, k, clock=clock, step_cost_s=0.25), clock=clock
+        ),
     )
     loop.start_sim()
     got = []
@@ -71,7 +76,10 @@ def test_tick_loop_fixed_rate_with_fake_clock_drops_late_ticks() -> None:
 def test_tick_loop_on_time_drops_nothing_and_keeps_rate() -> None:
     clock = FakeClock()
     loop = TickLoop(
-        SimConfig(tick_hz=20.0), None, clock=clock, source_factory=lambda c, k: FakeSim(c, k)
+        SimConfig(tick_hz=20.0),
+        None,
+        clock=clock,
+        source_factory=inline_sim(lambda c, k: FakeSim(c, k), clock=clock),
     )
     loop.start_sim()
     loop.run_iterations(200)
@@ -87,7 +95,10 @@ def test_stopped_simulation_counts_no_dropped_ticks() -> None:
     simulation that is not running; once it runs, a late deadline is counted again."""
     clock = FakeClock()
     loop = TickLoop(
-        SimConfig(tick_hz=20.0), None, clock=clock, source_factory=lambda c, k: FakeSim(c, k)
+        SimConfig(tick_hz=20.0),
+        None,
+        clock=clock,
+        source_factory=inline_sim(lambda c, k: FakeSim(c, k), clock=clock),
     )
     loop.run_iterations(5)
     clock.advance(1.0)  # 20 deadlines pass unserved while stopped
@@ -107,7 +118,7 @@ def test_tick_loop_auto_restart_after_done() -> None:
         None,
         clock=clock,
         auto_restart_s=1.0,
-        source_factory=lambda c, k: FakeSim(c, k, steps=5),
+        source_factory=inline_sim(lambda c, k: FakeSim(c, k, steps=5), clock=clock),
     )
     loop.start_sim()
     runs = set()
@@ -203,7 +214,8 @@ def test_calibration_put_validation_and_rollback(client: TestClient) -> None:
 
 def test_bad_uploads_are_4xx(tmp_path: Path) -> None:
     app = create_app(
-        _settings(tmp_path, max_upload_mb=0.5), source_factory=lambda cfg, cal: FakeSim(cfg, cal)
+        _settings(tmp_path, max_upload_mb=0.5),
+        source_factory=inline_sim(lambda cfg, cal: FakeSim(cfg, cal)),
     )
     ok = _png(np.zeros((1024, 1280), np.uint8))
     with TestClient(app) as c:
@@ -246,7 +258,8 @@ def test_bad_uploads_are_4xx(tmp_path: Path) -> None:
 
 def test_token_protects_mutations_only(tmp_path: Path) -> None:
     app = create_app(
-        _settings(tmp_path, token="s3cret"), source_factory=lambda cfg, cal: FakeSim(cfg, cal)
+        _settings(tmp_path, token="s3cret"),
+        source_factory=inline_sim(lambda cfg, cal: FakeSim(cfg, cal)),
     )
     with TestClient(app) as c:
         assert c.post("/api/v1/sim/stop").status_code == 401
@@ -331,7 +344,8 @@ def test_bad_calibration_file_fails_startup(tmp_path: Path) -> None:
     bad = tmp_path / "cal.json"
     bad.write_text("{}")
     app = create_app(
-        _settings(tmp_path, calibration=bad), source_factory=lambda cfg, cal: FakeSim(cfg, cal)
+        _settings(tmp_path, calibration=bad),
+        source_factory=inline_sim(lambda cfg, cal: FakeSim(cfg, cal)),
     )
     with pytest.raises(Exception, match="calibration field"):
         with TestClient(app):
@@ -397,7 +411,7 @@ def test_config_refused_by_the_simulation_is_422_and_kept(tmp_path: Path) -> Non
             raise ValueError("clutter 13 is unlucky")
         return FakeSim(cfg, cal)
 
-    with TestClient(create_app(_settings(tmp_path), source_factory=factory)) as c:
+    with TestClient(create_app(_settings(tmp_path), source_factory=inline_sim(factory))) as c:
         run0 = c.get("/api/v1/sim").json()["run"]
         r = c.put("/api/v1/sim/config", json={"clutter": 13})
         assert r.status_code == 422 and "unlucky" in r.json()["detail"]
@@ -411,7 +425,12 @@ def test_failing_steps_stop_the_stream_and_show_in_healthz() -> None:
             raise RuntimeError("boom")
 
     clock = FakeClock()
-    loop = TickLoop(SimConfig(), None, clock=clock, source_factory=lambda c, k: Broken(c, k))
+    loop = TickLoop(
+        SimConfig(),
+        None,
+        clock=clock,
+        source_factory=inline_sim(lambda c, k: Broken(c, k), clock=clock),
+    )
     loop.start_sim()
     loop.run_iterations(200)
     assert loop.running is False

@@ -37,6 +37,7 @@ from app.server.main import create_app  # noqa: E402
 from app.service.image_guard import ImageHeaderError, peek_header  # noqa: E402
 from app.service.settings import Settings  # noqa: E402
 from tests.support.fake_sim import FakeSim  # noqa: E402  (the tests' fake step source)
+from tests.support.inline_sim import inline_sim  # noqa: E402
 
 TOKEN = "fuzz-token"
 EXAMPLES = {GenerationMode.POSITIVE: 30, GenerationMode.NEGATIVE: 30}  # per operation
@@ -85,7 +86,7 @@ def test_no_input_gives_a_server_error(tmp_path: Path) -> None:
             sim_auto_restart_s=None,
             token=TOKEN,
         ),  # type: ignore[call-arg]
-        source_factory=lambda cfg, cal: FakeSim(cfg, cal),
+        source_factory=inline_sim(lambda cfg, cal: FakeSim(cfg, cal)),
     )
     t0 = time.perf_counter()
     try:
@@ -177,7 +178,7 @@ def json_client(tmp_path_factory: pytest.TempPathFactory) -> Iterator[TestClient
         Settings(
             viser_enabled=False, recordings_dir=tmp / "rec", sim_auto_restart_s=None, token=TOKEN
         ),  # type: ignore[call-arg]
-        source_factory=lambda cfg, cal: FakeSim(cfg, cal),
+        source_factory=inline_sim(lambda cfg, cal: FakeSim(cfg, cal)),
     )
     with TestClient(app) as c:
         yield c

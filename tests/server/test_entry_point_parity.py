@@ -22,14 +22,14 @@ from fastapi.testclient import TestClient
 
 from app.cli.main import main as cli_main
 from app.resources import load_default_calibration
-from app.server.main import create_app
 from app.service.sim_worker.wire import calibration_to_wire
 from app.service.upload_pool import process_upload
 from app.sim.led_ring import LedRing
 from app.sim.stereo_render import RenderSettings, render_pair
 from app.streams.protocol import encode_message
 from app.vision.drogue import BASKET_24IN, PAPER_DROGUE, DrogueProfile
-from tests.support.service_settings import IN_PROCESS, service_settings
+from tests.support.service_app import service_app
+from tests.support.service_settings import SIM_IDLE, service_settings
 from tests.support.stream_checks import history_records
 from tests.support.upload_executor import thread_uploads
 from tests.support.waiting import wait_until
@@ -115,8 +115,8 @@ def test_process_upload_push_and_track_give_one_answer(
         assert out.status == 200 and out.result is not None, out
         _assert_same(f"{name} upload worker", answers[name], out.result.model_dump(mode="python"))
     # the service (AAR_DROGUE): POST /stereo, then each pair pushed to a fresh push stream
-    settings = service_settings(tmp_path, **IN_PROCESS, drogue=profile, history_s=600.0)
-    with TestClient(create_app(settings, upload_executor=thread_uploads)) as c:
+    settings = service_settings(tmp_path, **SIM_IDLE, drogue=profile, history_s=600.0)
+    with TestClient(service_app(settings, upload_executor=thread_uploads)) as c:
         assert c.get("/api/v1/healthz").json()["configured_drogue"]["ring_radius_mm"] == (
             drogue.ring_radius_mm
         )
@@ -159,10 +159,10 @@ def test_ring_radius_shortcut_locks_a_305mm_drogue_and_the_75mm_profile_never_do
             left, right = _render(drogue, centre, colour, seed=30 + k)
             pairs.append((_png(left), _png(right), left, right))
     # the service: AAR_RING_RADIUS_MM=305, no simulation
-    settings = service_settings(tmp_path, **IN_PROCESS, ring_radius_mm=305.0)
-    settings_75 = service_settings(tmp_path, **IN_PROCESS)
+    settings = service_settings(tmp_path, **SIM_IDLE, ring_radius_mm=305.0)
+    settings_75 = service_settings(tmp_path, **SIM_IDLE)
     for s, want in ((settings, True), (settings_75, False)):
-        with TestClient(create_app(s, upload_executor=thread_uploads)) as c:
+        with TestClient(service_app(s, upload_executor=thread_uploads)) as c:
             assert c.get("/api/v1/healthz").json()["configured_drogue"]["ring_radius_mm"] == (
                 305.0 if want else 75.0
             )

@@ -45,6 +45,7 @@ from app.service.image_guard import ImageHeaderError, peek_header
 from app.service.settings import Settings
 from app.service.upload_pool import ExecutorFactory
 from tests.support.fake_sim import FakeSim  # the tests' fake step source
+from tests.support.inline_sim import inline_sim
 from tests.support.service_settings import service_settings
 from tests.support.upload_executor import thread_uploads
 
@@ -64,7 +65,7 @@ def _app(
     upload_executor: ExecutorFactory | None = None,
     **kw: Any,
 ) -> FastAPI:
-    factory = None if real_sim else (lambda cfg, cal: FakeSim(cfg, cal))
+    factory = None if real_sim else inline_sim(lambda cfg, cal: FakeSim(cfg, cal))
     return create_app(
         _settings(tmp_path, **kw), source_factory=factory, upload_executor=upload_executor
     )

@@ -11,6 +11,7 @@ from fastapi.testclient import TestClient
 
 from app.server.main import create_app
 from tests.support.fake_sim import FakeSim, FakeSimState
+from tests.support.inline_sim import inline_sim
 from tests.support.service_settings import service_settings
 from tests.support.waiting import wait_until
 
@@ -22,8 +23,8 @@ def _tick_loop(c: TestClient) -> tuple[str, dict[str, object]]:
 
 
 def test_a_dead_tick_loop_thread_is_degraded(tmp_path: Path) -> None:
-    settings = service_settings(tmp_path, sim_in_process=True, sim_auto_restart_s=None)
-    app = create_app(settings, source_factory=lambda cfg, cal: FakeSim(cfg, cal))
+    settings = service_settings(tmp_path, sim_auto_restart_s=None)
+    app = create_app(settings, source_factory=inline_sim(lambda cfg, cal: FakeSim(cfg, cal)))
     with TestClient(app) as c:
         loop = c.app.state.aar.loop  # type: ignore[attr-defined]
         wait_until(lambda: loop.ticks >= 5, 10.0, "the loop did not tick")
@@ -51,8 +52,8 @@ class _Stalling(FakeSim):
 def test_a_source_that_stops_producing_is_degraded(tmp_path: Path) -> None:
     _Stalling.stall.clear()
     _Stalling.release.clear()
-    settings = service_settings(tmp_path, sim_in_process=True, sim_auto_restart_s=None)
-    app = create_app(settings, source_factory=lambda cfg, cal: _Stalling(cfg, cal))
+    settings = service_settings(tmp_path, sim_auto_restart_s=None)
+    app = create_app(settings, source_factory=inline_sim(lambda cfg, cal: _Stalling(cfg, cal)))
     with TestClient(app) as c:
         loop = c.app.state.aar.loop  # type: ignore[attr-defined]
         wait_until(lambda: loop.ticks >= 5, 10.0, "the loop did not tick")

@@ -12,6 +12,7 @@ from pathlib import Path
 import httpx
 import pytest
 
+from tests.support.inline_sim import inline_sim
 from tests.support.live_server import serve
 
 
@@ -42,7 +43,7 @@ def test_plain_uvicorn_start_warns_and_reports_degraded(
 
     app = create_app(
         service_settings(tmp_path, sim_auto_restart_s=None),
-        source_factory=lambda cfg, cal: FakeSim(cfg, cal),
+        source_factory=inline_sim(lambda cfg, cal: FakeSim(cfg, cal)),
     )
     port = free_port()
     server = uvicorn.Server(

@@ -42,7 +42,7 @@ def test_page_shows_the_video_source_and_switches_it(tmp_path: Path) -> None:
     left, right = write_avi(cached_sequence(40), tmp_path)
     port = _free_port()
     env = {k: v for k, v in os.environ.items() if not k.startswith("AAR_")}
-    env.update(AAR_TOKEN="tok", AAR_SIM_IN_PROCESS="1")
+    env.update(AAR_TOKEN="tok")
     env.update(AAR_LOG_LEVEL="warning", AAR_RECORDINGS_DIR=str(tmp_path / "rec"))
     cmd = [sys.executable, "-m", "app", "serve", "--no-viser", "--no-sim", "--loop"]
     cmd += ["--source", f"video:{left},{right}", "--port", str(port)]
@@ -92,7 +92,7 @@ def test_page_shows_a_failing_stream_as_degraded(tmp_path: Path) -> None:
     seq = cached_sequence(2)
     port = _free_port()
     env = {k: v for k, v in os.environ.items() if not k.startswith("AAR_")}
-    env.update(AAR_SIM_IN_PROCESS="1", AAR_LOG_LEVEL="warning")
+    env.update(AAR_LOG_LEVEL="warning")
     env.update(AAR_RECORDINGS_DIR=str(tmp_path / "rec"), AAR_STREAM_FAILURE_STREAK="3")
     env.update(AAR_STREAM_RESTART_BACKOFF_S="60")  # stays restarting while the page looks
     cmd = [sys.executable, "-m", "app", "serve", "--no-viser", "--no-sim", "--source", "push"]

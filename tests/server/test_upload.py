@@ -11,6 +11,7 @@ from fastapi.testclient import TestClient
 
 from app.server.main import create_app
 from app.service.settings import Settings
+from tests.support.inline_sim import inline_sim
 
 REPO = Path(__file__).resolve().parents[2]
 PAIRS = sorted(p for p in (REPO / "sample_data").glob("pair_*") if p.is_dir())
@@ -27,7 +28,7 @@ class _IdleSource:
 def client(tmp_path_factory: pytest.TempPathFactory):
     tmp = tmp_path_factory.mktemp("upload")
     settings = Settings(viser_enabled=False, sim_autostart=False, recordings_dir=tmp / "rec")  # type: ignore[call-arg]
-    app = create_app(settings, source_factory=lambda cfg, cal: _IdleSource())
+    app = create_app(settings, source_factory=inline_sim(lambda cfg, cal: _IdleSource()))
     with TestClient(app) as c:
         yield c
 

@@ -17,20 +17,20 @@ from fastapi.testclient import TestClient
 from starlette.testclient import WebSocketDenialResponse
 from starlette.websockets import WebSocketDisconnect
 
-from app.server.main import create_app
 from app.service.settings import Settings
 from tests.support.live_server import LatencyProbe, serve, ws_connect
-from tests.support.service_settings import IN_PROCESS, service_settings
+from tests.support.service_app import service_app
+from tests.support.service_settings import SIM_IDLE, service_settings
 from tests.support.ws_frames import frame_header, read_close
 
 
 def _settings(tmp_path: Path, **kw: Any) -> Settings:
-    return service_settings(tmp_path, **{**IN_PROCESS, **kw})
+    return service_settings(tmp_path, **{**SIM_IDLE, **kw})
 
 
 def test_telemetry_takes_only_small_messages(tmp_path: Path) -> None:
     # no penalty: the same (in-process) address opens the push route after its 1009
-    with TestClient(create_app(_settings(tmp_path, ws_abuse_penalty_s=0.0))) as c:
+    with TestClient(service_app(_settings(tmp_path, ws_abuse_penalty_s=0.0))) as c:
         with c.websocket_connect("/api/v1/telemetry") as ws:
             ws.send_text("x" * 100)  # small: read and ignored
             ws.send_bytes(b"\0" * 5000)  # over AAR_WS_MAX_MESSAGE_KB (4 kB)
@@ -44,7 +44,7 @@ def test_telemetry_takes_only_small_messages(tmp_path: Path) -> None:
 
 
 def test_an_address_closed_for_a_limit_is_refused_for_the_penalty(tmp_path: Path) -> None:
-    with TestClient(create_app(_settings(tmp_path, ws_abuse_penalty_s=60.0))) as c:
+    with TestClient(service_app(_settings(tmp_path, ws_abuse_penalty_s=60.0))) as c:
         with c.websocket_connect("/api/v1/telemetry") as ws:
             for _ in range(25):  # over the burst of 20 (AAR_WS_MESSAGE_BURST)
                 ws.send_text("x")
@@ -61,7 +61,7 @@ def test_an_address_closed_for_a_limit_is_refused_for_the_penalty(tmp_path: Path
 
 
 def test_websocket_connections_are_capped_per_address_and_in_total(tmp_path: Path) -> None:
-    app = create_app(_settings(tmp_path, max_websockets_per_client=2))
+    app = service_app(_settings(tmp_path, max_websockets_per_client=2))
     with TestClient(app) as c:
         with c.websocket_connect("/api/v1/telemetry"), c.websocket_connect("/api/v1/telemetry"):
             with pytest.raises(WebSocketDenialResponse) as denied:
@@ -73,7 +73,7 @@ def test_websocket_connections_are_capped_per_address_and_in_total(tmp_path: Pat
         with c.websocket_connect("/api/v1/telemetry"), c.websocket_connect("/api/v1/telemetry"):
             pass
         assert 'reason="ws_refused_per_client"' in c.get("/api/v1/metrics").text
-    with TestClient(create_app(_settings(tmp_path, max_websockets=1))) as c:
+    with TestClient(service_app(_settings(tmp_path, max_websockets=1))) as c:
         with c.websocket_connect("/api/v1/telemetry"):
             with pytest.raises(WebSocketDenialResponse) as denied:
                 with c.websocket_connect("/api/v1/telemetry"):

@@ -147,9 +147,10 @@ def status():
     return {k: int(re.search(k + r":\s+(\d+)", s).group(1)) / 1024 for k in ("VmHWM", "VmRSS")}
 
 from tests.support.upload_executor import thread_uploads
+from tests.support.inline_sim import inline_sim
 settings = Settings(viser_enabled=False, recordings_dir=Path(sys.argv[1]), sim_auto_restart_s=None)
 # the uploads in this process's threads: the web process's memory is what is measured
-app = create_app(settings, source_factory=lambda cfg, cal: FakeSim(cfg, cal),
+app = create_app(settings, source_factory=inline_sim(lambda cfg, cal: FakeSim(cfg, cal)),
                  upload_executor=thread_uploads)
 bad = hostile_tiff()
 out = {}

@@ -300,14 +300,14 @@ def test_serve_and_track_replay_a_recordings_mcap_to_the_live_results(
 ) -> None:
     """A video stream recorded with frames; ``serve --source mcap:<id>.mcap`` (switched
     through the API) and ``track --left <id>.mcap`` give the live poses."""
-    from app.server.main import create_app
-    from tests.support.service_settings import IN_PROCESS, service_settings
+    from tests.support.service_app import service_app
+    from tests.support.service_settings import SIM_IDLE, service_settings
     from tests.support.stream_checks import assert_same_pose, history_records
     from tests.support.waiting import wait_until
 
     source = f"video:{png_pairs[0]},{png_pairs[1]}"
-    app = create_app(
-        service_settings(tmp_path, **IN_PROCESS, history_s=600.0, source=source, stream_fps=8.0)
+    app = service_app(
+        service_settings(tmp_path, **SIM_IDLE, history_s=600.0, source=source, stream_fps=8.0)
     )  # the writer keeps up
     with TestClient(app) as c:
         wait_until(lambda: c.get("/api/v1/stream").json()["frames"] >= 5, 30, "first frames")

@@ -26,6 +26,7 @@ from app.server.routers import recording as recording_router
 from app.service.recording import Recorder
 from app.service.settings import Settings
 from tests.support.fake_sim import FakeSim  # the tests' fake step source
+from tests.support.inline_sim import inline_sim
 from tests.support.raw_frames import RawPair
 
 
@@ -33,7 +34,7 @@ def _app(tmp_path: Path, **kw: object):
     settings = Settings(
         viser_port=0, recordings_dir=tmp_path / "rec", sim_auto_restart_s=None, **kw
     )  # type: ignore[arg-type]
-    return create_app(settings, source_factory=lambda cfg, cal: FakeSim(cfg, cal))
+    return create_app(settings, source_factory=inline_sim(lambda cfg, cal: FakeSim(cfg, cal)))
 
 
 def _wait_stopped(c: TestClient, rec_id: str, timeout: float = 20.0) -> dict:

@@ -15,12 +15,12 @@ from fastapi.testclient import TestClient
 from PIL import Image
 
 from app.cli.main import main as cli_main
-from app.server.main import create_app
 from app.service.recording import Recorder
 from app.service.recording.budget import Limits, Rates, Written, time_left
 from app.service.settings import Settings
 from app.streams.frame_log import read_index
-from tests.support.service_settings import IN_PROCESS, service_settings
+from tests.support.service_app import service_app
+from tests.support.service_settings import SIM_IDLE, service_settings
 from tests.support.stream_checks import assert_same_pose, history_records
 from tests.support.waiting import wait_until
 
@@ -53,9 +53,9 @@ def test_time_left_during_a_default_frame_recording_and_ten_minutes_fit(tmp_path
     """The default simulated stream (1280×1024 frames), the default options: the estimate
     before the start, the measured rate and the time left during it; the measured bytes of a
     pair, driven at 30 Hz, fit 10 minutes in the default bounds."""
-    settings = service_settings(tmp_path, sim_in_process=True)
+    settings = service_settings(tmp_path)
     defaults = Settings()
-    with TestClient(create_app(settings)) as c:
+    with TestClient(service_app(settings)) as c:
         wait_until(lambda: c.get("/api/v1/healthz").json()["ticks"] >= 10, 60, "first ticks")
         got: list[dict] = []
 
@@ -117,8 +117,8 @@ def test_each_codec_records_files_that_replay(
     lossless ones every source pixel), and ``track --left REC.frames`` / ``REC.mcap`` replay
     every pair — to the live poses with a lossless codec."""
     source = f"video:{png_pairs[0]},{png_pairs[1]}"
-    app = create_app(
-        service_settings(tmp_path, **IN_PROCESS, history_s=600.0, source=source, stream_fps=fps)
+    app = service_app(
+        service_settings(tmp_path, **SIM_IDLE, history_s=600.0, source=source, stream_fps=fps)
     )  # the writer keeps up: every pair recorded
     with TestClient(app) as c:
         wait_until(lambda: c.get("/api/v1/stream").json()["frames"] >= 3, 30, "first frames")
@@ -152,7 +152,7 @@ def test_each_codec_records_files_that_replay(
 
 
 def test_bad_codec_options_get_422(tmp_path: Path) -> None:
-    with TestClient(create_app(service_settings(tmp_path, **IN_PROCESS))) as c:
+    with TestClient(service_app(service_settings(tmp_path, **SIM_IDLE))) as c:
         for q in ("codec=webp", "png_level=0", "jpeg_quality=101"):
             for method, url in (("GET", "/api/v1/recording"), ("POST", "/api/v1/recording/start")):
                 r = c.request(method, f"{url}?frames=true&{q}")

@@ -14,10 +14,10 @@ import pytest
 from fastapi.testclient import TestClient
 
 from app.cli.main import main as cli_main
-from app.server.main import create_app
 from app.streams.frame_log import read_index, recording_calibration, recording_drogue
 from app.streams.mcap_source import mcap_calibration, mcap_drogue
 from app.vision.drogue import BASKET_24IN
+from tests.support.service_app import service_app
 from tests.support.service_settings import service_settings
 from tests.support.waiting import wait_until
 
@@ -28,8 +28,8 @@ MIN_REPLAYED = 0.95
 def test_a_simulated_stream_recording_replays_with_its_own_drogue_and_calibration(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    settings = service_settings(tmp_path, sim_in_process=True)
-    with TestClient(create_app(settings)) as c:
+    settings = service_settings(tmp_path)
+    with TestClient(service_app(settings)) as c:
         wait_until(lambda: c.get("/api/v1/healthz").json()["ticks"] >= 10, 60, "first ticks")
         assert c.get("/api/v1/healthz").json()["drogue"]["ring_radius_mm"] == 305.0
         r = c.post("/api/v1/recording/start?frames=true")

@@ -22,6 +22,7 @@ from app.sim.docking.outcomes import OUTCOMES
 from app.sim.docking.results import DockingTick
 from app.sim.sim_config import SimConfig
 from tests.support.fake_sim import FakeSimState
+from tests.support.inline_sim import inline_sim
 
 BREAK_AWAY = "break-away: missed the drogue by 0.199 m"
 ENVELOPE = "envelope: α 10.2° above 10.0°"
@@ -50,7 +51,7 @@ def test_the_tick_loop_publishes_the_hand_overs_and_the_outcome() -> None:
     loop = TickLoop(
         SimConfig(tick_hz=10.0),
         None,
-        source_factory=lambda config, calibration: Source(),
+        source_factory=inline_sim(lambda config, calibration: Source()),
         clock=FakeClock(),
         auto_restart_s=None,
     )

@@ -23,11 +23,11 @@ import pytest
 from fastapi.testclient import TestClient
 from starlette.websockets import WebSocketDisconnect
 
-from app.server.main import create_app
 from app.service.settings import Settings
 from app.streams.protocol import encode_message
 from tests.support.hostile_images import undecodable_png
-from tests.support.service_settings import IN_PROCESS, service_settings
+from tests.support.service_app import service_app
+from tests.support.service_settings import SIM_IDLE, service_settings
 from tests.support.streams_sequence import cached_sequence
 from tests.support.waiting import wait_until
 
@@ -36,7 +36,7 @@ PUSH = "/api/v1/stream/push"
 
 def _settings(tmp_path: Path, **kw: Any) -> Settings:
     return service_settings(
-        tmp_path, **{**IN_PROCESS, "source": "push", "stream_restart_backoff_s": 0.2, **kw}
+        tmp_path, **{**SIM_IDLE, "source": "push", "stream_restart_backoff_s": 0.2, **kw}
     )
 
 
@@ -51,7 +51,7 @@ def _status(c: TestClient) -> dict[str, Any]:
 def test_a_failing_push_stream_is_reported_and_restarts_itself(tmp_path: Path) -> None:
     seq = cached_sequence(8)
     bad_left, bad_right = undecodable_png(seq.lefts[0]), undecodable_png(seq.rights[0])
-    with TestClient(create_app(_settings(tmp_path))) as c:
+    with TestClient(service_app(_settings(tmp_path))) as c:
         assert c.get("/api/v1/healthz").json()["status"] == "ok"
         sent, closes = 0, []
         while sent < 25:  # the pusher reconnects when it is told the stream restarts
@@ -104,7 +104,7 @@ def test_a_failing_push_stream_is_reported_and_restarts_itself(tmp_path: Path) -
 def test_one_pusher_at_a_time_seq_counters_and_unparsable_header(tmp_path: Path) -> None:
     seq = cached_sequence(4)
     left, right = _png(seq.lefts[0]), _png(seq.rights[0])
-    with TestClient(create_app(_settings(tmp_path))) as c:
+    with TestClient(service_app(_settings(tmp_path))) as c:
         with c.websocket_connect(PUSH) as first:
             with pytest.raises(WebSocketDisconnect) as exc:
                 with c.websocket_connect(PUSH) as second:
@@ -152,7 +152,7 @@ def test_a_dead_stream_thread_and_a_stall_are_seen_and_restarted(
 
     monkeypatch.setattr(StreamProcessor, "process", process)
     settings = _settings(tmp_path, stream_stall_s=0.5)
-    with TestClient(create_app(settings)) as c:
+    with TestClient(service_app(settings)) as c:
 
         def push(i: int) -> None:
             msg = encode_message(_png(seq.lefts[i % 4]), _png(seq.rights[i % 4]), t_s=i, seq=i)

@@ -10,9 +10,9 @@ from pathlib import Path
 from fastapi.testclient import TestClient
 
 from app.resources import load_default_calibration
-from app.server.main import create_app
 from tests.support.hostile_mcap import LEFT, RIGHT, LogWriter, compressed_image, png, valid_log
-from tests.support.service_settings import IN_PROCESS, service_settings
+from tests.support.service_app import service_app
+from tests.support.service_settings import SIM_IDLE, service_settings
 from tests.support.waiting import wait_until
 
 
@@ -29,8 +29,8 @@ def _late_corruption(p: Path) -> Path:
 
 def test_corruption_after_good_pairs_turns_healthz_degraded_not_ended(tmp_path: Path) -> None:
     bad = _late_corruption(tmp_path / "late.mcap")
-    settings = service_settings(tmp_path, **IN_PROCESS, source=f"mcap:{bad}", stream_realtime=False)
-    with TestClient(create_app(settings)) as c:
+    settings = service_settings(tmp_path, **SIM_IDLE, source=f"mcap:{bad}", stream_realtime=False)
+    with TestClient(service_app(settings)) as c:
         wait_until(lambda: c.get("/api/v1/stream").json()["state"] != "running", 20.0)
         status = c.get("/api/v1/stream").json()
         assert status["state"] == "failed" and status["frames"] == 3, status
@@ -51,7 +51,7 @@ def test_a_degenerate_mcap_calibration_is_refused_as_put_calibration_refuses_it(
     rec = tmp_path / "rec"
     rec.mkdir()
     p = valid_log(rec / "calib.mcap", 1, calibration=data, shape=(h, w))
-    with TestClient(create_app(service_settings(tmp_path, **IN_PROCESS))) as c:
+    with TestClient(service_app(service_settings(tmp_path, **SIM_IDLE))) as c:
         put = c.put("/api/v1/calibration", json=data)
         assert put.status_code == 422
         detail = put.json()["detail"]

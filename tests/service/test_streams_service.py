@@ -21,10 +21,11 @@ from fastapi.testclient import TestClient
 from starlette.websockets import WebSocketDisconnect
 
 from app.cli.main import main as cli_main
-from app.server.main import create_app
 from app.service.settings import Settings
 from app.streams.protocol import encode_message
-from tests.support.service_settings import IN_PROCESS, service_settings
+from tests.support.inline_sim import inline_sim
+from tests.support.service_app import service_app
+from tests.support.service_settings import SIM_IDLE, service_settings
 from tests.support.stream_checks import assert_same_pose, history_records
 from tests.support.streams_sequence import cached_sequence, read_jsonl, write_avi, write_png_folders
 from tests.support.waiting import stop_process, wait_for_server, wait_until
@@ -34,7 +35,7 @@ ROOT = Path(__file__).resolve().parents[2]
 
 
 def _settings(tmp_path: Path, **kw: Any) -> Settings:
-    return service_settings(tmp_path, **{**IN_PROCESS, "history_s": 600.0, **kw})
+    return service_settings(tmp_path, **{**SIM_IDLE, "history_s": 600.0, **kw})
 
 
 @pytest.fixture(scope="module")
@@ -50,7 +51,7 @@ def test_serve_video_source_publishes_locked_video_records_with_guidance(
     tmp_path: Path, media: dict[str, Path]
 ) -> None:
     source = f"video:{media['left_avi']},{media['right_avi']}"
-    app = create_app(_settings(tmp_path, source=source, stream_realtime=False))
+    app = service_app(_settings(tmp_path, source=source, stream_realtime=False))
     with TestClient(app) as c:
         wait_until(lambda: c.get("/api/v1/stream").json()["state"] == "ended", 60, "end of video")
         status = c.get("/api/v1/stream").json()
@@ -73,7 +74,7 @@ def test_frame_recording_replays_to_the_live_results(
     tmp_path: Path, media: dict[str, Path]
 ) -> None:
     source = f"video:{media['left_png']},{media['right_png']}"
-    app = create_app(_settings(tmp_path, source=source, stream_fps=15.0))  # paced, 15 fps
+    app = service_app(_settings(tmp_path, source=source, stream_fps=15.0))  # paced, 15 fps
     with TestClient(app) as c:
         wait_until(lambda: c.get("/api/v1/stream").json()["frames"] >= 5, 30, "first frames")
         r = c.post("/api/v1/recording/start?frames=true")
@@ -112,7 +113,7 @@ def _png(img: np.ndarray) -> bytes:
 
 def test_push_websocket_token_limits_and_locked_push_records(tmp_path: Path) -> None:
     seq = cached_sequence(N)
-    app = create_app(_settings(tmp_path, token="s3cret", push_max_mb=3.0))
+    app = service_app(_settings(tmp_path, token="s3cret", push_max_mb=3.0))
     with TestClient(app) as c:
         # switching needs the token; push needs the token
         assert c.put("/api/v1/stream/source", json={"source": "push"}).status_code == 401
@@ -161,7 +162,7 @@ def served_push(tmp_path: Path) -> Iterator[tuple[str, int]]:
     """``aar-dock serve --source push`` as a real process (token s3cret)."""
     port = _free_port()
     env = {k: v for k, v in os.environ.items() if not k.startswith("AAR_")}
-    env.update(AAR_TOKEN="s3cret", AAR_SIM_IN_PROCESS="1")
+    env.update(AAR_TOKEN="s3cret")
     env.update(AAR_LOG_LEVEL="warning", AAR_RECORDINGS_DIR=str(tmp_path / "rec"))
     cmd = [sys.executable, "-m", "app", "serve", "--source", "push", "--no-viser", "--no-sim"]
     log = (tmp_path / "serve.log").open("wb")
@@ -212,7 +213,7 @@ def test_push_cli_to_serve_cli(
 
 
 class _FakeSim:
-    """A stand-in simulation (``StepSource``): one tick a step, never done."""
+    """A stand-in simulation (what the worker steps): one tick a step, never done."""
 
     done = False
 
@@ -231,7 +232,7 @@ def test_one_source_at_a_time_sim_start_stops_the_stream(
 ) -> None:
     source = f"video:{media['left_avi']},{media['right_avi']}"
     settings = _settings(tmp_path, source=source, stream_loop=True)  # real time, endless
-    app = create_app(settings, source_factory=lambda config, calib: _FakeSim())
+    app = service_app(settings, source_factory=inline_sim(lambda config, calib: _FakeSim()))
     with TestClient(app) as c:
         st = c.app.state.aar  # type: ignore[attr-defined]
         assert not st.loop.running  # the stream replaced the simulation
@@ -264,7 +265,7 @@ def test_a_frame_recording_replays_with_its_own_calibration(tmp_path: Path) -> N
     writer.submit(StereoFrame(img, img, t_s=0.0, seq=0))
     writer.close()
     service_calib = load_default_calibration()
-    loop = TickLoop(SimConfig(), service_calib, source_factory=lambda c, k: _FakeSim())
+    loop = TickLoop(SimConfig(), service_calib, source_factory=inline_sim(lambda c, k: _FakeSim()))
     streams = StreamService(loop, service_calib, _settings(tmp_path))
     try:
         streams.switch(f"video:{tmp_path / 'r.frames'}", realtime=False)
@@ -288,7 +289,7 @@ def test_every_source_prefix_with_a_path_outside_the_roots_is_refused(tmp_path: 
         cv2.imwrite(str(outside / name), img)
     (outside / "f.mcap").write_bytes(b"\x89MCAP0\r\n")
     settings = _settings(tmp_path, stream_roots=[allowed])
-    app = create_app(settings, source_factory=lambda config, calib: _FakeSim())
+    app = service_app(settings, source_factory=inline_sim(lambda config, calib: _FakeSim()))
     with TestClient(app) as c:
         for spec in (
             f"camera:{outside / 'l.png'}",

@@ -34,7 +34,6 @@ def serve(
     """``aar-dock serve --source push`` (no token, no viser, no simulation) as a process."""
     port = free_port()
     env = {k: v for k, v in os.environ.items() if not k.startswith("AAR_")}
-    env.update(AAR_SIM_IN_PROCESS="1")
     env.update(AAR_RECORDINGS_DIR=str(tmp_path / "rec"), PYTHONPATH=str(ROOT))
     env.update(env_extra or {})
     cmd = [sys.executable, "-m", "app", "serve", "--source", "push", "--no-viser", "--no-sim"]

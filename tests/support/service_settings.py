@@ -8,9 +8,9 @@ from typing import Any
 
 from app.service.settings import Settings
 
-#: the simulation in the test's own process, nothing started by itself (the uploads: see
-#: ``tests.support.upload_executor``)
-IN_PROCESS: dict[str, Any] = dict(sim_autostart=False, sim_in_process=True)
+#: the simulation not started by itself (its worker in the test's process:
+#: ``tests.support.service_app``; the uploads: ``tests.support.upload_executor``)
+SIM_IDLE: dict[str, Any] = dict(sim_autostart=False)
 
 
 def service_settings(tmp_path: Path, **kw: Any) -> Settings:

@@ -35,6 +35,7 @@ from app.sim.sim_config import SimConfig
 from app.viz.access import AccessPolicy, OriginPolicy
 from app.viz.gui import DockingGui
 from tests.support.fake_sim import FakeSimState
+from tests.support.inline_sim import inline_sim
 from tests.support.waiting import wait_until
 
 TOKEN = "s3cret-operator-token"
@@ -73,7 +74,7 @@ def _service(tmp_path: Path, token: str | None) -> Iterator[Any]:
         sim_auto_restart_s=None,
         tick_hz=30.0,
     )
-    with TestClient(create_app(settings, source_factory=_Source)) as http:
+    with TestClient(create_app(settings, source_factory=inline_sim(_Source))) as http:
         state = http.app.state.aar  # type: ignore[attr-defined]
         assert state.viz is not None and state.viser_port
         yield state

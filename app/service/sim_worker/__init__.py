@@ -13,8 +13,12 @@ The package, by side of the process boundary:
   light): :mod:`.wire` (the messages on the pipe, the calibration as a dict),
   :mod:`.image_ring` (camera images in shared memory), :mod:`.priority` (the CPU priority a
   thread asks for), :mod:`.worker` (the worker's main loop and its schedule);
-* parent side: :mod:`.proxy` (:class:`~.proxy.SimWorker`, the ``StepSource`` proxy
-  :class:`~.proxy.ProcessSimSource` and :func:`~.proxy.process_source_factory`).
+* parent side: :mod:`.proxy` (:class:`~.proxy.SimWorker`, the paced source
+  :class:`~.proxy.ProcessSimSource`, :func:`~.proxy.process_source_factory` and the launcher
+  that starts the worker, :class:`~.proxy.SpawnLauncher`).
+
+This is the simulation's one execution path: tests inject a launcher that runs the same worker
+loop (:class:`~.worker.WorkerLoop`) in their process (``tests/support/inline_sim.py``).
 
 This ``__init__`` imports nothing, so that importing the child side does not load the parent's.
 """

@@ -1,8 +1,8 @@
 """The parent's side of the simulation worker: the process, its pipe and the source proxy.
 
 :class:`SimWorker` owns one persistent worker process (:mod:`app.service.sim_worker.worker`,
-``spawn`` context) and its image ring; :class:`ProcessSimSource` is the paced
-``StepSource`` the tick loop steps (``step()`` returns the next tick the worker released on
+started by a :class:`SpawnLauncher`: ``spawn`` context) and its image ring;
+:class:`ProcessSimSource` is the paced source the tick loop steps (``step()`` returns the next tick the worker released on
 its schedule, ``pause()`` ends the schedule); :func:`process_source_factory` gives the tick
 loop's source factory. The messages are listed in :mod:`app.service.sim_worker.wire`.
 
@@ -19,9 +19,11 @@ import multiprocessing
 import threading
 import time
 from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
 from multiprocessing.connection import Connection
 from multiprocessing.process import BaseProcess
-from typing import TYPE_CHECKING, TypeVar
+from typing import TYPE_CHECKING, Protocol, TypeVar
 
 from app.service.lazy_images import ImagePair, LazyImagePair
 from app.service.sim_source import SourceRestarted, SourceUnavailable, docking_config
@@ -45,7 +47,7 @@ from app.service.sim_worker.wire import (
     calibration_to_wire,
     raise_remote,
 )
-from app.service.sim_worker.worker import LOOKAHEAD, worker_main
+from app.service.sim_worker.worker import LOOKAHEAD, SimFactory, WorkerSpec, worker_main
 from app.sim.sim_config import SimConfig
 from app.types import FloatArray, UInt8Array
 
@@ -58,6 +60,55 @@ log = logging.getLogger(__name__)
 
 
 SPAWN = multiprocessing.get_context("spawn")
+
+
+class WorkerProcess(Protocol):
+    """The worker as the parent sees it (a :class:`multiprocessing.process.BaseProcess`)."""
+
+    @property
+    def exitcode(self) -> int | None: ...
+
+    def is_alive(self) -> bool: ...
+    def kill(self) -> None: ...
+    def join(self, timeout: float | None = None) -> None: ...
+
+
+class ParentConn(Protocol):
+    """The parent's end of the pipe (a :class:`multiprocessing.connection.Connection`)."""
+
+    def send(self, obj: Request) -> None: ...
+    def recv(self) -> Reply: ...
+    def poll(self, timeout: float = 0.0) -> bool: ...
+    def close(self) -> None: ...
+
+
+#: starts a worker for a :class:`WorkerSpec`: the worker and the parent's end of its pipe
+WorkerLauncher = Callable[[WorkerSpec], tuple[WorkerProcess, ParentConn]]
+
+
+@dataclass(frozen=True)
+class SpawnLauncher:
+    """Starts :func:`~app.service.sim_worker.worker.worker_main` in a ``spawn`` process, the
+    one way the service runs its simulation; ``sim_factory`` (picklable; ``None``: the docking
+    simulation) builds each simulation in it. Tests inject another launcher (one that runs the
+    same :class:`~app.service.sim_worker.worker.WorkerLoop` in their process), not another
+    path."""
+
+    sim_factory: SimFactory | None = None
+
+    def __call__(self, spec: WorkerSpec) -> tuple[BaseProcess, Connection]:
+        parent, child = SPAWN.Pipe(duplex=True)
+        proc = SPAWN.Process(
+            target=worker_main,
+            args=(child, spec, self.sim_factory),
+            name=f"aar-sim-worker-{spec.epoch}",
+            daemon=True,
+        )
+        proc.start()
+        child.close()  # so that the worker's death reads as EOF here
+        return proc, parent
+
+
 Answer = TypeVar("Answer", Ready, Built, Pong)  # the replies that answer a request
 DEFAULT_IMAGE_SIZE = (1280, 1024)  # (w, h) when no calibration says otherwise
 
@@ -168,7 +219,13 @@ class SimWorker:
         ring_slots: int = RING_SLOTS,
         shared_images: bool = True,
         lookahead: int = LOOKAHEAD,
+        launcher: WorkerLauncher | None = None,
+        now: Callable[[], float] = time.monotonic,
     ) -> None:
+        """``launcher``: what starts a worker (default: :class:`SpawnLauncher`, a process);
+        ``now``: the worker's schedule clock (s; the machine's monotonic clock)."""
+        self._launch: WorkerLauncher = launcher or SpawnLauncher()
+        self.now = now
         self.image_period_s = 1.0 / image_hz if image_hz > 0 else float("inf")
         self.step_timeout_s = step_timeout_s
         self.build_timeout_s = build_timeout_s
@@ -177,8 +234,8 @@ class SimWorker:
         self.shared_images = shared_images
         self.lookahead = max(0, int(lookahead))
         self._lock = threading.RLock()
-        self._proc: BaseProcess | None = None
-        self._conn: Connection | None = None
+        self._proc: WorkerProcess | None = None
+        self._conn: ParentConn | None = None
         self._ring: ImageRing | None = None
         self._epoch = 0
         self._next_id = 0
@@ -216,24 +273,16 @@ class SimWorker:
             raise SimWorkerError("the simulation worker is shut down")
         self._kill()
         self._epoch += 1
-        parent, child = SPAWN.Pipe(duplex=True)
         ring = self._ring
-        proc = SPAWN.Process(
-            target=worker_main,
-            args=(
-                child,
-                None if ring is None else ring.name,
-                self.ring_slots,
-                0 if ring is None else ring.capacity,
-                self._epoch,
-                self.image_period_s,
-                self.lookahead,
-            ),
-            name=f"aar-sim-worker-{self._epoch}",
-            daemon=True,
+        spec = WorkerSpec(
+            ring_name=None if ring is None else ring.name,
+            ring_slots=self.ring_slots,
+            ring_capacity=0 if ring is None else ring.capacity,
+            epoch=self._epoch,
+            image_period_s=self.image_period_s,
+            lookahead=self.lookahead,
         )
-        proc.start()
-        child.close()  # so that the worker's death reads as EOF here
+        proc, parent = self._launch(spec)
         self._proc, self._conn = proc, parent
         self.spawns += 1
         try:
@@ -407,7 +456,7 @@ class SimWorker:
             if self._pacing != sid:
                 self._gen += 1
                 try:
-                    self._send(Run(sid, self._gen, period_s, first_deadline_s=time.monotonic()))
+                    self._send(Run(sid, self._gen, period_s, first_deadline_s=self.now()))
                 except _Lost as exc:
                     raise self._lost(exc) from None
                 self._pacing = sid
@@ -436,7 +485,7 @@ class SimWorker:
                 conn.poll(min(STEP_POLL_S, max(0.0, give_up - time.monotonic())))
             except (EOFError, OSError, ValueError):
                 pass  # closed meanwhile: seen under the lock
-        received = time.monotonic()
+        received = self.now()
         with self._lock:
             if isinstance(msg, TickError):
                 if self._pacing == sid and self._gen == gen:
@@ -499,7 +548,7 @@ class SimWorker:
 
 
 class ProcessSimSource:
-    """``StepSource`` proxy of the simulation built in the worker (``done`` + ``step()``).
+    """The paced source of the simulation built in the worker (``done``, ``step()``, ``pause()``).
 
     ``paced``: the worker keeps the schedule; ``step()`` waits for its next tick (at most a
     period, the first one is due at once) and ``pause()`` stops the schedule."""
@@ -547,6 +596,8 @@ def process_source_factory(
     start_timeout_s: float = 60.0,
     shared_images: bool = True,
     lookahead: int = LOOKAHEAD,
+    launcher: WorkerLauncher | None = None,
+    now: Callable[[], float] = time.monotonic,
 ) -> ProcessSourceFactory:
     """A factory for ``TickLoop(source_factory=...)`` running the simulation in a worker
     process (started on the first build; ``factory.close()`` stops it)."""
@@ -558,5 +609,7 @@ def process_source_factory(
             start_timeout_s=start_timeout_s,
             shared_images=shared_images,
             lookahead=lookahead,
+            launcher=launcher,
+            now=now,
         )
     )

@@ -212,12 +212,15 @@ def error_reply(exc: BaseException) -> ErrorReply:
 
 
 def raise_remote(error: ErrorReply) -> NoReturn:
-    """Raise an error reply in the parent: ``ValueError`` and ``TypeError`` as such (a
-    refused config), anything else as a ``RuntimeError`` naming its kind."""
+    """Raise an error reply in the parent: ``ValueError``, ``TypeError`` and
+    ``RuntimeError`` as such (a refused config, a failed step), anything else as a
+    ``RuntimeError`` naming its kind."""
     if error.kind == "ValueError":
         raise ValueError(error.message)
     if error.kind == "TypeError":
         raise TypeError(error.message)
     if error.traceback:
         log.debug("simulation worker traceback:\n%s", error.traceback)
+    if error.kind == "RuntimeError":
+        raise RuntimeError(error.message)
     raise RuntimeError(f"{error.kind}: {error.message}")

@@ -26,9 +26,10 @@ import os
 import signal
 import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from multiprocessing.connection import Connection
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 from app.service.sim_worker.image_ring import ImageRing
 from app.service.sim_worker.priority import raise_thread_priority
@@ -40,6 +41,7 @@ from app.service.sim_worker.wire import (
     Ping,
     Pong,
     Ready,
+    Reply,
     Request,
     Run,
     Stop,
@@ -51,7 +53,8 @@ from app.service.sim_worker.wire import (
 from app.types import UInt8Array
 
 if TYPE_CHECKING:
-    from app.sim.docking import DockingSimulation, DockingTick
+    from app.geometry.calibration import StereoCalibration
+    from app.sim.docking import DockingConfig, DockingSimulation, DockingTick
 
 LOOKAHEAD = 2  # ticks the worker computes ahead of their deadlines
 POLL_SLACK_S = 0.002  # the pipe is polled until this long before a deadline, then a sleep
@@ -103,7 +106,7 @@ class WorkerState:
         self.k = 0
         self.last_inline = -1e9
 
-    def step(self, sim: DockingSimulation) -> ComputedTick | ErrorReply:
+    def step(self, sim: StepSim) -> ComputedTick | ErrorReply:
         """Step ``sim`` once: the :class:`ComputedTick` (its images in the ring or inline), or
         the error it raised."""
         t0 = time.perf_counter()
@@ -126,7 +129,11 @@ class WorkerState:
                 if now - self.last_inline >= self.image_period_s:
                     self.last_inline = now
                     inline = (left, right)
-        light = replace(tick, left_image=None, right_image=None)
+        light = (
+            tick
+            if left is None and right is None
+            else replace(tick, left_image=None, right_image=None)
+        )
         return ComputedTick(light, bool(sim.done), sim_ms, slot, stamp, inline)
 
 
@@ -163,105 +170,189 @@ def _refused(reason: str) -> ErrorReply:
     return ErrorReply("RuntimeError", reason, "")
 
 
-def worker_main(
-    conn: Connection,
-    ring_name: str | None,
-    ring_slots: int,
-    ring_capacity: int,
-    epoch: int,
-    image_period_s: float,
-    lookahead: int,
-) -> None:
-    """Entry point of the worker: serve :class:`Build`, :class:`Run`, :class:`Pause`,
-    :class:`Ping` and :class:`Stop`.
+class Conn(Protocol):
+    """The worker's end of the pipe (a ``multiprocessing`` connection, or a test's stand-in)."""
+
+    def send(self, obj: Reply) -> None: ...
+    def recv(self) -> Request: ...
+    def poll(self, timeout: float = 0.0) -> bool: ...
+
+
+class StepSim(Protocol):
+    """What the worker steps: :class:`app.sim.docking.DockingSimulation` satisfies it (its
+    ``step()`` returns a :class:`DockingTick`, a dataclass the worker copies without images)."""
+
+    @property
+    def done(self) -> bool: ...
+
+    def step(self) -> DockingTick: ...
+
+
+#: builds the simulation for a :class:`Build` (default: ``DockingSimulation``)
+SimFactory = Callable[["DockingConfig", "StereoCalibration | None"], StepSim]
+
+
+@dataclass(frozen=True, slots=True)
+class WorkerSpec:
+    """What a worker is started with: its image ring (``ring_name`` ``None``: no shared
+    memory, images in the pipe), its epoch (the parent's count of workers started: the ring's
+    stamps), the period of inline images (s) and the ticks it computes ahead."""
+
+    ring_name: str | None
+    ring_slots: int
+    ring_capacity: int
+    epoch: int
+    image_period_s: float
+    lookahead: int
+
+
+def attach_state(spec: WorkerSpec) -> WorkerState:
+    """The worker's :class:`WorkerState`, attached to the parent's image ring if it has one."""
+    ring = None
+    if spec.ring_name is not None:
+        try:
+            ring = ImageRing.attach(spec.ring_name, spec.ring_slots, spec.ring_capacity)
+        except OSError:
+            ring = None
+    return WorkerState(ring, spec.epoch, spec.image_period_s)
+
+
+class WorkerLoop:
+    """The worker's requests and schedule, one pass at a time (:meth:`serve`).
 
     :class:`Run` starts the worker's own fixed-rate schedule for a built simulation: at each
     deadline it sends the next tick (a :class:`TickMessage`) without being asked, and in
     between computes up to ``lookahead`` ticks ahead (their images go to the ring when
     computed). Requests are read between ticks, never while a deadline is due. A simulation
     that finished or raised ends its schedule (the parent asks again); :class:`Pause`, a new
-    :class:`Build` or :class:`Run` replace it.
-    """
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
-    policy = raise_priority()
-    ring = None
-    if ring_name is not None:
-        try:
-            ring = ImageRing.attach(ring_name, ring_slots, ring_capacity)
-        except OSError:
-            ring = None
-    from app.sim.docking import DockingSimulation
-    from app.sim.warmup import compile_kernels
+    :class:`Build` or :class:`Run` replace it. ``now`` / ``sleep``: the clock the schedule
+    keeps (s; the machine's monotonic clock in the worker process)."""
 
-    compile_kernels()  # the compiled loops loaded (disk cache) before the first deadline
-    gc.collect()
-    gc.freeze()  # the modules out of the cyclic collector's sight (its pauses stay short)
-    state = WorkerState(ring, epoch, image_period_s)
-    sim: DockingSimulation | None = None
-    sim_id = -1
-    ahead: deque[ComputedTick | ErrorReply] = deque()  # computed, not released (this sim)
-    pace: Pace | None = None
-    conn.send(Ready(pid=os.getpid(), policy=policy))
+    def __init__(
+        self,
+        conn: Conn,
+        state: WorkerState,
+        sim_factory: SimFactory,
+        *,
+        lookahead: int,
+        now: Callable[[], float] = time.monotonic,
+        sleep: Callable[[float], None] = time.sleep,
+    ) -> None:
+        self.conn = conn
+        self.state = state
+        self.sim_factory = sim_factory
+        self.lookahead = lookahead
+        self.now = now
+        self.sleep = sleep
+        self.sim: StepSim | None = None
+        self.sim_id = -1
+        self.ahead: deque[ComputedTick | ErrorReply] = deque()  # computed, not released
+        self.pace: Pace | None = None
 
-    def release(p: Pace, sim: DockingSimulation) -> bool:
+    @property
+    def scheduled(self) -> bool:
+        """A schedule runs: :meth:`serve` moves on its own (else it waits for a request)."""
+        return self.pace is not None and self.sim is not None
+
+    def _release(self, p: Pace, sim: StepSim) -> bool:
         """Send the tick for the deadline due now; ``False`` ends the schedule."""
-        deadline, missed = p.due(time.monotonic())
-        computed = ahead.popleft() if ahead else state.step(sim)  # late if not computed ahead
+        deadline, missed = p.due(self.now())
+        computed = self.ahead.popleft() if self.ahead else self.state.step(sim)  # late
         if isinstance(computed, ErrorReply):
-            conn.send(TickError(p.sid, p.gen, computed))
+            self.conn.send(TickError(p.sid, p.gen, computed))
             return False
-        conn.send(computed.released(p.sid, p.gen, deadline, time.monotonic(), missed))
+        self.conn.send(computed.released(p.sid, p.gen, deadline, self.now(), missed))
         return not computed.done  # the simulation finished with this tick
 
-    while True:
+    def _next_request(self) -> Request | None:
+        """Release a due tick, compute one ahead or wait for the deadline (``None``: done one
+        of those), else the next request (waited for while no schedule runs)."""
+        pace, sim, conn = self.pace, self.sim, self.conn
+        if pace is not None and sim is not None:
+            now = self.now()
+            if now >= pace.next_t:
+                if not self._release(pace, sim):
+                    self.pace = None
+                return None
+            if conn.poll(0):
+                pass  # a request first
+            elif (
+                len(self.ahead) < self.lookahead
+                and not sim.done
+                and not (self.ahead and isinstance(self.ahead[-1], ErrorReply))  # a raise ends it
+            ):
+                self.ahead.append(self.state.step(sim))
+                return None
+            elif not conn.poll(max(0.0, pace.next_t - now - POLL_SLACK_S)):
+                self.sleep(max(0.0, pace.next_t - self.now()))  # ms-rounded poll
+                return None  # the deadline
+        return conn.recv()
+
+    def serve(self) -> bool:
+        """One pass: a tick released, computed ahead or waited for, or one request served;
+        ``False`` once the worker is to exit (:class:`Stop`, or the parent is gone)."""
         try:
-            if pace is not None and sim is not None:
-                now = time.monotonic()
-                if now >= pace.next_t:
-                    if not release(pace, sim):
-                        pace = None
-                    continue
-                if conn.poll(0):
-                    pass  # a request first
-                elif (
-                    len(ahead) < lookahead
-                    and not sim.done
-                    and not (ahead and isinstance(ahead[-1], ErrorReply))  # a raise ends it
-                ):
-                    ahead.append(state.step(sim))
-                    continue
-                elif not conn.poll(max(0.0, pace.next_t - now - POLL_SLACK_S)):
-                    time.sleep(max(0.0, pace.next_t - time.monotonic()))  # ms-rounded poll
-                    continue  # the deadline
-            msg: Request = conn.recv()
+            msg = self._next_request()
         except (EOFError, OSError):
-            break  # the parent is gone
+            return False  # the parent is gone
+        if msg is None:
+            return True
+        conn = self.conn
         match msg:
             case Stop():
-                break
+                return False
             case Ping():
                 conn.send(Pong(pid=os.getpid()))
             case Build(sid=new_id, config=dcfg, calibration=wire):
                 try:
                     calibration = None if wire is None else calibration_from_wire(wire)
-                    new = DockingSimulation(dcfg, calibration=calibration)
+                    new = self.sim_factory(dcfg, calibration)
                 except Exception as exc:
                     conn.send(error_reply(exc))  # the running simulation (and schedule) is kept
-                    continue
-                sim, sim_id, pace = new, new_id, None
-                ahead.clear()
-                conn.send(Built(sid=new_id, done=bool(sim.done)))
+                    return True
+                self.sim, self.sim_id, self.pace = new, new_id, None
+                self.ahead.clear()
+                conn.send(Built(sid=new_id, done=bool(new.done)))
             case Run(sid=sid, gen=gen, period_s=period_s, first_deadline_s=first_deadline_s):
-                if sim is None or sid != sim_id:
+                if self.sim is None or sid != self.sim_id:
                     conn.send(TickError(sid, gen, _refused("stale simulation source")))
-                elif not ahead and sim.done:
+                elif not self.ahead and self.sim.done:
                     conn.send(TickError(sid, gen, _refused("simulation finished")))
                 else:
-                    pace = Pace(sid, gen, float(period_s), float(first_deadline_s))
+                    self.pace = Pace(sid, gen, float(period_s), float(first_deadline_s))
             case Pause():
-                pace = None  # the ticks computed ahead are kept for the next run
+                self.pace = None  # the ticks computed ahead are kept for the next run
             case _:
                 unknown = f"unknown request {type(msg).__name__}"
                 conn.send(ErrorReply("RuntimeError", unknown, ""))
-    if ring is not None:
-        ring.close()
+        return True
+
+
+def default_sim_factory(
+    config: DockingConfig, calibration: StereoCalibration | None
+) -> DockingSimulation:
+    """The docking simulation (vision in the loop) for ``config`` (the worker's default)."""
+    from app.sim.docking import DockingSimulation
+
+    return DockingSimulation(config, calibration=calibration)
+
+
+def worker_main(conn: Connection, spec: WorkerSpec, sim_factory: SimFactory | None) -> None:
+    """Entry point of the worker process: compile the kernels, say :class:`Ready`, then serve
+    :class:`Build`, :class:`Run`, :class:`Pause`, :class:`Ping` and :class:`Stop`
+    (:class:`WorkerLoop`) until :class:`Stop` or the parent is gone. ``sim_factory`` (picklable;
+    ``None``: :func:`default_sim_factory`) builds each simulation."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
+    policy = raise_priority()
+    state = attach_state(spec)
+    from app.sim.warmup import compile_kernels
+
+    compile_kernels()  # the compiled loops loaded (disk cache) before the first deadline
+    gc.collect()
+    gc.freeze()  # the modules out of the cyclic collector's sight (its pauses stay short)
+    loop = WorkerLoop(conn, state, sim_factory or default_sim_factory, lookahead=spec.lookahead)
+    conn.send(Ready(pid=os.getpid(), policy=policy))
+    while loop.serve():
+        pass
+    if state.ring is not None:
+        state.ring.close()
