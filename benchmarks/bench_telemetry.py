@@ -66,6 +66,10 @@ class TrivialSource:
             rel_position_m=z,
             rta_reason=None,
             run_outcome=None,
+            hose=None,
+            stereo_frame=None,
+            image_windows_px=None,
+            camera_pose_T=None,
         )
 
 
@@ -130,7 +134,10 @@ def _step_ms(port: int) -> float:
 
     with urllib.request.urlopen(f"http://127.0.0.1:{port}/api/v1/metrics", timeout=5) as r:
         for line in r.read().decode().splitlines():
-            if line.startswith('aar_stage_latency_ms{stage="step",quantile="0.5"}'):
+            # the labels in either order (prometheus_client sorts them)
+            if line.startswith("aar_stage_latency_ms{") and all(
+                label in line for label in ('stage="step"', 'quantile="0.5"')
+            ):
                 return float(line.split()[-1])
     return float("nan")
 
