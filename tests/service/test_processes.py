@@ -112,6 +112,22 @@ def test_refused_config_is_422_and_the_old_simulation_keeps_stepping(
     assert st.sim_worker.spawns == 1
 
 
+def test_the_groups_sigterm_leaves_the_worker_to_the_parent(
+    service: tuple[TestClient, Any],
+) -> None:
+    """A service manager's SIGTERM to the whole process group (systemd, ``timeout``) does not
+    kill the worker: the parent stops it at its own shutdown, nothing is lost or respawned."""
+    c, st = service
+    loop, worker = st.loop, st.sim_worker
+    wait_until(lambda: loop.ticks >= 3, 10, "first ticks")
+    pid0 = worker.pid
+    os.kill(pid0, signal.SIGTERM)
+    n = loop.ticks
+    wait_until(lambda: loop.ticks >= n + 10, 10, "ticks after the SIGTERM")
+    assert worker.ping() == pid0 and worker.restarts == 0 and worker.spawns == 1
+    assert loop.errors == 0
+
+
 def test_killed_worker_is_replaced_and_ticks_resume(service: tuple[TestClient, Any]) -> None:
     c, st = service
     loop, worker = st.loop, st.sim_worker

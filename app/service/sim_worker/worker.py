@@ -342,7 +342,11 @@ def worker_main(conn: Connection, spec: WorkerSpec, sim_factory: SimFactory | No
     :class:`Build`, :class:`Run`, :class:`Pause`, :class:`Ping` and :class:`Stop`
     (:class:`WorkerLoop`) until :class:`Stop` or the parent is gone. ``sim_factory`` (picklable;
     ``None``: :func:`default_sim_factory`) builds each simulation."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
+    # Ctrl-C, and the SIGTERM a service manager sends the whole group (systemd, a shell's
+    # `timeout`), are the parent's to handle: it stops the worker itself at shutdown (Stop,
+    # else SIGKILL); a worker that died of the group's SIGTERM would be replaced meanwhile
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
     policy = raise_priority()
     state = attach_state(spec)
     from app.sim.warmup import compile_kernels
