@@ -3,6 +3,7 @@ listens beyond this machine (issue 34 item 4)."""
 
 from __future__ import annotations
 
+import signal
 import socket
 import threading
 import time
@@ -15,7 +16,7 @@ from app.cli.main import main
 from app.cli.serve import PROXY_CONFIG, exposure_notice
 from app.server.server_limits import MAX_HEADER_BYTES, connection_cap, server_limits
 from app.service.settings import Settings
-from tests.support.live_server import free_port
+from tests.support.live_server import free_port, serve
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -146,3 +147,17 @@ def test_serve_hands_uvicorn_these_limits(
         (config.ws, config.ws_max_queue) == ("websockets", limits.ws_max_queue) == ("websockets", 1)
     )
     assert config.h11_max_incomplete_event_size == MAX_HEADER_BYTES
+
+
+def test_sigterm_is_a_clean_exit_after_the_graceful_shutdown(tmp_path: Path) -> None:
+    """``aar-dock serve`` stopped by SIGTERM (``docker stop``, systemd) shuts down, then exits
+    with status 0 through Python's exit handlers: not killed by the signal uvicorn raises
+    again, which skipped them (the upload pool's semaphores were reported leaked)."""
+
+    with serve(tmp_path) as (proc, _port, log_path):
+        time.sleep(3.0)  # the upload workers started
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(timeout=30) == 0
+    log = log_path.read_text(errors="replace")
+    assert "Application shutdown complete" in log
+    assert "leaked" not in log
