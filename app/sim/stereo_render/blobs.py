@@ -8,14 +8,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from functools import lru_cache
 
 import cv2
 import numpy as np
 from numpy.typing import NDArray
 
 from app.geometry.calibration import CameraIntrinsics, StereoCalibration
-from app.geometry.projection import project_camera, project_stereo
+from app.geometry.projection import project_camera
+from app.sim.stereo_render.patch_kernels import spectral_norm_2x2, spot_patch
 from app.sim.stereo_render.scene import MIN_DEPTH_MM
 from app.types import FloatArray
 
@@ -30,24 +30,18 @@ class LightSpot:
 
 def spectral_norm(M: FloatArray) -> float:
     """Largest singular value of a 2×2 matrix."""
-    a, b, c, d = float(M[0, 0]), float(M[0, 1]), float(M[1, 0]), float(M[1, 1])
-    s1 = a * a + b * b + c * c + d * d
-    det = a * d - b * c
-    return math.sqrt(0.5 * (s1 + math.sqrt(max(s1 * s1 - 4 * det * det, 0.0))))
+    return float(spectral_norm_2x2(float(M[0, 0]), float(M[0, 1]), float(M[1, 0]), float(M[1, 1])))
 
 
-def _spectral_norms(m: FloatArray) -> FloatArray:
-    """Largest singular values of a stack of 2×2 matrices (B×2×2)."""
-    a, b, c, d = m[:, 0, 0], m[:, 0, 1], m[:, 1, 0], m[:, 1, 1]
-    s1 = a * a + b * b + c * c + d * d
-    det = a * d - b * c
-    return np.asarray(np.sqrt(0.5 * (s1 + np.sqrt(np.maximum(s1 * s1 - 4 * det * det, 0.0)))))
+def _blur_reach(blur_sigma: float) -> int:
+    """How far (px) the blur spreads a pixel: ⌈4σ⌉ (0 without blur)."""
+    return int(math.ceil(4.0 * blur_sigma)) if blur_sigma > 0 else 0
 
 
 def _patch_half(blob: LightSpot, blur_sigma: float) -> int:
-    """Half-size (px) of a blob's square patch: longest semi-axis + 2 px + the blur's reach."""
-    kr = int(math.ceil(4.0 * blur_sigma)) if blur_sigma > 0 else 0
-    return int(math.ceil(spectral_norm(blob.shape_px))) + 2 + kr
+    """Half-size (px) of a blob's square patch: longest semi-axis + 2 px + the blur's reach
+    (as :func:`~app.sim.stereo_render.patch_kernels.spot_patch` sizes it)."""
+    return int(math.ceil(spectral_norm(blob.shape_px))) + 2 + _blur_reach(blur_sigma)
 
 
 def patch_box(blob: LightSpot, blur_sigma: float) -> tuple[int, int, int, int]:
@@ -64,20 +58,6 @@ def _blur_taps(blur_sigma: float) -> NDArray[np.float64]:
     return np.asarray(cv2.getGaussianKernel(2 * kr + 1, blur_sigma, cv2.CV_64F), float).ravel()
 
 
-@lru_cache(maxsize=64)
-def _blur_matrix(blur_sigma: float, n: int) -> NDArray[np.float64]:
-    """n×n banded matrix T with (P·T)[i, j] = Σ_k taps[k] P[i, j + k − kr] (zero outside)."""
-    taps = _blur_taps(blur_sigma)
-    kr = (len(taps) - 1) // 2
-    t = np.zeros((n, n))
-    for j in range(n):
-        for k in range(-kr, kr + 1):
-            if 0 <= j + k < n:
-                t[j + k, j] = taps[k + kr]
-    t.setflags(write=False)
-    return t
-
-
 def blob_patches(
     blobs: list[LightSpot], supersample: int, blur_sigma: float
 ) -> list[tuple[int, int, NDArray[np.float32]]]:
@@ -86,78 +66,25 @@ def blob_patches(
     Coverage is evaluated on ``supersample``² sub-samples per pixel with an anti-aliased
     edge (signed distance along the ray from the centre, one sub-sample wide), then blurred
     with a symmetric Gaussian (zero outside the patch). All steps are point-symmetric about
-    the centre. Blobs of equal patch size are computed together, with element-wise
-    arithmetic only (no reductions across pixels except the fixed s² sub-sample mean and the
-    fixed-order blur taps), so a blob's patch is bit-identical whichever other blobs share
-    the call — a windowed render (a subset of the blobs) equals the full render there.
+    the centre. Each blob is computed on its own (:func:`~app.sim.stereo_render.patch_kernels.
+    spot_patch`, element-wise arithmetic and sums in a fixed order), so a blob's patch is
+    bit-identical whichever other blobs share the call — a windowed render (a subset of the
+    blobs) equals the full render there.
     """
-    out: list[tuple[int, int, NDArray[np.float32]] | None] = [None] * len(blobs)
-    blurred = blur_sigma > 0
-    s = supersample
-    off = (np.arange(s, dtype=np.float64) + 0.5) / s - 0.5
-    off_x, off_y = np.tile(off, s), np.repeat(off, s)  # sub-sample offsets, px
-    groups: dict[int, list[int]] = {}
-    for i, b in enumerate(blobs):
-        groups.setdefault(_patch_half(b, blur_sigma), []).append(i)
-    for half, idx in groups.items():
-        n = 2 * half + 1
-        sel = [blobs[i] for i in idx]
-        ainv = np.linalg.inv(np.array([b.shape_px for b in sel], dtype=np.float64))  # (B,2,2)
-        g = _spectral_norms(ainv)  # max change of u per px
-        cx = np.array([float(b.center_px[0]) for b in sel])
-        cy = np.array([float(b.center_px[1]) for b in sel])
-        x0 = np.rint(cx).astype(np.int64) - half  # round half to even, like round()
-        y0 = np.rint(cy).astype(np.int64) - half
-        ar = np.arange(n, dtype=np.float64)
-        dx = (x0[:, None] + ar[None, :]) - cx[:, None]  # (B, n)
-        dy = (y0[:, None] + ar[None, :]) - cy[:, None]
-        a00, a01 = ainv[:, 0, 0, None, None], ainv[:, 0, 1, None, None]
-        a10, a11 = ainv[:, 1, 0, None, None], ainv[:, 1, 1, None, None]
-        ddx, ddy = dx[:, None, :], dy[:, :, None]
-        # pixel centres: the ellipse "radius" u (1 = edge) decides fully inside / outside
-        qx, qy = a00 * ddx + a01 * ddy, a10 * ddx + a11 * ddy
-        u_c = np.sqrt(qx * qx + qy * qy)  # (B, n, n)
-        # sub-sample offsets (s², row-major) and their images under A⁻¹ per blob (B, s²)
-        q_off = (
-            ainv[:, 0, 0, None] * off_x + ainv[:, 0, 1, None] * off_y,
-            ainv[:, 1, 0, None] * off_x + ainv[:, 1, 1, None] * off_y,
+    if not blobs:
+        return []
+    taps = _blur_taps(blur_sigma) if blur_sigma > 0 else np.zeros(0)
+    reach = _blur_reach(blur_sigma)
+    shapes = np.array([b.shape_px for b in blobs], dtype=np.float64)  # (B,2,2)
+    ainv = np.linalg.inv(shapes)
+    out = []
+    for b, a, ai in zip(blobs, shapes, ainv, strict=True):
+        c = b.center_px
+        x0, y0, patch = spot_patch(
+            a, ai, float(c[0]), float(c[1]), reach, supersample, float(np.float32(b.peak)), taps
         )
-        band = (g * (0.75 + 0.5 / s))[:, None, None]  # sub-samples ≤ √2/2 px away; AA width
-        cov = (u_c < 1.0 - band).astype(np.float64)
-        eb, ey, ex = np.nonzero(np.abs(u_c - 1.0) <= band)
-        if len(eb):
-            # supersample only the edge pixels: s² sub-samples each, anti-aliased edge
-            px, py = dx[eb, ex], dy[eb, ey]  # (E,) pixel centre − blob centre
-            # in-place arithmetic on (E, s²) arrays (fewer large temporaries)
-            qx = (ainv[eb, 0, 0] * px + ainv[eb, 0, 1] * py)[:, None] + q_off[0][eb]
-            qy = (ainv[eb, 1, 0] * px + ainv[eb, 1, 1] * py)[:, None] + q_off[1][eb]
-            np.multiply(qx, qx, out=qx)
-            np.multiply(qy, qy, out=qy)
-            u = np.sqrt(np.add(qx, qy, out=qx), out=qx)  # (E, s²)
-            sx = np.add(px[:, None], off_x, out=qy)
-            np.multiply(sx, sx, out=sx)
-            sy = py[:, None] + off_y
-            np.multiply(sy, sy, out=sy)
-            d = np.sqrt(np.add(sx, sy, out=sx), out=sx)  # px distance from the centre
-            ok = u > 1e-12  # (u = 0 only at the centre itself: inside, coverage 1)
-            sd = np.full_like(u, np.inf)
-            np.divide(d, u, out=sd, where=ok)
-            np.subtract(sd, d, out=sd, where=ok)  # signed distance to the edge along the ray, px
-            np.multiply(sd, s, out=sd)
-            np.add(sd, 0.5, out=sd)
-            np.clip(sd, 0.0, 1.0, out=sd)
-            cov[eb, ey, ex] = sd.mean(axis=1)
-        peaks = np.array([float(np.float32(b.peak)) for b in sel])
-        patch = cov * peaks[:, None, None]
-        if blurred:
-            # separable blur with a zero border as T_nᵀ · P · T_n (one matrix product per blob
-            # of the same shape: the same arithmetic whichever other blobs share the batch)
-            t_n = _blur_matrix(blur_sigma, n)
-            patch = np.matmul(np.matmul(t_n.T, patch), t_n)
-        p32 = patch.astype(np.float32)
-        for j, i in enumerate(idx):
-            out[i] = (int(x0[j]), int(y0[j]), p32[j])
-    return [o for o in out if o is not None]
+        out.append((int(x0), int(y0), patch))
+    return out
 
 
 def to_right(calib: StereoCalibration, xyz: FloatArray) -> FloatArray:
@@ -177,10 +104,11 @@ def sphere_shapes(cam: CameraIntrinsics, xyz_cam: FloatArray, radius_mm: FloatAr
     xn = xyz_cam[:, 0] / xyz_cam[:, 2]
     yn = xyz_cam[:, 1] / xyz_cam[:, 2]
     h = 1e-5
-    pts = []
-    for ddx, ddy in ((h, 0.0), (-h, 0.0), (0.0, h), (0.0, -h)):
-        pts.append(np.column_stack([xn + ddx, yn + ddy, np.ones(n)]))
-    px = project_camera(cam, np.vstack(pts)).reshape(4, n, 2)
+    pts = np.ones((4, n, 3))  # the four offset points (normalised, z = 1) of every sphere
+    for k, (ddx, ddy) in enumerate(((h, 0.0), (-h, 0.0), (0.0, h), (0.0, -h))):
+        pts[k, :, 0] = xn + ddx
+        pts[k, :, 1] = yn + ddy
+    px = project_camera(cam, pts.reshape(-1, 3)).reshape(4, n, 2)
     jx = (px[0] - px[1]) / (2 * h)  # d(px)/d(xn)
     jy = (px[2] - px[3]) / (2 * h)  # d(px)/d(yn)
     rho = radius_mm / xyz_cam[:, 2]
@@ -203,10 +131,12 @@ def project_checked(
     """Project; NaN where a point is behind (or within 1 mm of) a camera. Returns
     (left px, right px, left depth mm, right depth mm)."""
     zl = xyz[:, 2].copy()
-    zr = to_right(calib, xyz)[:, 2] if len(xyz) else np.zeros(0)
-    pl, pr = project_stereo(calib, xyz) if len(xyz) else (np.zeros((0, 2)), np.zeros((0, 2)))
-    pl = pl.copy()
-    pr = pr.copy()
+    if len(xyz):
+        xyz_r = to_right(calib, xyz)  # as project_stereo does
+        zr = xyz_r[:, 2]
+        pl, pr = project_camera(calib.left, xyz), project_camera(calib.right, xyz_r)
+    else:
+        zr, pl, pr = np.zeros(0), np.zeros((0, 2)), np.zeros((0, 2))
     pl[zl < MIN_DEPTH_MM] = np.nan
     pr[zr < MIN_DEPTH_MM] = np.nan
     return pl, pr, zl, zr

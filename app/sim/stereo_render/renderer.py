@@ -125,9 +125,10 @@ def _check_request(settings: RenderSettings, ring: LedRing, roll_rad: float) -> 
 
 def _equivalent_radii(shapes: FloatArray, seen: NDArray[np.bool_]) -> FloatArray:
     """√|det A| of each 2×2 image ellipse (px); NaN where not ``seen``."""
-    return np.array(
-        [np.sqrt(abs(np.linalg.det(a))) if k else np.nan for a, k in zip(shapes, seen, strict=True)]
-    )
+    out = np.full(len(shapes), np.nan)
+    if np.any(seen):
+        out[seen] = np.sqrt(np.abs(np.linalg.det(shapes[seen])))
+    return out
 
 
 def project_leds(

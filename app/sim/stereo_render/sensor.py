@@ -12,10 +12,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from app.sim.stereo_render.blobs import LightSpot, blob_patches, patch_box
+from app.sim.stereo_render.patch_kernels import paste_patch
 from app.sim.stereo_render.scene import RenderSettings
 from app.types import Rect
 
 NOISE_FIELD_PAD = 256  # px added to each side of the cached noise field (fast_noise)
+_GREY = np.ones(1, dtype=np.float32)  # a grey image's one channel weight
 
 
 def _paste(
@@ -54,26 +56,6 @@ def overlaps(box: Rect, rects: list[Rect]) -> bool:
     return any(x0 < rb and ra < x1 and y0 < sb and sa < y1 for ra, sa, rb, sb in rects)
 
 
-def _region_mask(
-    ya: int, yb: int, xa: int, xb: int, rects: list[Rect]
-) -> NDArray[np.bool_] | Rect | None:
-    """Which pixels of the region [ya, yb) × [xa, xb) lie in a window: None (all of them),
-    one rectangle (x0, y0, x1, y1) relative to the region (the usual case: the region meets
-    one window), or a boolean mask."""
-    hits = []
-    for x0, y0, x1, y1 in rects:
-        if x0 < xb and xa < x1 and y0 < yb and ya < y1:
-            if x0 <= xa and xb <= x1 and y0 <= ya and yb <= y1:
-                return None
-            hits.append((max(x0, xa) - xa, max(y0, ya) - ya, min(x1, xb) - xa, min(y1, yb) - ya))
-    if len(hits) == 1:
-        return hits[0]
-    mask = np.zeros((yb - ya, xb - xa), dtype=bool)
-    for x0, y0, x1, y1 in hits:
-        mask[y0:y1, x0:x1] = True
-    return mask
-
-
 def compose(
     shape: tuple[int, ...],
     blobs: list[LightSpot],
@@ -101,21 +83,11 @@ def compose(
             base = _noise_window(shape, settings, rng)
         else:
             base = _noise_windows(shape, settings, rng, rects)
+        canvas = base.reshape(shape[0], shape[1], -1)  # a view: (h, w, channels)
+        boxes = np.array(rects if rects is not None else [], dtype=np.int64).reshape(-1, 4)
         for x0, y0, patch, bgr in patches:
-            cut = _paste(base, x0, y0, patch, bgr if color else None)
-            if cut is None:
-                continue
-            ya, yb, xa, xb, p = cut
-            region = base[ya:yb, xa:xb].astype(np.float32) + p
-            new = np.clip(np.rint(region), 0, 255).astype(np.uint8)
-            m = None if rects is None else _region_mask(ya, yb, xa, xb, rects)
-            if m is None:
-                base[ya:yb, xa:xb] = new
-            elif isinstance(m, tuple):  # the part of the patch inside its one window
-                rx0, ry0, rx1, ry1 = m
-                base[ya + ry0 : ya + ry1, xa + rx0 : xa + rx1] = new[ry0:ry1, rx0:rx1]
-            else:  # a patch reaching several windows: write only its window pixels
-                np.copyto(base[ya:yb, xa:xb], new, where=m[:, :, None] if color else m)
+            weights = bgr if color else _GREY
+            paste_patch(canvas, x0, y0, patch, weights, boxes, rects is None)
         return base
     img = np.full(shape, settings.background, dtype=np.float32)
     if settings.noise_sigma > 0:
