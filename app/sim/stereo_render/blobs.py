@@ -15,8 +15,12 @@ from numpy.typing import NDArray
 
 from app.geometry.calibration import CameraIntrinsics, StereoCalibration
 from app.geometry.projection import project_camera
-from app.sim.stereo_render.patch_kernels import spectral_norm_2x2, spot_patch
-from app.sim.stereo_render.scene import MIN_DEPTH_MM
+from app.sim.stereo_render.patch_kernels import (
+    render_spots,
+    spectral_norm_2x2,
+    spot_patch,
+)
+from app.sim.stereo_render.scene import MIN_DEPTH_MM, RenderSettings
 from app.types import FloatArray
 
 
@@ -36,20 +40,6 @@ def spectral_norm(M: FloatArray) -> float:
 def _blur_reach(blur_sigma: float) -> int:
     """How far (px) the blur spreads a pixel: ⌈4σ⌉ (0 without blur)."""
     return int(math.ceil(4.0 * blur_sigma)) if blur_sigma > 0 else 0
-
-
-def _patch_half(blob: LightSpot, blur_sigma: float) -> int:
-    """Half-size (px) of a blob's square patch: longest semi-axis + 2 px + the blur's reach
-    (as :func:`~app.sim.stereo_render.patch_kernels.spot_patch` sizes it)."""
-    return int(math.ceil(spectral_norm(blob.shape_px))) + 2 + _blur_reach(blur_sigma)
-
-
-def patch_box(blob: LightSpot, blur_sigma: float) -> tuple[int, int, int, int]:
-    """The patch's pixel rectangle (x0, y0, x1, y1), half-open."""
-    half = _patch_half(blob, blur_sigma)
-    x0 = int(round(float(blob.center_px[0]))) - half
-    y0 = int(round(float(blob.center_px[1]))) - half
-    return x0, y0, x0 + 2 * half + 1, y0 + 2 * half + 1
 
 
 def _blur_taps(blur_sigma: float) -> NDArray[np.float64]:
@@ -85,6 +75,44 @@ def blob_patches(
         )
         out.append((int(x0), int(y0), patch))
     return out
+
+
+def draw_spots(
+    canvas: NDArray[np.uint8],
+    blobs: list[LightSpot],
+    settings: RenderSettings,
+    rects: NDArray[np.int64],
+    everywhere: bool,
+    color: bool,
+) -> None:
+    """Draw ``blobs`` in order into ``canvas`` (uint8, h × w × channels): each one's patch (as
+    :func:`blob_patches` makes it) added in float32 and rounded, only inside ``rects``
+    (R × 4, clipped) unless ``everywhere`` — one compiled loop
+    (:func:`~app.sim.stereo_render.patch_kernels.render_spots`)."""
+    if not blobs:
+        return
+    blur = settings.blur_sigma_px
+    shapes = np.array([b.shape_px for b in blobs], dtype=np.float64)
+    centres = np.array([b.center_px[:2] for b in blobs], dtype=np.float64)
+    peaks = np.array([np.float32(b.peak) for b in blobs], dtype=np.float64)
+    if color:
+        weights = np.array([b.bgr for b in blobs], dtype=np.float32)
+    else:
+        weights = np.ones((len(blobs), 1), dtype=np.float32)
+    taps = _blur_taps(blur) if blur > 0 else np.zeros(0)
+    render_spots(
+        canvas,
+        shapes,
+        np.linalg.inv(shapes),
+        centres,
+        peaks,
+        weights,
+        _blur_reach(blur),
+        settings.supersample,
+        taps,
+        rects,
+        everywhere,
+    )
 
 
 def to_right(calib: StereoCalibration, xyz: FloatArray) -> FloatArray:

@@ -62,6 +62,14 @@ def spectral_norm_2x2(a: float, b: float, c: float, d: float) -> float:
 
 
 @njit(cache=True, nogil=True)
+def patch_half(shape: np.ndarray, reach: int) -> int:
+    """Half size (px) of a blob's square patch: the longest semi-axis of its ellipse (``shape``
+    A, 2×2, maps the unit disc to px), rounded up, + 2 px + the blur's ``reach`` (px)."""
+    a = spectral_norm_2x2(shape[0, 0], shape[0, 1], shape[1, 0], shape[1, 1])
+    return int(math.ceil(a)) + 2 + reach
+
+
+@njit(cache=True, nogil=True)
 def spot_patch(
     shape: np.ndarray,
     ainv: np.ndarray,
@@ -76,11 +84,7 @@ def spot_patch(
     ellipse is the unit disc under A (``shape``, 2×2; ``ainv`` = A⁻¹), ``s``² sub-samples per
     edge pixel, ``peak`` DN, blurred with the normalised ``taps`` (none: no blur). The half
     size: A's longest semi-axis, rounded up, + 2 px + the blur's ``reach`` (px)."""
-    half = (
-        int(math.ceil(spectral_norm_2x2(shape[0, 0], shape[0, 1], shape[1, 0], shape[1, 1])))
-        + 2
-        + reach
-    )
+    half = patch_half(shape, reach)
     n = 2 * half + 1
     a00, a01, a10, a11 = ainv[0, 0], ainv[0, 1], ainv[1, 0], ainv[1, 1]
     g = spectral_norm_2x2(a00, a01, a10, a11)  # the most u changes per px
@@ -188,3 +192,42 @@ def paste_patch(
                 elif v > 255:
                     v = np.float32(255.0)
                 canvas[y, x, c] = np.uint8(v)
+
+
+@njit(cache=True, nogil=True)
+def render_spots(
+    canvas: np.ndarray,
+    shapes: np.ndarray,
+    ainvs: np.ndarray,
+    centres: np.ndarray,
+    peaks: np.ndarray,
+    weights: np.ndarray,
+    reach: int,
+    s: int,
+    taps: np.ndarray,
+    rects: np.ndarray,
+    everywhere: bool,
+) -> None:
+    """Draw blobs into ``canvas`` in order: each one's :func:`spot_patch` (``shapes``/``ainvs``
+    B×2×2, ``centres`` B×2 px, ``peaks`` B DN) pasted by :func:`paste_patch` with its channel
+    ``weights`` (B × channels). A blob whose patch reaches no rectangle is skipped (it would
+    write nothing)."""
+    h, w, _ = canvas.shape
+    for b in range(shapes.shape[0]):
+        cx, cy = centres[b, 0], centres[b, 1]
+        half = patch_half(shapes[b], reach)
+        x0 = int(np.rint(cx)) - half
+        y0 = int(np.rint(cy)) - half
+        x1, y1 = x0 + 2 * half + 1, y0 + 2 * half + 1
+        if not everywhere:
+            reached = False
+            for r in range(rects.shape[0]):
+                if x0 < rects[r, 2] and rects[r, 0] < x1 and y0 < rects[r, 3] and rects[r, 1] < y1:
+                    reached = True
+                    break
+            if not reached:
+                continue
+        if x1 <= 0 or y1 <= 0 or x0 >= w or y0 >= h:
+            continue
+        px0, py0, patch = spot_patch(shapes[b], ainvs[b], cx, cy, reach, s, peaks[b], taps)
+        paste_patch(canvas, px0, py0, patch, weights[b], rects, everywhere)

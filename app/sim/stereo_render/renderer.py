@@ -30,14 +30,13 @@ from app.sim.stereo_render.blobs import (
     LightSpot,
     blob_patches,
     in_frame,
-    patch_box,
     project_checked,
     sphere_shapes,
     to_right,
 )
 from app.sim.stereo_render.distractors import Clutter, Extras, Keepout, make_clutter, make_extras
 from app.sim.stereo_render.scene import LED_BGR, RenderedPair, RenderSettings, RenderTruth
-from app.sim.stereo_render.sensor import clip_rects, compose, overlaps
+from app.sim.stereo_render.sensor import compose
 from app.types import FloatArray, Rect
 
 EXTRAS_STREAM = 0x676C6E74  # second seed word of the hostile extras' random stream
@@ -229,11 +228,10 @@ def compose_pair(
     shape: tuple[int, ...] = (h, w, 3) if settings.color else (h, w)
     win_l, win_r = (None, None) if wins is None else wins
     all_l, all_r = spots
-    if wins is not None and settings.fast_noise:  # only the blobs that reach a window
-        box = settings.blur_sigma_px
-        r_l, r_r = clip_rects(win_l or [], shape), clip_rects(win_r or [], shape)
-        all_l = [b for b in all_l if overlaps(patch_box(b, box), r_l)]
-        all_r = [b for b in all_r if overlaps(patch_box(b, box), r_r)]
+    if settings.fast_noise:  # each blob drawn straight into its image (and its windows)
+        left = compose(shape, all_l, settings, rng, win_l)
+        right = compose(shape, all_r, settings, rng, win_r)
+        return ImagePair(left=left, right=right)
     # the patches of both images in one batch (bit-identical to separate calls)
     made = blob_patches(all_l + all_r, settings.supersample, settings.blur_sigma_px)
     pts = [(x0, y0, p, b.bgr) for (x0, y0, p), b in zip(made, all_l + all_r, strict=True)]

@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from app.sim.stereo_render.blobs import LightSpot, blob_patches, patch_box
+from app.sim.stereo_render.blobs import LightSpot, blob_patches, draw_spots
 from app.sim.stereo_render.patch_kernels import paste_patch
 from app.sim.stereo_render.scene import RenderSettings
 from app.types import Rect
@@ -51,11 +51,6 @@ def clip_rects(rects: list[Rect], shape: tuple[int, ...]) -> list[Rect]:
     return out
 
 
-def overlaps(box: Rect, rects: list[Rect]) -> bool:
-    x0, y0, x1, y1 = box
-    return any(x0 < rb and ra < x1 and y0 < sb and sa < y1 for ra, sa, rb, sb in rects)
-
-
 def compose(
     shape: tuple[int, ...],
     blobs: list[LightSpot],
@@ -72,12 +67,6 @@ def compose(
     """
     color = len(shape) == 3
     rects = None if windows is None else clip_rects(windows, shape)
-    if patches is None:
-        if rects is not None and settings.fast_noise:
-            # only the blobs whose patch reaches a window
-            blobs = [b for b in blobs if overlaps(patch_box(b, settings.blur_sigma_px), rects)]
-        made = blob_patches(blobs, settings.supersample, settings.blur_sigma_px)
-        patches = [(x0, y0, p, b.bgr) for (x0, y0, p), b in zip(made, blobs, strict=True)]
     if settings.fast_noise:
         if rects is None:
             base = _noise_window(shape, settings, rng)
@@ -85,10 +74,15 @@ def compose(
             base = _noise_windows(shape, settings, rng, rects)
         canvas = base.reshape(shape[0], shape[1], -1)  # a view: (h, w, channels)
         boxes = np.array(rects if rects is not None else [], dtype=np.int64).reshape(-1, 4)
-        for x0, y0, patch, bgr in patches:
+        if patches is None:  # drawn straight into the image (only those reaching a window)
+            draw_spots(canvas, blobs, settings, boxes, rects is None, color)
+        for x0, y0, patch, bgr in patches or []:
             weights = bgr if color else _GREY
             paste_patch(canvas, x0, y0, patch, weights, boxes, rects is None)
         return base
+    if patches is None:
+        made = blob_patches(blobs, settings.supersample, settings.blur_sigma_px)
+        patches = [(x0, y0, p, b.bgr) for (x0, y0, p), b in zip(made, blobs, strict=True)]
     img = np.full(shape, settings.background, dtype=np.float32)
     if settings.noise_sigma > 0:
         img += rng.standard_normal(shape, dtype=np.float32) * np.float32(settings.noise_sigma)
