@@ -20,6 +20,7 @@ its marginal, gated at χ²(2)); the fore-aft estimate waits for the nearer fixe
 from __future__ import annotations
 
 from collections import deque
+from functools import lru_cache
 
 import numpy as np
 
@@ -32,6 +33,20 @@ _CROSS = [1, 2]  # the cross-stream axes (y, z)
 _H_CROSS = _H[_CROSS]
 # (x, P, initialised, ever_initialised, coast_time_s, consecutive_rejections)
 _Snapshot = tuple[FloatArray, FloatArray, bool, bool, float, int]
+
+
+@lru_cache(maxsize=16)
+def _transition(dt: float, accel_sigma: float) -> tuple[FloatArray, FloatArray]:
+    """The constant-velocity model's transition F and process noise Q over ``dt`` (s) for a
+    white acceleration of ``accel_sigma`` (m/s²): the loop predicts at a fixed tick, so both
+    are made once (read-only)."""
+    f = np.eye(6)
+    f[:3, 3:] = dt * np.eye(3)
+    q1 = accel_sigma**2 * np.array([[dt**4 / 4, dt**3 / 2], [dt**3 / 2, dt**2]])
+    q = np.kron(q1, np.eye(3))
+    f.setflags(write=False)
+    q.setflags(write=False)
+    return f, q
 
 
 class DrogueFilter:
@@ -130,10 +145,7 @@ class DrogueFilter:
         if not self.initialised:
             self.coast_time_s += dt
             return
-        f = np.eye(6)
-        f[:3, 3:] = dt * np.eye(3)
-        q1 = self.accel_sigma**2 * np.array([[dt**4 / 4, dt**3 / 2], [dt**3 / 2, dt**2]])
-        q = np.kron(q1, np.eye(3))
+        f, q = _transition(float(dt), float(self.accel_sigma))
         self.x = f @ self.x
         self.P = f @ self.P @ f.T + q
         self.coast_time_s += dt
