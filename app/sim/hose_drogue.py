@@ -138,6 +138,8 @@ class HoseDrogue:
         self.eq_m = self.params.equilibrium_m()
         self._static_nodes = self.params.static_nodes_m()
         self._static_nodes[-1] = self.eq_m
+        # each node's share of the drogue's deflection: its fraction of the way from the exit
+        self._deflection_share = np.linspace(0.0, 1.0, len(self._static_nodes))[:, None]
         self.reset()
 
     def reset(self, offset_m: FloatArray | None = None) -> None:
@@ -155,9 +157,7 @@ class HoseDrogue:
     def hose_nodes_m(self) -> FloatArray:
         """The hose's line now (exit first, drogue last; m): the static shape with the drogue's
         deflection carried along the hose in proportion to the distance from the exit."""
-        nodes = self._static_nodes
-        frac = np.linspace(0.0, 1.0, len(nodes))[:, None]
-        return np.asarray(nodes + frac * self.d[None, :])
+        return np.asarray(self._static_nodes + self._deflection_share * self.d[None, :])
 
     def normal(self) -> FloatArray:
         """Unit normal of the drogue's opening, pointing aft towards the receiver: the hose tangent
