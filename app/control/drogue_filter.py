@@ -43,7 +43,7 @@ def _transition(dt: float, accel_sigma: float) -> tuple[FloatArray, FloatArray]:
     f = np.eye(6)
     f[:3, 3:] = dt * np.eye(3)
     q1 = accel_sigma**2 * np.array([[dt**4 / 4, dt**3 / 2], [dt**3 / 2, dt**2]])
-    q = np.kron(q1, np.eye(3))
+    q = np.asarray(np.kron(q1, np.eye(3)), dtype=np.float64)
     f.setflags(write=False)
     q.setflags(write=False)
     return f, q

@@ -119,30 +119,73 @@ def to_right(calib: StereoCalibration, xyz: FloatArray) -> FloatArray:
     return np.asarray((calib.R @ xyz.T).T + calib.T, dtype=np.float64)
 
 
+_JACOBIAN_STEP = 1e-5  # normalised units: the finite-difference step of the projection's Jacobian
+
+
+def _jacobian_points(xyz_cam: FloatArray) -> FloatArray:
+    """The four offset points (normalised, z = 1: ±h in x, ±h in y) around each sphere centre's
+    normalised image (4·N × 3, offset-major)."""
+    n = len(xyz_cam)
+    xn = xyz_cam[:, 0] / xyz_cam[:, 2]
+    yn = xyz_cam[:, 1] / xyz_cam[:, 2]
+    h = _JACOBIAN_STEP
+    pts = np.ones((4, n, 3))
+    for k, (ddx, ddy) in enumerate(((h, 0.0), (-h, 0.0), (0.0, h), (0.0, -h))):
+        pts[k, :, 0] = xn + ddx
+        pts[k, :, 1] = yn + ddy
+    return pts.reshape(-1, 3)
+
+
+def _shapes_from(px4: FloatArray, xyz_cam: FloatArray, radius_mm: FloatArray) -> FloatArray:
+    """The 2×2 maps (N×2×2) from the projected offset points (4·N × 2 px)."""
+    n = len(xyz_cam)
+    h = _JACOBIAN_STEP
+    px = px4.reshape(4, n, 2)
+    jx = (px[0] - px[1]) / (2 * h)  # d(px)/d(xn)
+    jy = (px[2] - px[3]) / (2 * h)  # d(px)/d(yn)
+    rho = radius_mm / xyz_cam[:, 2]
+    out = np.zeros((n, 2, 2))
+    out[:, :, 0] = jx * rho[:, None]
+    out[:, :, 1] = jy * rho[:, None]
+    return out
+
+
 def sphere_shapes(cam: CameraIntrinsics, xyz_cam: FloatArray, radius_mm: FloatArray) -> FloatArray:
     """2×2 maps (N×2×2) from the unit disc to the px image of spheres at ``xyz_cam``.
 
     The sphere subtends a disc of radius r/Z in normalised coordinates; it is mapped with
     the local Jacobian of the distorted projection (K with skew, eq. 2; distortion, eq. 7).
     """
+    if len(xyz_cam) == 0:
+        return np.zeros((0, 2, 2))
+    return _shapes_from(project_camera(cam, _jacobian_points(xyz_cam)), xyz_cam, radius_mm)
+
+
+@dataclass(frozen=True)
+class SphereImages:
+    """Spheres seen by one camera: centres (N×2 distorted px) and 2×2 image ellipses (N×2×2,
+    :func:`sphere_shapes`); NaN for spheres behind (or within 1 mm of) the camera."""
+
+    center_px: FloatArray
+    shape_px: FloatArray
+
+
+def project_spheres(
+    cam: CameraIntrinsics, xyz_cam: FloatArray, radius_mm: FloatArray
+) -> SphereImages:
+    """Centres and image ellipses of spheres (``xyz_cam``, this camera's frame, mm; radii mm)
+    with one projection of all the points (:func:`project_checked` + :func:`sphere_shapes`)."""
     n = len(xyz_cam)
-    out = np.zeros((n, 2, 2))
-    if n == 0:
-        return out
-    xn = xyz_cam[:, 0] / xyz_cam[:, 2]
-    yn = xyz_cam[:, 1] / xyz_cam[:, 2]
-    h = 1e-5
-    pts = np.ones((4, n, 3))  # the four offset points (normalised, z = 1) of every sphere
-    for k, (ddx, ddy) in enumerate(((h, 0.0), (-h, 0.0), (0.0, h), (0.0, -h))):
-        pts[k, :, 0] = xn + ddx
-        pts[k, :, 1] = yn + ddy
-    px = project_camera(cam, pts.reshape(-1, 3)).reshape(4, n, 2)
-    jx = (px[0] - px[1]) / (2 * h)  # d(px)/d(xn)
-    jy = (px[2] - px[3]) / (2 * h)  # d(px)/d(yn)
-    rho = radius_mm / xyz_cam[:, 2]
-    out[:, :, 0] = jx * rho[:, None]
-    out[:, :, 1] = jy * rho[:, None]
-    return out
+    center = np.full((n, 2), np.nan)
+    shape = np.full((n, 2, 2), np.nan)
+    front = xyz_cam[:, 2] >= MIN_DEPTH_MM
+    m = int(np.count_nonzero(front))
+    if m:
+        xyz = xyz_cam[front]
+        px = project_camera(cam, np.vstack([xyz, _jacobian_points(xyz)]))
+        center[front] = px[:m]
+        shape[front] = _shapes_from(px[m:], xyz, radius_mm[front])
+    return SphereImages(center_px=center, shape_px=shape)
 
 
 def in_frame(px: FloatArray, size: tuple[int, int]) -> NDArray[np.bool_]:

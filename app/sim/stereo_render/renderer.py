@@ -31,7 +31,7 @@ from app.sim.stereo_render.blobs import (
     blob_patches,
     in_frame,
     project_checked,
-    sphere_shapes,
+    project_spheres,
     to_right,
 )
 from app.sim.stereo_render.distractors import Clutter, Extras, Keepout, make_clutter, make_extras
@@ -141,19 +141,16 @@ def project_leds(
     and which LEDs are drawn (in frame, not ``occluded``)."""
     xyz = ring_points(pose.center_mm, pose.normal, ring, pose.roll_rad)
     ids = ring.ids.astype(np.int64)
-    pl, pr, _, _ = project_checked(calib, xyz)
+    r_led = np.full(len(xyz), 0.5 * ring.led_diameter_mm)
+    left = project_spheres(calib.left, xyz, r_led)
+    right = project_spheres(calib.right, to_right(calib, xyz), r_led)
+    pl, pr = left.center_px, right.center_px
     in_l = in_frame(pl, calib.image_size)
     in_r = in_frame(pr, calib.image_size)
     occ = np.isin(ids, np.array(occluded, dtype=np.int64))
-
-    r_led = np.full(len(xyz), 0.5 * ring.led_diameter_mm)
-    a_l = np.full((len(xyz), 2, 2), np.nan)
-    a_r = np.full((len(xyz), 2, 2), np.nan)
-    if np.any(in_l):
-        a_l[in_l] = sphere_shapes(calib.left, xyz[in_l], r_led[in_l])
-    xyz_r = to_right(calib, xyz)
-    if np.any(in_r):
-        a_r[in_r] = sphere_shapes(calib.right, xyz_r[in_r], r_led[in_r])
+    a_l, a_r = left.shape_px, right.shape_px
+    a_l[~in_l] = np.nan
+    a_r[~in_r] = np.nan
     return LedImages(
         xyz_mm=xyz,
         ids=ids,
