@@ -1,6 +1,7 @@
 """The renderer's compiled patch kernels: the same bits as the former NumPy formulation
 (tests/support/reference_blob_patches.py, on which the quoted campaigns were flown), NumPy's own
-mean, and the physics of a disc (its area, its centroid on the truth pixel)."""
+mean, and the physics of a disc (its area, its centroid on the truth pixel); the one-call
+projection of the LED spheres against the separate ones."""
 
 from __future__ import annotations
 
@@ -9,7 +10,9 @@ import math
 import numpy as np
 import pytest
 
-from app.sim.stereo_render.blobs import LightSpot, blob_patches
+from app.geometry.calibration import paper_calibration
+from app.geometry.projection import project_stereo
+from app.sim.stereo_render.blobs import LightSpot, blob_patches, project_spheres, sphere_shapes
 from app.sim.stereo_render.patch_kernels import _pairwise_mean, paste_patch, spot_patch
 from tests.support.reference_blob_patches import reference_blob_patches, reference_paste
 
@@ -99,3 +102,26 @@ def test_paste_equals_the_former_compositing(colour: bool) -> None:
         paste_patch(canvas, x0, y0, patch, bgr if colour else grey, boxes, rects is None)
         reference_paste(ref, x0, y0, patch, bgr if colour else None, rects)
         assert np.array_equal(base, ref)
+
+
+def test_one_projection_of_centres_and_ellipses_agrees_with_two() -> None:
+    # project_spheres (one projectPoints call per camera) against the centres projected on
+    # their own and the ellipses from sphere_shapes; NaN for spheres behind the camera
+    calib = paper_calibration()
+    rng = np.random.default_rng(5)
+    xyz = np.column_stack(
+        [rng.uniform(-800, 800, 12), rng.uniform(-600, 600, 12), rng.uniform(400, 9000, 12)]
+    )
+    xyz[3, 2] = -50.0  # behind
+    xyz[7, 2] = 0.5  # within 1 mm of the camera
+    radius = rng.uniform(5.0, 15.0, 12)
+    got = project_spheres(calib.left, xyz, radius)
+    front = xyz[:, 2] >= 1.0
+    assert np.isnan(got.center_px[~front]).all() and np.isnan(got.shape_px[~front]).all()
+    ref_px = project_stereo(calib, xyz[front])[0]
+    ref_shape = sphere_shapes(calib.left, xyz[front], radius[front])
+    np.testing.assert_allclose(got.center_px[front], ref_px, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(got.shape_px[front], ref_shape, rtol=1e-9, atol=1e-12)
+    # and the ellipse is the sphere's disc: its radius ≈ f·r/Z
+    det = np.abs(np.linalg.det(got.shape_px[front])) ** 0.5
+    np.testing.assert_allclose(det, calib.left.fx * radius[front] / xyz[front, 2], rtol=0.05)
