@@ -5,8 +5,9 @@ on disk (a folder keyed by the kernels' sources, :mod:`app.numba_cache`, or ``NU
 first frame would otherwise take 15–30 s to compile on this class of machine; with the cache,
 loading takes ≈ 0.1 s. :func:`compile_kernels` runs a few rendered stereo pairs through
 :class:`~app.vision.pipeline.NavigationPipeline` and :class:`~app.vision.tracking.StereoTracker`
-(acquisition, tracking, every compiled loop with the argument types real frames give), so that
-a service, a campaign or a benchmark starts with everything compiled.
+(acquisition, tracking, every compiled loop with the argument types real frames give), and
+renders as the closed loop does (the renderer's compiled loops), so that a service, a campaign
+or a benchmark starts with everything compiled.
 
     python -m app.sim.warmup        # e.g. at image build time
 """
@@ -40,6 +41,12 @@ def compile_kernels() -> float:
         pair = render_pair(calib, centre, tilted_normal(10.0, 30.0), RenderSettings(), seed=i)
         pipeline.process(pair.left, pair.right)
         tracker.update(pair.left, pair.right)
+    # the closed loop's renders: fast noise, the blobs drawn straight into the tracker's
+    # windows (app.sim.stereo_render.patch_kernels)
+    w, h = calib.image_size
+    window = (w // 4, h // 4, 3 * w // 4, 3 * h // 4)  # px
+    fast = RenderSettings(fast_noise=True, clutter=2, glints=1)
+    render_pair(calib, centre, tilted_normal(10.0, 30.0), fast, seed=0, windows=([window],) * 2)
     # the whole-frame formulation with a given mask (features.extract_blobs, public API)
     gray = to_gray(pair.left)
     extract_blobs(gray, median_filter(binarize(gray, 128)), 10.0, BlobGate())

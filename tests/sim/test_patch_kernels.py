@@ -125,3 +125,35 @@ def test_one_projection_of_centres_and_ellipses_agrees_with_two() -> None:
     # and the ellipse is the sphere's disc: its radius ≈ f·r/Z
     det = np.abs(np.linalg.det(got.shape_px[front])) ** 0.5
     np.testing.assert_allclose(det, calib.left.fx * radius[front] / xyz[front, 2], rtol=0.05)
+
+
+def test_warmup_compiles_the_renderers_loops() -> None:
+    """After ``app.sim.warmup``, the closed loop's renders (fast noise, windows or whole, grey
+    or colour, with clutter and glints) and the full-noise renders compile nothing more."""
+    from app.resources import load_default_calibration
+    from app.sim import warmup
+    from app.sim.led_ring import LedRing, stereo_center_x_mm, tilted_normal
+    from app.sim.stereo_render import RenderSettings, render_pair
+    from app.sim.stereo_render import patch_kernels as pk
+
+    loops = [pk.render_spots, pk.spot_patch, pk.paste_patch, pk.spectral_norm_2x2]
+    warmup.compile_kernels()
+    prepared = {loop.__name__: len(loop.signatures) for loop in loops}
+    assert prepared["render_spots"] >= 1 and prepared["spot_patch"] >= 1, prepared
+    calib = load_default_calibration()
+    w, h = calib.image_size
+    for k, (color, fast, windows) in enumerate(
+        [(False, True, True), (True, True, True), (False, True, False), (True, False, False)]
+    ):
+        z = 4000.0 if k % 2 else 1200.0
+        wins = ([(0, 0, w // 2, h)], [(w // 3, 0, w, h // 2)]) if windows else None
+        render_pair(
+            calib,
+            np.array([stereo_center_x_mm(calib, z), 10.0, z]),
+            tilted_normal(8.0, 40.0),
+            RenderSettings(color=color, fast_noise=fast, clutter=4, glints=2),
+            ring=LedRing(radius_mm=305.0 if k % 2 else 75.0),
+            seed=k,
+            windows=wins,
+        )
+    assert {loop.__name__: len(loop.signatures) for loop in loops} == prepared
