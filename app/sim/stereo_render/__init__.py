@@ -2,6 +2,8 @@
 
 * :mod:`~app.sim.stereo_render.scene` — the settings, the ground truth, the rendered pair;
 * :mod:`~app.sim.stereo_render.blobs` — one emitting sphere's disc and anti-aliased patch;
+* :mod:`~app.sim.stereo_render.patch_kernels` — the compiled loops: a blob's patch and its
+  compositing into the image (and the tracker's windows);
 * :mod:`~app.sim.stereo_render.distractors` — clutter and the hostile extras (glints,
   reflections on the rim);
 * :mod:`~app.sim.stereo_render.sensor` — background, sensor noise, compositing, windows;
