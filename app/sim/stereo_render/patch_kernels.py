@@ -1,18 +1,20 @@
 """Compiled inner loops of the renderer: one emitting sphere's patch and its compositing.
 
-:func:`app.sim.stereo_render.blobs.blob_patches` made each blob's patch from a few dozen small
-array operations, and :func:`app.sim.stereo_render.sensor.compose` pasted it with a few more;
-from Python each costs a call's overhead, which made the camera the larger part of a closed-loop
-tick. Here the same arithmetic runs in one compiled loop per blob (numba, cached on disk):
+A blob's patch is a few dozen small array operations; run from Python, each costs a call's
+overhead, and the camera would be the larger part of a closed-loop tick. Here the arithmetic
+runs in compiled loops (numba, cached on disk):
 
 * :func:`spot_patch` — the blob's anti-aliased coverage (``s``² sub-samples on the edge pixels,
   their mean summed in NumPy's pairwise order), times the peak, blurred by the separable
   Gaussian with a zero border (T_nᵀ · P · T_n, each output a sum over the taps in index order);
 * :func:`paste_patch` — the patch added to a uint8 image in float32, rounded half to even,
-  clipped to 0..255, written only inside the given windows (all of them: the whole image).
+  clipped to 0..255, written only inside the given windows (all of them: the whole image);
+* :func:`render_spots` — one image's blobs in order, each sized, tested against the windows,
+  made and pasted (the closed loop's renders: one call per image).
 
 Every step is element-wise or a sum in a fixed order, so a blob's patch does not depend on the
-other blobs of a frame (a windowed render equals the full render inside its windows).
+other blobs of a frame (a windowed render equals the full render inside its windows), and the
+patches equal the NumPy formulation's bit for bit (``tests/support/reference_blob_patches.py``).
 """
 
 from __future__ import annotations
