@@ -134,7 +134,9 @@ def _coloured(
 
 def optics(cfg: PipelineConfig, which: str, seeds: int) -> None:
     calib = load_default_calibration()
-    for name in ["dev", "holdout"] if which == "both" else [which]:
+    for name in {"both": ["dev", "holdout"], "all": ["dev", "holdout", "blind"]}.get(
+        which, [which]
+    ):
         out = evaluate(calib, load_optics_set(OPTICS / name), range(seeds), cfg)
         for cond in [*sorted({o.condition for o in out}), "all"]:
             g = [o for o in out if cond == "all" or o.condition == cond]
@@ -167,7 +169,7 @@ def main() -> None:
         action="store_true",
         help="without the second pass on refused frames (small blobs, gray): the baseline",
     )
-    ap.add_argument("--optics", default="dev", choices=["dev", "holdout", "both"])
+    ap.add_argument("--optics", default="dev", choices=["dev", "holdout", "blind", "both", "all"])
     ap.add_argument("--optics-seeds", type=int, default=2)
     ap.add_argument("--eq11", action="store_true", help="the paper's eq. 11 centroid instead")
     ap.add_argument(

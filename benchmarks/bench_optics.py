@@ -1,6 +1,6 @@
 """Navigation on the physically based optics set: lock rates, wrong locks, accuracy, bounds.
 
-Runs every case of a set (``tests/data/optics/dev`` or ``holdout``, rendered with Mitsuba 3 by
+Runs every case of a set (``tests/data/optics/dev``, ``holdout`` or ``blind``, rendered with Mitsuba 3 by
 ``benchmarks/optics/render_optics_set.py``) for a few sensor-noise seeds through
 
 * ``ours``: the pipeline as shipped (local-support centroids, colour gate, error bound);
@@ -10,7 +10,7 @@ and, on the same frames, the plain local-centroid + OpenCV baseline with oracle 
 (:mod:`app.sim.optics_eval`). Prints one Markdown table per configuration (by condition) and
 the acceptance figures.
 
-    .venv/bin/python benchmarks/bench_optics.py [--set dev|holdout|both] [--seeds 3]
+    .venv/bin/python benchmarks/bench_optics.py [--set dev|holdout|blind|both|all] [--seeds 3]
 """
 
 from __future__ import annotations
@@ -56,11 +56,13 @@ def refusals(outcomes: list[OpticsOutcome], top: int = 6) -> str:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--set", default="dev", choices=["dev", "holdout", "both"])
+    ap.add_argument("--set", default="dev", choices=["dev", "holdout", "blind", "both", "all"])
     ap.add_argument("--seeds", type=int, default=3)
     args = ap.parse_args()
     calib = load_default_calibration()
-    names = ["dev", "holdout"] if args.set == "both" else [args.set]
+    names = {"both": ["dev", "holdout"], "all": ["dev", "holdout", "blind"]}.get(
+        args.set, [args.set]
+    )
     ours = PipelineConfig()
     configs = {
         "ours": ours,

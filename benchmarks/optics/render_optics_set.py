@@ -99,7 +99,9 @@ RINGS = {
     "lab": {"radius_mm": 75.0, "count": 5, "led_diameter_mm": 5.0, "ranges_mm": (1000, 2500)},
     "flight": {"radius_mm": 305.0, "count": 5, "led_diameter_mm": 20.0, "ranges_mm": (2500, 10000)},
 }
-SET_SEEDS = {"dev": 20250601, "holdout": 9173311, "projection_check": 4242}
+# "blind": a second held-back set, rendered once after the navigation it checks was frozen
+# (2026-12-07) and evaluated once, never tuned on
+SET_SEEDS = {"dev": 20250601, "holdout": 9173311, "blind": 20261207, "projection_check": 4242}
 DEV_RANGES_MM = (1000.0, 1600.0, 2300.0, 3000.0, 4500.0, 6500.0, 9500.0)
 
 
@@ -540,12 +542,13 @@ def plan_set(set_name: str, calib: StereoCalibration) -> list[dict[str, Any]]:
                 if r < 2500 and rr >= 2500:
                     rr = 2450.0
                 cases.append(plan_case(f"dev_{ci:02d}{ri:02d}_{cond}", cond, rr, rng, calib))
-    elif set_name == "holdout":
-        n_per = [4, 3, 4, 3, 4, 3, 3, 3, 3]  # 30 pairs
+    elif set_name in ("holdout", "blind"):
+        # holdout: 30 pairs; blind: 4 per condition (36 pairs); ranges log-uniform 1–10 m
+        n_per = [4, 3, 4, 3, 4, 3, 3, 3, 3] if set_name == "holdout" else [4] * len(CONDITIONS)
         for ci, cond in enumerate(CONDITIONS):
             for ri in range(n_per[ci]):
                 rr = float(math.exp(rng.uniform(math.log(1000.0), math.log(10000.0))))
-                cases.append(plan_case(f"holdout_{ci:02d}{ri:02d}_{cond}", cond, rr, rng, calib))
+                cases.append(plan_case(f"{set_name}_{ci:02d}{ri:02d}_{cond}", cond, rr, rng, calib))
     else:
         raise ValueError(set_name)
     return cases
@@ -1336,7 +1339,7 @@ def worker(plan_path: Path, indices: list[int], out_dir: Path) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--set", choices=["dev", "holdout", "projection_check"])
+    ap.add_argument("--set", choices=["dev", "holdout", "blind", "projection_check"])
     ap.add_argument("--out", type=Path)
     ap.add_argument("--batch", type=int, default=6, help="cases per child process")
     ap.add_argument("--only", type=str, default=None, help="comma-separated case indices")

@@ -1,7 +1,9 @@
 """Navigation on the physically based optics set (Mitsuba 3 renders of a metal drogue in sun,
 sky and night; ``tests/data/optics``, :mod:`app.sim.optics_set`), scored against the render's
-truth (:mod:`app.sim.optics_eval`): issue 20's acceptance figures, the same on the dev set
-and on the held-back set (rendered with another seed; ``docs/integrity.md`` has the tables)."""
+truth (:mod:`app.sim.optics_eval`): issue 20's acceptance figures, the same on the dev set,
+on the held-back set (rendered with another seed) and on the blind set (a third seed,
+rendered for f502c0b's navigation and never tuned on; ``docs/integrity.md`` has the tables).
+"""
 
 from __future__ import annotations
 
@@ -18,7 +20,7 @@ pytestmark = pytest.mark.slow
 SETS = Path(__file__).resolve().parents[1] / "data" / "optics"
 
 
-@pytest.fixture(scope="module", params=["dev", "holdout"])
+@pytest.fixture(scope="module", params=["dev", "holdout", "blind"])
 def outcomes(request: pytest.FixtureRequest) -> list[OpticsOutcome]:
     """Every case of one set × 2 sensor-noise seeds."""
     calib = load_default_calibration()

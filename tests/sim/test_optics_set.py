@@ -35,7 +35,7 @@ from app.sim.optics_set import (
 
 REPO = Path(__file__).resolve().parents[2]
 DATA = REPO / "tests" / "data" / "optics"
-SETS = ("dev", "holdout")
+SETS = ("dev", "holdout", "blind")
 MAX_SET_BYTES = 30 * 1024 * 1024
 
 
