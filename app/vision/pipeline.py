@@ -76,6 +76,7 @@ from app.vision.preprocess import (
     ThresholdMode,
     choose_threshold,
     detection_image,
+    local_contrast,
     to_gray,
     validate_image,
 )
@@ -167,6 +168,15 @@ class PipelineConfig:
     # smear a small LED's green excess below eq. 10's threshold while its gray image stays
     # sharp (docs/integrity.md, "Second pass").
     retry_gray: bool = True
+    # A frame still refused is solved once more on the detection image's local contrast (a
+    # white top-hat of this square side, px: app.vision.preprocess.local_contrast; None:
+    # never). In sunlight an LED can be no brighter than the sky or the lit rim around its
+    # bezel, so eq. 10's global threshold either misses it or joins it to the rim; against
+    # its own surroundings it stands out (docs/integrity.md, "Local-contrast pass"). Only
+    # on a bright frame (either image's background median ≥ ``local_contrast_min_background_dn``):
+    # on a dark one eq. 10's threshold already measures each LED against its surroundings
+    retry_local_contrast_px: int | None = 31
+    local_contrast_min_background_dn: float = 64.0
     track_frames: int = 5  # a lock this many frames old still serves as the prior
 
 
@@ -227,12 +237,21 @@ class NavigationPipeline:
 
     # ------------------------------------------------------------------ stages
     def _features(
-        self, image: np.ndarray, gate: BlobGate | None = None, detect: ColourDetect | None = None
+        self,
+        image: np.ndarray,
+        gate: BlobGate | None = None,
+        detect: ColourDetect | None = None,
+        local_px: int | None = None,
     ) -> tuple[FeatureSet, int, tuple[float, float]]:
+        """The blobs of one image and their descriptors, with eq. 10's threshold and the
+        background level and noise it used; ``local_px``: on the detection image's local
+        contrast (:func:`~app.vision.preprocess.local_contrast`)."""
         cfg = self.config
         detect = detect or cfg.colour_detect
-        gray = detection_image(image, detect)
         t0 = time.perf_counter()
+        gray = detection_image(image, detect)
+        if local_px is not None:
+            gray = local_contrast(gray, local_px)
         # one pass over the frame: the band maxima (the peak of eq. 10's "auto" rule and the
         # bright bands), the background's histogram and that of neighbouring pixels'
         # differences
@@ -335,6 +354,8 @@ class NavigationPipeline:
         result = self._solve(feats_l, feats_r, (stats_l[0], stats_r[0]))
         if not result.lock:
             retried = self._second_pass(left, right, feats_l, feats_r)
+            if retried is None or not retried[0].lock:
+                retried = self._local_contrast_pass(left, right, (stats_l[0], stats_r[0]))
             if retried is not None and retried[0].lock:
                 result, feats_l, feats_r = retried
         result.rejected_left_px = rejected_candidates(feats_l, [led.left_px for led in result.leds])
@@ -377,6 +398,31 @@ class NavigationPipeline:
         try:
             feats_l, thr_l, stats_l = self._features(left, gate, detect)
             feats_r, thr_r, stats_r = self._features(right, gate, detect)
+        except TooManyBlobs:
+            return None
+        trace = self.trace
+        self.trace = PipelineTrace(
+            left=feats_l, right=feats_r, thresholds=(thr_l, thr_r), backgrounds=(stats_l, stats_r)
+        )
+        result = self._solve(feats_l, feats_r, (stats_l[0], stats_r[0]))
+        if not result.lock:
+            self.trace = trace
+        return result, feats_l, feats_r
+
+    def _local_contrast_pass(
+        self, left: np.ndarray, right: np.ndarray, backgrounds_dn: tuple[float, float]
+    ) -> tuple[PoseResult, FeatureSet, FeatureSet] | None:
+        """A bright frame (the first pass's background medians ``backgrounds_dn``) both
+        passes refused, solved once more on each image's local contrast
+        (``retry_local_contrast_px``); every test unchanged. None when off, on a dark frame,
+        or when it floods."""
+        cfg = self.config
+        side = cfg.retry_local_contrast_px
+        if side is None or max(backgrounds_dn) < cfg.local_contrast_min_background_dn:
+            return None
+        try:
+            feats_l, thr_l, stats_l = self._features(left, local_px=side)
+            feats_r, thr_r, stats_r = self._features(right, local_px=side)
         except TooManyBlobs:
             return None
         trace = self.trace

@@ -70,6 +70,18 @@ def detection_image(image: UInt8Array, mode: ColourDetect = "green") -> UInt8Arr
     return green_excess(image)
 
 
+def local_contrast(gray: UInt8Array, kernel_px: int) -> UInt8Array:
+    """Each pixel's excess over its surroundings: the white top-hat I − open(I) with a
+    ``kernel_px`` square (DN). A spot narrower than the kernel keeps its height above the
+    darker ground around it (an LED in its black bezel: ≈ 150 DN), while a bright area
+    wider than the kernel (a sunlit sky, the drogue's lit canopy) drops to 0: the LEDs of a
+    sunlit drogue that are no brighter than the sky, which eq. 10's global threshold cannot
+    separate from it, stand out here. Thin bright lines (a polished rim) stay, and the
+    blob gate's shape tests refuse them."""
+    kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (kernel_px, kernel_px))
+    return np.asarray(cv2.morphologyEx(gray, cv2.MORPH_TOPHAT, kernel), dtype=np.uint8)
+
+
 BACKGROUND_ROW_STEP = 8  # the background's subsample: every 8th row ...
 BACKGROUND_COL_STEP = 4  # ... and every 4th column (1/32 of the pixels)
 

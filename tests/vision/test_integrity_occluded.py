@@ -31,8 +31,8 @@ def _config(case: OpticsCase, **changes) -> PipelineConfig:
     )
 
 
-def _run(calib, case: OpticsCase, seed: int, retry_min_area_px: int | None = 2):
-    cfg = _config(case, retry_min_area_px=retry_min_area_px)
+def _run(calib, case: OpticsCase, seed: int, retry_min_area_px: int | None = 2, **changes):
+    cfg = _config(case, retry_min_area_px=retry_min_area_px, **changes)
     left, right = sensor_pair(case, seed)
     return score(case, seed, NavigationPipeline(calib, cfg).process(left, right), ())
 
@@ -68,7 +68,8 @@ def test_a_far_dim_led_lit_on_two_pixels_is_taken_in_the_second_pass(calib):
     """holdout 0602 (the flight drogue at 9.5 m in sunlight, LEDs 1–2 occluded): LED 3 lights
     only 2 px above eq. 10's threshold in the right image, under the gate's 3 px, and a glint
     on the occluding bar is matched instead. The second pass with 2 px blobs locks the three
-    true LEDs inside their bound; without it the frame is refused."""
+    true LEDs inside their bound; so does the local-contrast pass alone (sunlight); without
+    either the frame is refused."""
     (case,) = _cases("holdout", "holdout_0602_occluded2")
     for seed in range(2):
         o = _run(calib, case, seed)
@@ -76,7 +77,9 @@ def test_a_far_dim_led_lit_on_two_pixels_is_taken_in_the_second_pass(calib):
         assert len(o.led_errors_mm) == 3
         assert not o.wrong and not o.loose, (seed, o.worst_mm)
         assert o.within_bound, (seed, o.worst_mm, o.center_pl_mm)
-        first_only = _run(calib, case, seed, retry_min_area_px=None)
+        local_only = _run(calib, case, seed, retry_min_area_px=None)
+        assert local_only.lock and not local_only.wrong and local_only.within_bound, seed
+        first_only = _run(calib, case, seed, None, retry_local_contrast_px=None)
         assert not first_only.lock
         assert "evenly spaced slots" in (first_only.reason or "")
 
@@ -91,7 +94,10 @@ def test_the_second_pass_leaves_a_locked_frame_alone(calib, name, seed):
     assert with_retry.lock and first_only.lock
     assert with_retry.led_errors_mm == first_only.led_errors_mm
     gate = replace(PipelineConfig().gate, min_area_px=2)
-    cfg = _config(case, gate=gate, retry_min_area_px=None)
+    cfg = _config(case, gate=gate, retry_min_area_px=None, retry_local_contrast_px=None)
     left, right = sensor_pair(case, seed)
     always = NavigationPipeline(calib, cfg).process(left, right)
     assert not always.lock and "ambiguous" in (always.reason or "")
+    # the local-contrast pass then solves the ambiguous frame again, and finds the true ring
+    rescued = _run(calib, case, seed, None, gate=gate)
+    assert rescued.lock and not rescued.wrong and rescued.within_bound
