@@ -9,10 +9,10 @@ the rounds' figures.
 
 * **pushed pairs at 30 Hz** (``--source push``, the ``aar-dock push`` protocol on the push
   WebSocket): the stream tests' rendered 1280×1024 sequence, encoded once as PNG with
-  Huffman coding only (what ``aar-dock push`` sends by default), as PNG at deflate level 1
-  with adaptive filters (its default before, the baseline), as JPEG (``--format jpg``,
-  quality 95) and as uncompressed BMP (``--format bmp``); the camera computer's encoding is
-  not counted. Each
+  Huffman coding only (``--format png``, the push default until 2026-12-07), as PNG at
+  deflate level 1 with adaptive filters (the default before that, the baseline), as JPEG
+  (``--format jpg``, quality 95) and as uncompressed BMP (what ``aar-dock push`` sends by
+  default); the camera computer's encoding is not counted. Each
   pair's ``t_s`` is this process's monotonic time when it is sent: its exposure, so the
   latency is ``arrival − time_usec`` (the service's work: receive, decode, track, filter,
   publish, send).
@@ -249,12 +249,12 @@ def main() -> None:
     args = ap.parse_args()
     seq = cached_sequence(40)
     encoders: dict[str, Callable[[np.ndarray], bytes]] = {
-        "PNG deflate 1 (push's default until Dec 2026, the baseline)": lambda im: cv2.imencode(
+        "PNG deflate 1 (push's default until 6 Dec 2026, the baseline)": lambda im: cv2.imencode(
             ".png", im, [cv2.IMWRITE_PNG_COMPRESSION, 1]
         )[1].tobytes(),
-        "PNG Huffman (push's default)": push_encoder("png", 95),
+        "PNG Huffman (`--format png`)": push_encoder("png", 95),
         "JPEG 95": push_encoder("jpg", 95),
-        "BMP (uncompressed)": push_encoder("bmp", 95),
+        "BMP (uncompressed, push's default)": push_encoder("bmp", 95),
     }
     encoded = {}
     for name, encode in encoders.items():

@@ -15,6 +15,13 @@ if TYPE_CHECKING:
     import numpy as np
 
 
+# the wire encoding by default: uncompressed, as a camera link carries pixels — exposure →
+# LANDING_TARGET p99 ≈ 12 ms at 30 Hz against ≈ 17–20 ms for PNG, whose decoding alone is
+# ≈ 5 ms a pair (docs/ecosystem.md; benchmarks/bench_mavlink_latency.py); png or jpg where
+# the link's bandwidth is short
+PUSH_FORMAT = "bmp"
+
+
 def register(subparsers: Any) -> None:
     p = subparsers.add_parser(
         "push",
@@ -42,11 +49,12 @@ def register(subparsers: Any) -> None:
     p.add_argument("--as-fast-as-possible", action="store_true", help="no pacing at all")
     p.add_argument(
         "--format",
-        choices=("png", "jpg", "bmp"),
-        default="png",
-        help="image encoding (png: lossless, default, no row filter and Huffman coding only; "
-        "jpg: smaller, lossy; bmp: uncompressed, the lowest latency where the link carries "
-        "it: 79 MB/s for mono 1280x1024 pairs at 30 Hz)",
+        choices=("bmp", "png", "jpg"),
+        default=PUSH_FORMAT,
+        help="image encoding (bmp: uncompressed, the default: the lowest latency, as camera "
+        "links (GigE Vision's Mono8) carry pixels; 79 MB/s for mono 1280x1024 pairs at 30 Hz, "
+        "3x that in colour; png: lossless, no row filter and Huffman coding only, 2.5x "
+        "smaller on dark frames, +5 ms of decoding; jpg: smaller still, lossy)",
     )
     p.add_argument("--jpeg-quality", type=int, default=95)
     p.add_argument("--count", type=int, help="stop after this many pairs")

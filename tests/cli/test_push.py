@@ -59,3 +59,16 @@ def test_png_and_bmp_pushes_give_one_answer() -> None:
 def test_an_unknown_format_is_a_usage_error() -> None:
     with pytest.raises(UsageError, match="png, jpg or bmp"):
         push_encoder("webp", 95)
+
+
+def test_the_default_wire_encoding_is_uncompressed() -> None:
+    """``aar-dock push`` sends pixels as a camera link does (BMP: no decoding to speak of),
+    lossless; PNG and JPEG are there for links short of bandwidth."""
+    from app.cli.main import build_parser
+
+    args = build_parser().parse_args(["push", "--left", "L", "--right", "R", "--url", "ws://h"])
+    assert args.format == "bmp"
+    left, _ = _pair()
+    data = push_encoder(args.format, args.jpeg_quality)(left)
+    assert peek_header(data).format == "bmp"
+    assert len(data) >= left.size and np.array_equal(decode_image_bytes(data), left)
