@@ -395,19 +395,7 @@ class NavigationPipeline:
             return None
         gate = cfg.gate if floor is None else replace(cfg.gate, min_area_px=floor)
         detect: ColourDetect | None = "gray" if gray else None
-        try:
-            feats_l, thr_l, stats_l = self._features(left, gate, detect)
-            feats_r, thr_r, stats_r = self._features(right, gate, detect)
-        except TooManyBlobs:
-            return None
-        trace = self.trace
-        self.trace = PipelineTrace(
-            left=feats_l, right=feats_r, thresholds=(thr_l, thr_r), backgrounds=(stats_l, stats_r)
-        )
-        result = self._solve(feats_l, feats_r, (stats_l[0], stats_r[0]))
-        if not result.lock:
-            self.trace = trace
-        return result, feats_l, feats_r
+        return self._solve_again(left, right, gate, detect, None)
 
     def _local_contrast_pass(
         self, left: np.ndarray, right: np.ndarray, backgrounds_dn: tuple[float, float]
@@ -420,9 +408,21 @@ class NavigationPipeline:
         side = cfg.retry_local_contrast_px
         if side is None or max(backgrounds_dn) < cfg.local_contrast_min_background_dn:
             return None
+        return self._solve_again(left, right, None, None, side)
+
+    def _solve_again(
+        self,
+        left: np.ndarray,
+        right: np.ndarray,
+        gate: BlobGate | None,
+        detect: ColourDetect | None,
+        local_px: int | None,
+    ) -> tuple[PoseResult, FeatureSet, FeatureSet] | None:
+        """One more pass of a refused frame with these feature settings (:meth:`_features`);
+        the trace shows it only if it locks. None when it floods the frame."""
         try:
-            feats_l, thr_l, stats_l = self._features(left, local_px=side)
-            feats_r, thr_r, stats_r = self._features(right, local_px=side)
+            feats_l, thr_l, stats_l = self._features(left, gate, detect, local_px)
+            feats_r, thr_r, stats_r = self._features(right, gate, detect, local_px)
         except TooManyBlobs:
             return None
         trace = self.trace
